@@ -1,0 +1,203 @@
+"""Known-answer tests of the shared 2D line geometry (thesis 5.2.4-5.2.5)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tasks.lines import (
+    EXTENDED,
+    OBSERVED,
+    LinesConfig,
+    angles,
+    connect,
+    connect_detailed,
+    explained_variance,
+    fit_line,
+    is_closed,
+    lengths,
+    merge_segments,
+    point_segment_distances,
+    regularize,
+    room_polygons,
+    rotate_segments,
+    sample_segments,
+    transform_segments,
+    wall_graph,
+)
+
+CFG = LinesConfig()
+
+
+def pieces_along(a, b, n, rng, noise=0.004, margin=0.02):
+    """n short noisy Hough-like pieces covering the segment a-b, as a Hough transform returns them."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    out = []
+    for k in range(n):
+        t0, t1 = k / n + margin, (k + 1) / n - margin
+        p = a + (b - a) * t0 + rng.normal(0, noise, 2)
+        q = a + (b - a) * t1 + rng.normal(0, noise, 2)
+        out.append([*p, *q])
+    return out
+
+
+def polygon_walls(corners):
+    c = np.asarray(corners, float)
+    return np.concatenate([c, np.roll(c, -1, axis=0)], axis=1)
+
+
+def test_box_gives_four_walls(rng):
+    box = polygon_walls([(0, 0), (4, 0), (4, 3), (0, 3)])
+    hough = np.array([p for s in box for p in pieces_along(s[:2], s[2:], 6, rng)])
+    merged = merge_segments(hough, CFG)
+    assert len(merged.segments) == 4
+    assert len(merged.orientation_deg) == 2
+    reg, _ = regularize(merged.segments, CFG)
+    walls, origin = connect(reg, CFG)
+    assert len(walls) == 4 and set(origin) == {OBSERVED}
+    # every true wall has one model wall within 1 cm at both ends
+    for s in box:
+        d = point_segment_distances(np.array([s[:2], s[2:]]), walls)
+        assert d.min(axis=1).max() < 0.01
+    g = wall_graph(walls)
+    assert g.number_of_nodes() == 4 and g.number_of_edges() == 4 and is_closed(g)
+    assert room_polygons(walls)[0].area == pytest.approx(12.0, rel=0.01)
+
+
+def test_two_collinear_pieces_with_a_03_m_gap_give_one_wall():
+    pieces = np.array([[0.0, 1.0, 2.0, 1.0], [2.3, 1.0, 4.0, 1.0]])
+    merged = merge_segments(pieces, CFG)
+    assert merged.segments.shape == (1, 4)
+    assert lengths(merged.segments)[0] == pytest.approx(4.0)
+    assert list(merged.labels) == [0, 0]
+    # a gap wider than max_gap_m stays two walls
+    far = np.array([[0.0, 1.0, 2.0, 1.0], [2.6, 1.0, 4.0, 1.0]])
+    assert len(merge_segments(far, CFG).segments) == 2
+
+
+def test_885_degrees_becomes_90():
+    a = math.radians(88.5)
+    segs = np.array([[0, 0, 4, 0], [0, 0, 3 * math.cos(a), 3 * math.sin(a)]], dtype=float)
+    out, rot = regularize(segs, CFG)
+    th = np.degrees(angles(out))
+    diff = abs(th[1] - th[0])
+    assert diff == pytest.approx(90.0, abs=1e-9)
+    # eq 5.9 with lengths 4 and 3: the shorter wall turns more, the two turns add up to 1.5°
+    assert np.degrees(abs(rot[0]) + abs(rot[1])) == pytest.approx(1.5, abs=1e-9)
+    assert abs(rot[1]) > abs(rot[0])
+    # undoing the rotation gives the input back
+    np.testing.assert_allclose(rotate_segments(out, -rot), segs, atol=1e-12)
+
+
+def test_70_degree_wall_stays_70():
+    a = math.radians(70.0)
+    segs = np.array(
+        [
+            [0, 0, 5, 0],
+            [5, 0, 5, 3],
+            [0, 3, 5, 3],
+                    [0, 0, 0, 0],  # replaced below
+        ],
+        dtype=float,
+    )
+    segs[3] = [0, 0, 3 / math.tan(a), 3]  # a wall at 70° from the x axis
+    segs[1, 3] = 2.99  # 0.19° off vertical: snapped
+    out, _ = regularize(segs, CFG)
+    th = np.degrees(angles(out))
+    assert th[3] == pytest.approx(70.0, abs=1e-6)
+    assert th[0] == pytest.approx(0.0, abs=0.05) or th[0] == pytest.approx(180.0, abs=0.05)
+    assert abs(th[1] - th[0]) % 180 == pytest.approx(90.0, abs=1e-9)
+
+
+def test_over_extended_segment_without_data_is_removed():
+    # a wall along y=0, a wall along x=4, and a stub at x=3 that ends 0.3 m above the first wall
+    segs = np.array([[0, 0, 4, 0], [4, 0, 4, 3], [3, 0.3, 3, 2]], dtype=float)
+    data = segs.copy()  # the data is exactly the observed walls: nothing between y=0 and y=0.3 at x=3
+
+    def support(pieces, parent):
+        pts, owner = sample_segments(pieces, 0.01)
+        near = point_segment_distances(pts, data).min(axis=1) < 0.02
+        return np.bincount(owner, near, len(pieces)) / np.bincount(owner, minlength=len(pieces))
+
+    extended, _origin = connect(segs, CFG)
+    assert any(np.allclose(s, [3, 0, 3, 2]) or np.allclose(s, [3, 2, 3, 0]) for s in extended)
+    res = connect_detailed(segs, CFG, support)
+    stub = res.segments[res.parent == 2]
+    assert len(stub) == 1 and min(stub[0, 1], stub[0, 3]) == pytest.approx(0.3)
+    assert len(res.removed) == 1 and lengths(res.removed)[0] == pytest.approx(0.3)
+    assert set(res.origin) == {OBSERVED}
+
+
+def test_extension_trimming_and_perpendicular_join():
+    # corner gap of 0.2 m, an overshoot of 0.1 m, and a step between two parallel walls 0.25 m apart
+    segs = np.array(
+        [
+            [0.0, 0.0, 3.8, 0.0],  # bottom, 0.2 short of the right wall
+            [4.0, -0.1, 4.0, 3.0],  # right wall overshooting the bottom by 0.1
+            [4.0, 3.0, 2.0, 3.0],  # top right part
+            [1.9, 3.25, 0.0, 3.25],  # top left part, stepped 0.25 m out, 0.1 m gap along x
+            [0.0, 3.25, 0.0, 0.0],  # left
+        ]
+    )
+    walls, origin = connect(segs, CFG)
+    g = wall_graph(walls)
+    assert is_closed(g)
+    assert EXTENDED in set(origin)  # the step joining the two top parts is new
+    poly = room_polygons(walls)[0]
+    assert poly.area == pytest.approx(4 * 3 + 2 * 0.25, abs=0.03)
+
+
+def test_explained_variance_elbow_finds_three_directions(rng):
+    th = np.concatenate(
+        [rng.normal(0, 0.01, 20), rng.normal(np.pi / 2, 0.01, 20), rng.normal(1.2217, 0.01, 5)]
+    )
+    x = np.column_stack([np.cos(2 * th), np.sin(2 * th)])
+    assert explained_variance(x, np.zeros(len(th), int)) == pytest.approx(0.0, abs=0.05)
+    segs = np.column_stack([np.zeros_like(th), np.zeros_like(th), np.cos(th), np.sin(th)])
+    merged = merge_segments(segs, CFG)
+    assert sorted(np.round(merged.orientation_deg).astype(int)) == [0, 70, 90]
+    assert merged.explained_variance[-1] >= CFG.explained_variance
+    assert merged.explained_variance[1] < CFG.explained_variance
+
+
+def test_fit_line_is_length_weighted_regression():
+    segs = np.array([[0, 0, 2, 0], [2.5, 0.02, 4, 0.02]])
+    line = fit_line(segs)[0]
+    assert line[0] == pytest.approx(0, abs=1e-3) and line[2] == pytest.approx(4, abs=1e-3)
+    # the offset is the length-weighted mean of the pieces' offsets
+    assert 0.5 * (line[1] + line[3]) == pytest.approx(0.02 * 1.5 / 3.5, abs=2e-3)
+
+
+def test_pixels_and_metres_give_the_same_walls(rng):
+    box = polygon_walls([(0, 0), (4, 0), (4, 3), (0, 3)])
+    hough = np.array([p for s in box for p in pieces_along(s[:2], s[2:], 4, rng)])
+    walls_m, _ = connect(regularize(merge_segments(hough, CFG).segments, CFG)[0], CFG)
+    px = 100.0
+    cfg_px = CFG.scaled(px)
+    assert cfg_px.max_gap_m == pytest.approx(50.0)
+    walls_px, _ = connect(regularize(merge_segments(hough * px, cfg_px).segments, cfg_px)[0], cfg_px)
+    np.testing.assert_allclose(np.sort(walls_px / px, axis=0), np.sort(walls_m, axis=0), atol=1e-6)
+
+
+def test_rigid_transform_round_trip(rng):
+    segs = rng.uniform(-5, 5, (6, 4))
+    moved = transform_segments(segs, 0.3, [1.0, -2.0])
+    c, s = math.cos(-0.3), math.sin(-0.3)
+    back = transform_segments(moved - [1.0, -2.0, 1.0, -2.0], np.array([[c, -s], [s, c]]), [0, 0])
+    np.testing.assert_allclose(back, segs, atol=1e-12)
+
+
+def test_empty_and_degenerate_inputs():
+    assert merge_segments(np.zeros((0, 4)), CFG).segments.shape == (0, 4)
+    assert merge_segments(np.array([[1, 1, 1, 1.0]]), CFG).segments.shape == (0, 4)
+    out, rot = regularize(np.zeros((0, 4)), CFG)
+    assert out.shape == (0, 4) and rot.shape == (0,)
+    walls, origin = connect(np.zeros((0, 4)), CFG)
+    assert walls.shape == (0, 4) and len(origin) == 0
+    assert wall_graph(np.zeros((0, 4))).number_of_edges() == 0
+    assert room_polygons(np.zeros((0, 4))) == []
+    single = np.array([[0, 0, 1, 0.0]])
+    assert len(merge_segments(single, CFG).segments) == 1
+    assert connect(single, CFG)[0].shape == (1, 4)
