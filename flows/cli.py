@@ -1,0 +1,212 @@
+"""The `indoor-survey` command line.
+
+Every command checks its inputs before any work starts (a bad survey, config key or file gives one line
+naming it and exit code 2), prints progress on long work to stderr, and leaves what was computed before
+untouched when it fails.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+DESCRIPTION = """\
+indoor-survey: turn low-cost indoor captures (RGB-D recordings, TLS clouds) plus a coarse floor plan
+into as-built room models (after Khosravani 2016).
+
+A survey is a folder with survey.yaml (see README). Every stage is cached by content: a rerun recomputes
+only what a changed input, parameter or stage code touches. Stage caches live in WORK/cache, the
+deliverables in WORK/outputs.
+"""
+
+EPILOG = """\
+examples:
+  indoor-survey run data/mini --work work/mini
+  indoor-survey run data/mini --work work/mini --set preprocess.voxel_size_m=0.03
+  indoor-survey rerun data/mini --work work/mini --stage preprocess --room r5
+  indoor-survey status data/mini --work work/mini
+  indoor-survey model-room room.ply --out room_model
+"""
+
+
+class CliError(Exception):
+    """A one-line error for the user (exit code 2)."""
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    from tasks.artefacts import ArtefactError
+    from tasks.cloud import DegenerateInputError
+    from tasks.config import ConfigError
+    from tasks.ingest import IngestError
+
+    return (
+        CliError,
+        ConfigError,
+        ArtefactError,
+        IngestError,
+        DegenerateInputError,
+        ValueError,
+        FileNotFoundError,
+    )
+
+
+def _add_config_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--config",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="YAML overrides, applied after configs/default.yaml (repeatable)",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="STAGE.KEY=VALUE",
+        help="one override, e.g. --set preprocess.voxel_size_m=0.03 (repeatable; applied last)",
+    )
+
+
+def _add_work(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--work",
+        type=Path,
+        default=Path("work"),
+        help="work directory: cache/ and outputs/ (default: ./work)",
+    )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="indoor-survey",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress output, only the summary")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("run", help="run every stage on a survey (cached stages are not recomputed)")
+    p.add_argument("survey", type=Path, help="survey folder (with survey.yaml)")
+    _add_work(p)
+    _add_config_args(p)
+    p.add_argument("--rooms", nargs="+", default=[], metavar="ID", help="only these rooms (default: all)")
+
+    p = sub.add_parser("rerun", help="recompute one stage (and what follows it) for one room or all")
+    p.add_argument("survey", type=Path)
+    p.add_argument("--stage", required=True, help="stage to recompute, e.g. preprocess")
+    p.add_argument("--room", default=None, help="only this room (default: every room)")
+    _add_work(p)
+    _add_config_args(p)
+
+    p = sub.add_parser("status", help="per room and stage: done, stale (inputs or config changed) or missing")
+    p.add_argument("survey", type=Path)
+    _add_work(p)
+    _add_config_args(p)
+
+    p = sub.add_parser("config", help="print the resolved configuration (defaults + files + --set)")
+    _add_config_args(p)
+
+    return parser
+
+
+def _setup_logging(quiet: bool) -> None:
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", datefmt="%H:%M:%S"))
+    log = logging.getLogger("indoor_survey")
+    log.handlers[:] = [handler]
+    log.setLevel(logging.WARNING if quiet else logging.INFO)
+    log.propagate = False
+
+
+def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
+    from flows import pipeline
+    from tasks import config as cfgmod
+
+    cfg = cfgmod.load_config(args.config, args.set)
+    survey = cfgmod.load_survey(args.survey)
+    rooms = list(getattr(args, "rooms", []) or ([args.room] if getattr(args, "room", None) else []))
+    for room in rooms:
+        survey.room(room)
+    for room in survey.rooms:
+        if not room.capture.exists():
+            raise CliError(
+                f"{survey.root / 'survey.yaml'}: room {room.id}: capture {room.capture} does not exist"
+            )
+    force: list[tuple[str, str]] = []
+    if force_stage:
+        if force_stage not in pipeline.STAGES:
+            raise CliError(f"unknown stage {force_stage!r} (stages: {', '.join(pipeline.STAGES)})")
+        force = [(r, force_stage) for r in (rooms or survey.room_ids)]
+    work = args.work.resolve()
+    argv = ["indoor-survey", *sys.argv[1:]]
+    saved = pipeline.save_resolved_config(work, cfg, argv)
+    req = pipeline.RunRequest(
+        survey=str(survey.root),
+        work=str(work),
+        config_files=tuple(str(p) for p in args.config),
+        sets=tuple(args.set),
+        rooms=tuple(rooms),
+        force=tuple(force),
+    )
+    started = time.perf_counter()
+    rows = pipeline.run_survey(req)
+    elapsed = time.perf_counter() - started
+    print(f"{'room':<12} {'stage':<12} {'state':<9} {'seconds':>8}")
+    for row in rows:
+        note = f"  {row.error}" if row.error else ""
+        print(f"{row.room:<12} {row.stage:<12} {row.state:<9} {row.seconds:8.2f}{note}")
+    counts = {
+        s: sum(r.state == s for r in rows) for s in ("computed", "cached", "stored", "failed", "skipped")
+    }
+    summary = ", ".join(f"{n} {s}" for s, n in counts.items() if n)
+    print(f"{len(rows)} stage runs: {summary}; {elapsed:.1f} s; config saved to {saved}")
+    failed = [r for r in rows if r.state == "failed"]
+    for row in failed:
+        print(f"error: room {row.room}, stage {row.stage}: {row.error}", file=sys.stderr)
+    return 1 if failed else 0
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    from flows import status
+
+    cfg_rows = status.survey_status(args.survey, args.work, args.config, args.set)
+    print(f"{'room':<12} {'stage':<12} {'status':<8} detail")
+    for row in cfg_rows:
+        print(f"{row.room:<12} {row.stage:<12} {row.status:<8} {row.detail}")
+    return 0
+
+
+def cmd_config(args: argparse.Namespace) -> int:
+    from tasks import config as cfgmod
+
+    print(cfgmod.to_yaml(cfgmod.load_config(args.config, args.set)), end="")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    _setup_logging(args.quiet)
+    try:
+        if args.command == "run":
+            return cmd_run(args)
+        if args.command == "rerun":
+            return cmd_run(args, force_stage=args.stage)
+        if args.command == "status":
+            return cmd_status(args)
+        if args.command == "config":
+            return cmd_config(args)
+    except _user_errors() as exc:
+        print(f"error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    parser.error(f"unknown command {args.command}")
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,305 @@
+"""Prefect flows over the artefact store.
+
+`room_flow` runs every stage that applies to one room; `building_flow` maps the rooms concurrently (a room
+is a partition: rooms are independent until fusion). Each stage is one Prefect task whose cache key is
+the content address of its run (input content hashes + its own config section + its code version), with
+results persisted under the work dir, so Prefect's logs and UI show cache hits. The artefact store stays
+the source of truth: a key whose artefact folder is missing or fails its hashes has its Prefect record
+dropped and recomputes.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+for _name, _value in {
+    # Offline, quiet and patient: the embedded server needs more than the default 20 s to start here.
+    "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "120",
+    "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
+    "DO_NOT_TRACK": "1",
+    "PREFECT_LOGGING_LEVEL": "WARNING",
+    "PREFECT_LOGGING_TO_API_ENABLED": "false",
+    "PREFECT_RESULTS_PERSIST_BY_DEFAULT": "true",
+}.items():
+    os.environ.setdefault(_name, _value)
+
+from prefect import flow, task  # noqa: E402
+from prefect.futures import PrefectFuture, wait  # noqa: E402
+from prefect.task_runners import ThreadPoolTaskRunner  # noqa: E402
+
+from tasks import config as cfgmod  # noqa: E402
+from tasks.artefacts import ArtefactStore, StageResult, atomic_path  # noqa: E402
+from tasks.ingest import capture_kind  # noqa: E402
+from tasks.stages import STAGES, StageContext  # noqa: E402
+
+log = logging.getLogger("indoor_survey")
+
+PREFECT_RESULTS = "prefect-results"
+
+
+# ----------------------------------------------------------------------------------------- stage calls
+
+
+@dataclass(frozen=True)
+class StageCall:
+    """Everything one stage run needs, as plain data (it crosses Prefect's task boundary)."""
+
+    stage: str
+    room: str
+    work: str
+    config: dict[str, Any]
+    profile: dict[str, Any]
+    raw_inputs: dict[str, str] = field(default_factory=dict)
+    force: bool = False
+
+
+_stores: dict[str, ArtefactStore] = {}
+_stores_lock = threading.Lock()
+_outcomes: dict[tuple[str, str], tuple[str, float]] = {}
+"""(room, stage) -> ("computed" | "stored", seconds) for the runs whose task body executed."""
+
+
+def store_for(work: str | Path) -> ArtefactStore:
+    """One store per work dir per process, so the input-hash memo is shared by all tasks."""
+    key = str(Path(work).resolve())
+    with _stores_lock:
+        if key not in _stores:
+            _stores[key] = ArtefactStore(Path(key))
+        return _stores[key]
+
+
+def cache_key(call: StageCall, upstream: dict[str, StageResult]) -> str:
+    store = store_for(call.work)
+    stage = STAGES[call.stage]
+    inputs = {name: result.content_hash for name, result in upstream.items()}
+    inputs.update({name: store.input_hash(Path(path)) for name, path in call.raw_inputs.items()})
+    if call.stage == "ingest":  # the profile says how to read a capture (topics, depth convention)
+        inputs["sensor_profile"] = cfgmod.hash_profile(call.profile)
+    return store.cache_key(stage.name, stage.code_version(), call.config, inputs)
+
+
+def execute(call: StageCall, upstream: dict[str, StageResult]) -> StageResult:
+    """Load-or-compute one stage: a verified store hit returns at once; otherwise the stage runs into a
+    private folder that the store renames into place."""
+    store = store_for(call.work)
+    stage = STAGES[call.stage]
+    key = cache_key(call, upstream)
+    started = time.perf_counter()
+    if not call.force:
+        hit = store.lookup(call.room, call.stage, key)
+        if hit is not None:
+            _outcomes[(call.room, call.stage)] = ("stored", time.perf_counter() - started)
+            return hit
+    section_cls = type(getattr(cfgmod.PipelineConfig(), stage.section))
+    cfg = cfgmod.build_section(section_cls, call.config)
+
+    def progress(message: str) -> None:
+        log.info("[%s] %s: %s", call.room, call.stage, message)
+
+    ctx = StageContext(call.room, upstream, call.raw_inputs, call.profile, progress)
+    log.info("[%s] %s: computing", call.room, call.stage)
+    manifest = {
+        "inputs": {name: r.content_hash for name, r in upstream.items()},
+        "raw_inputs": {
+            name: {"path": p, "sha256": store.input_hash(Path(p))} for name, p in call.raw_inputs.items()
+        },
+        "config": call.config,
+        "code_version": stage.code_version(),
+    }
+
+    def write(out: Path) -> dict[str, Any]:
+        t0 = time.perf_counter()
+        metrics = stage.run(ctx, cfg, out)
+        return {
+            "metrics": metrics.get("metrics", metrics),
+            "compute_seconds": round(time.perf_counter() - t0, 3),
+        }
+
+    result = store.commit(call.room, call.stage, key, write, manifest)
+    seconds = time.perf_counter() - started
+    _outcomes[(call.room, call.stage)] = ("computed", seconds)
+    log.info("[%s] %s: done in %.1f s", call.room, call.stage, seconds)
+    return result
+
+
+def _prefect_cache_key(context: Any, parameters: dict[str, Any]) -> str | None:
+    """Prefect's cache key is the content key; a record whose artefact is gone is dropped first."""
+    call: StageCall = parameters["call"]
+    if call.force:
+        return None
+    upstream: dict[str, StageResult] = parameters.get("upstream") or {}
+    key = cache_key(call, upstream)
+    store = store_for(call.work)
+    # The record holds a StageResult naming the room's folder, so rooms with identical inputs must
+    # not share one: the room and stage prefix the content key.
+    prefect_key = f"{call.room}-{call.stage}-{key}"
+    if store.lookup(call.room, call.stage, key) is None:
+        record = store.work / PREFECT_RESULTS / prefect_key
+        if record.exists():
+            record.unlink()
+    return prefect_key
+
+
+@task(cache_key_fn=_prefect_cache_key, persist_result=True, task_run_name="{call.stage}[{call.room}]")
+def stage_task(call: StageCall, upstream: dict[str, StageResult]) -> StageResult:
+    """One stage for one room (or for the building)."""
+    return execute(call, upstream)
+
+
+# -------------------------------------------------------------------------------------------- routing
+
+
+def room_stages(capture: Path) -> list[str]:
+    """The stages that apply to a room, given what its capture is."""
+    stages = ["ingest"]
+    if capture_kind(capture) == "cloud":
+        stages += ["preprocess"]
+    else:
+        stages += [s for s in ("register", "preprocess") if s in STAGES]
+        if "register" not in STAGES:  # frames but no registration yet: nothing beyond ingest
+            stages = ["ingest"]
+    stages += [s for s in ("walls",) if s in STAGES and "preprocess" in stages]
+    return stages
+
+
+UPSTREAM = {"preprocess": ("register", "ingest"), "register": ("ingest",), "walls": ("preprocess",)}
+
+
+@dataclass(frozen=True)
+class RunRequest:
+    """What to run: resolved before Prefect starts, so bad input fails fast with one line."""
+
+    survey: str
+    work: str
+    config_files: tuple[str, ...] = ()
+    sets: tuple[str, ...] = ()
+    rooms: tuple[str, ...] = ()
+    force: tuple[tuple[str, str], ...] = ()
+    """(room, stage) pairs to recompute whatever the cache says."""
+
+
+def make_call(
+    work: str | Path,
+    cfg: cfgmod.PipelineConfig,
+    profile: dict[str, Any],
+    room: cfgmod.RoomSpec,
+    stage_name: str,
+    force: bool = False,
+) -> StageCall:
+    """The call for one room stage: its config section, and the raw survey files it reads."""
+    return StageCall(
+        stage=stage_name,
+        room=room.id,
+        work=str(Path(work).resolve()),
+        config=cfgmod.section(cfg, STAGES[stage_name].section),
+        profile=profile,
+        raw_inputs={"capture": str(room.capture)} if stage_name == "ingest" else {},
+        force=force,
+    )
+
+
+def _submit_room(
+    req: RunRequest, cfg: cfgmod.PipelineConfig, survey: cfgmod.Survey, profile: dict[str, Any], room_id: str
+) -> dict[str, PrefectFuture]:
+    room = survey.room(room_id)
+    results = Path(req.work).resolve() / PREFECT_RESULTS
+    futures: dict[str, PrefectFuture] = {}
+    forced_upstream = False
+    for stage_name in room_stages(room.capture):
+        force = (room_id, stage_name) in req.force or forced_upstream
+        forced_upstream = forced_upstream or force
+        call = make_call(req.work, cfg, profile, room, stage_name, force)
+        upstream = {name: futures[name] for name in UPSTREAM.get(stage_name, ()) if name in futures}
+        futures[stage_name] = stage_task.with_options(
+            result_storage=results, refresh_cache=force or None
+        ).submit(call, upstream)
+    return futures
+
+
+def _run(req: RunRequest) -> list[StageOutcome]:
+    cfg = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets))
+    survey = cfgmod.load_survey(Path(req.survey))
+    profile = cfgmod.load_sensor_profile(survey.sensor)
+    futures: dict[tuple[str, str], PrefectFuture] = {}
+    for room_id in req.rooms or survey.room_ids:
+        for stage_name, future in _submit_room(req, cfg, survey, profile, room_id).items():
+            futures[(room_id, stage_name)] = future
+    wait(list(futures.values()))
+    store_for(req.work).save_memo()
+    return outcomes(futures)
+
+
+@flow(name="room", log_prints=False, validate_parameters=False, persist_result=False)
+def room_flow(req: RunRequest) -> list[StageOutcome]:
+    """Every stage that applies to the one room in `req.rooms`."""
+    return _run(req)
+
+
+@flow(
+    name="building",
+    log_prints=False,
+    validate_parameters=False,
+    persist_result=False,
+    task_runner=ThreadPoolTaskRunner(max_workers=2),
+)
+def building_flow(req: RunRequest) -> list[StageOutcome]:
+    """All rooms of a survey (or those in `req.rooms`), concurrently."""
+    return _run(req)
+
+
+# ---------------------------------------------------------------------------------------------- outcome
+
+
+@dataclass(frozen=True)
+class StageOutcome:
+    room: str
+    stage: str
+    state: str
+    """"computed", "cached" (Prefect cache hit), "stored" (store hit, Prefect record new), "failed", "skipped"."""
+    seconds: float
+    error: str = ""
+    result: StageResult | None = None
+
+
+def outcomes(futures: dict[tuple[str, str], PrefectFuture]) -> list[StageOutcome]:
+    """What happened to every stage of a run, for the summary and the exit code."""
+    rows = []
+    for (room, stage), future in futures.items():
+        state = future.state
+        if state.is_completed():
+            result = state.result()
+            kind, seconds = _outcomes.get((room, stage), ("cached", 0.0))
+            rows.append(
+                StageOutcome(room, stage, kind if state.name != "Cached" else "cached", seconds, "", result)
+            )
+        else:
+            exc = state.result(raise_on_failure=False)
+            message = (
+                " ".join(str(exc).split()) if isinstance(exc, BaseException) else state.message or state.name
+            )
+            upstream_failed = "upstream" in (state.message or "").lower() or state.name == "NotReady"
+            rows.append(StageOutcome(room, stage, "skipped" if upstream_failed else "failed", 0.0, message))
+    return rows
+
+
+def run_survey(req: RunRequest) -> list[StageOutcome]:
+    """Run the building flow (or the room flow for one room) and report every stage's outcome."""
+    runner = room_flow if len(req.rooms) == 1 else building_flow
+    store_for(req.work).sweep_temporaries()
+    return runner(req)
+
+
+def save_resolved_config(work: Path, cfg: cfgmod.PipelineConfig, argv: Iterable[str]) -> Path:
+    """The resolved config of this run, beside the run's log, for the record."""
+    stamp = time.strftime("%Y%m%dT%H%M%S")
+    path = Path(work) / "runs" / stamp / "config.yaml"
+    with atomic_path(path) as tmp:
+        tmp.write_text(f"# indoor-survey {' '.join(argv)}\n" + cfgmod.to_yaml(cfg))
+    return path

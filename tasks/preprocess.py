@@ -1,0 +1,652 @@
+"""Preprocess stage (thesis 5.1): a registered room cloud -> a clean, smoothed, levelled cloud, the room's
+floor, ceiling and height, and the furniture slice the wall stage projects.
+
+Steps, in this order:
+
+1. **Voxel grid** (5.1.2): every voxel's points are replaced by their centroid, colours averaged. The grid
+   is anchored at the origin (voxel i covers [i·v, (i+1)·v)), so it does not move with the cloud's extent.
+2. **Statistical outlier removal** (5.1.1, eq 5.1): the mean distance of each point to its K = 20 nearest
+   neighbours; points above the global mean + 1·std of those means are removed (one-tailed 1σ test).
+3. **Moving-least-squares smoothing** (5.1.3, eq 5.2): a Gaussian-weighted plane (or quadratic) fit within
+   `mls_radius_m` around every point, the point projected onto it. The fit's normal and surface variation
+   are kept for levelling.
+4. **Levelling by normals** (5.1.4): normals split at 45° into horizontal and vertical surfaces; the up
+   direction that best fits both groups gives the tilt; rotate, reclassify, repeat until the step is below
+   `level_tol_deg`. The rotation turns about the cleaned cloud's centroid, so x-y and heights stay close
+   to the input's; the floor is not moved to z = 0.
+5. **Height histogram** (5.1.5): bins of the voxel size, so counts measure horizontal area; the lowest and
+   highest significant peaks are floor and ceiling, refined below the bin size.
+6. **Furniture slice** (5.1.5): points between `slice_min_m` and `slice_max_m` above the floor, kept
+   `slice_ceiling_margin_m` below the ceiling (lamps, and rooms lower than 2.5 m).
+
+Choices, with what was measured (synthetic tilted box room of bench/preprocess.py, 2 cores shared with
+other work, so timings are indicative):
+
+- **Order: downsample first.** The thesis filters outliers before the voxel grid. Filtering the raw cloud
+  costs a K-NN query per raw point; after the voxel grid it is a query per voxel, and since the voxel grid
+  makes the density uniform, the mean-distance statistic compares like with like (raw captures are far
+  denser near the sensor). An outlier merged into a surface voxel moves that voxel's centroid by less than
+  one voxel divided by the voxel's point count. Measured on a 1 M point room with 2 % outliers
+  (`python -m bench.preprocess --order-study`): raw-first 12.1 s for the two steps vs 1.1 s voxel-first; far
+  outliers left after the whole stage 0 vs 0; height 2.7007 vs 2.7005 m.
+- **Voxel size 0.02 m.** The thesis uses 3-5 cm for Kinect clouds (noise) and 1 cm where accuracy matters
+  (TLS, 7 mm model error). Kinect v1 range noise is 7 mm at 1.8 m and 15 mm at 2.6 m, so a voxel below
+  ~2 cm mostly keeps noise; the wall stage grids at this size, whose quantization error (at most half a
+  cell, 5.8 mm RMS at 2 cm) fits the 15 mm wall-accuracy budget, while 3-5 cm would not. A TLS profile
+  should set 0.01.
+- **MLS on a support grid.** open3d has no MLS. Fitting each point against all its neighbours within
+  10 cm at a 2 cm voxel means ~100-200 neighbours per point. Instead, the local fits use the cloud
+  aggregated into cells of a third of the radius, each cell a support point at its centroid weighted by its
+  point count (the Gaussian weight varies little across a cell). That bounds the neighbours at ~30 on a
+  plane whatever the voxel size, and makes the cost linear in the point count. On a noisy plane the result
+  matches the full fit to well under a millimetre (tests/test_preprocess.py).
+- **Levelling uses horizontal and vertical normals** ("both"): the up vector u maximises
+  Σ_horizontal (n·u)² + Σ_vertical (1 − (n·u)²), the sign-free form of averaging the sign-aligned
+  horizontal normals, plus the wall condition that u is orthogonal to wall normals. With floor and ceiling
+  both captured the two agree; with little floor and no ceiling the walls keep the error small (measured in
+  `--level-study`). Points on edges and clutter (surface variation above `level_max_curvature`) are left
+  out. A levelling that is ill-determined (one wall and nothing horizontal) is an error.
+- **Missing floor or ceiling.** A peak counts as the floor (ceiling) only if it lies within
+  `surface_search_m` of the lowest (highest) 0.5 % of points: otherwise it is a table or a lamp and the
+  surface was not captured. One missing surface: its height is taken from that 0.5 % quantile of the
+  walls, with a warning in `metrics["warnings"]`. Both missing: an error.
+
+Degenerate inputs raise `DegenerateInputError` with one line: an empty cloud, NaNs, fewer than K + 1
+points, a single plane (vertical: levelling ill-determined; horizontal: no height span), or a room too low
+for the slice.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal, NamedTuple
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import find_peaks
+from scipy.spatial import cKDTree
+
+from tasks.cloud import Cloud, DegenerateInputError, require_finite
+
+# Support cells per MLS radius: with cells of r/3 a plane has ~28 support points within r.
+_MLS_CELLS_PER_RADIUS = 3
+# At most this many support points per fit (a corner of three planes has ~60 within r).
+_MLS_MAX_SUPPORT = 64
+# Neighbour entries per chunk of the MLS and outlier queries: bounds memory (~25 MB per (M, K, 3) array).
+_CHUNK_ENTRIES = 1_000_000
+# Quantile of heights taken as the data's bottom and top (robust to the few points left below or above).
+_EDGE_QUANTILE = 0.005
+
+
+@dataclass(frozen=True)
+class PreprocessConfig:
+    """Preprocess parameters (thesis 5.1, table 6.3)."""
+
+    outlier_neighbours: int = 20
+    """K: neighbours whose mean distance each point is tested on (thesis: 20)."""
+    outlier_std_ratio: float = 1.0
+    """Points whose mean K-NN distance exceeds the global mean + this × std are removed (1σ one-tailed, eq 5.1)."""
+    voxel_size_m: float = 0.02
+    """Voxel grid edge in metres; also the height histogram's bin (thesis: 3-5 cm Kinect, 1 cm TLS)."""
+    mls_radius_m: float = 0.10
+    """Moving-least-squares search radius in metres; also the Gaussian weight's scale (thesis: 10-15 cm Kinect)."""
+    mls_degree: Literal[1, 2] = 1
+    """Local fit polynomial: 1 plane (the thesis' choice for Kinect), 2 quadratic."""
+    level_normals: Literal["horizontal", "vertical", "both"] = "both"
+    """Normals the tilt is estimated from: horizontal surfaces (the thesis), walls, or both."""
+    level_split_deg: float = 45.0
+    """Normals within this angle of the vertical axis are horizontal surfaces, the rest vertical (degrees)."""
+    level_max_curvature: float = 0.05
+    """Surface variation λ0/(λ0+λ1+λ2) above which a point (edge, clutter) is left out of levelling (unitless)."""
+    level_max_iterations: int = 10
+    """Levelling iterations at most (rotate, reclassify, re-estimate)."""
+    level_tol_deg: float = 0.005
+    """Levelling stops once an iteration's tilt correction is below this (degrees)."""
+    peak_min_area_m2: float = 0.25
+    """A height-histogram peak is a floor/ceiling candidate if it rises this much horizontal area (m²) above its surroundings."""
+    surface_search_m: float = 0.20
+    """Floor (ceiling) peak must lie within this of the lowest (highest) 0.5 % of points, else it is taken as not captured (m)."""
+    slice_min_m: float = 1.5
+    """Furniture slice lower edge above the floor (m)."""
+    slice_max_m: float = 2.5
+    """Furniture slice upper edge above the floor (m)."""
+    slice_ceiling_margin_m: float = 0.15
+    """The slice stops at least this far below the ceiling (lamps; rooms lower than slice_max_m) (m)."""
+
+    def __post_init__(self) -> None:
+        checks = [
+            (self.outlier_neighbours >= 1, "outlier_neighbours must be at least 1"),
+            (self.outlier_std_ratio > 0, "outlier_std_ratio must be positive"),
+            (self.voxel_size_m > 0, "voxel_size_m must be positive"),
+            (self.mls_radius_m > self.voxel_size_m, "mls_radius_m must exceed voxel_size_m"),
+            (self.mls_degree in (1, 2), "mls_degree must be 1 or 2"),
+            (0 < self.level_split_deg < 90, "level_split_deg must be between 0 and 90"),
+            (self.level_max_iterations >= 1, "level_max_iterations must be at least 1"),
+            (self.level_tol_deg > 0, "level_tol_deg must be positive"),
+            (0 < self.level_max_curvature <= 1 / 3, "level_max_curvature must be in (0, 1/3]"),
+            (self.peak_min_area_m2 > 0, "peak_min_area_m2 must be positive"),
+            (self.surface_search_m > 0, "surface_search_m must be positive"),
+            (0 <= self.slice_min_m < self.slice_max_m, "slice_min_m must be >= 0 and below slice_max_m"),
+            (self.slice_ceiling_margin_m >= 0, "slice_ceiling_margin_m must be >= 0"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(f"preprocess: {message}")
+
+
+class HeightHistogram(NamedTuple):
+    """Point heights in the levelled frame; unpacks as `edges, counts`."""
+
+    edges_m: NDArray[np.float64]
+    """(B + 1,) bin edges, metres, ascending."""
+    counts: NDArray[np.int64]
+    """(B,) points per bin."""
+
+
+@dataclass(frozen=True)
+class Preprocessed:
+    """The preprocess stage's result; every height is in the levelled frame."""
+
+    cloud: Cloud
+    """Filtered, smoothed cloud in the levelled frame (z up)."""
+    slice: Cloud
+    """The furniture slice of `cloud`."""
+    levelling: NDArray[np.float64]
+    """(4, 4) rigid transform input frame -> levelled frame (a rotation about the cleaned cloud's centroid)."""
+    floor_z_m: float
+    """Floor height."""
+    ceiling_z_m: float
+    """Ceiling height."""
+    height_m: float
+    """Room height, ceiling - floor."""
+    histogram: HeightHistogram
+    """Height histogram of `cloud`, bins of the voxel size."""
+    histogram_png: NDArray[np.uint8]
+    """(H, W, 3) RGB picture of the histogram with floor, ceiling and slice marked."""
+    metrics: dict[str, Any] = field(default_factory=dict)
+    """Points per step, outliers, tilt per iteration, heights, warnings, timings (JSON-ready)."""
+
+
+# ------------------------------------------------------------------------------------------------- stage
+
+
+def preprocess(cloud: Cloud, cfg: PreprocessConfig | None = None) -> Preprocessed:
+    """The whole stage (thesis 5.1) on a registered room cloud in metres; see the module docstring."""
+    cfg = cfg or PreprocessConfig()
+    timings: dict[str, float] = {}
+    warnings: list[str] = []
+    clock = time.perf_counter()
+    start = clock
+
+    def lap(name: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        timings[name] = round(now - clock, 4)
+        clock = now
+
+    min_points = cfg.outlier_neighbours + 1
+    require_finite(cloud, min_points=min_points)
+    lap("check")
+
+    voxels = voxel_grid(cloud, cfg.voxel_size_m)
+    if len(voxels) < min_points:
+        raise DegenerateInputError(
+            f"only {len(voxels)} voxels of {cfg.voxel_size_m} m are occupied, at least {min_points} needed"
+        )
+    lap("voxel")
+
+    keep, outlier_stats = statistical_outliers(voxels.points, cfg.outlier_neighbours, cfg.outlier_std_ratio)
+    clean = voxels.subset(keep)
+    lap("outliers")
+
+    surfaces = mls_smooth(clean.points, cfg.mls_radius_m, cfg.mls_degree)
+    smoothed = Cloud(surfaces.points, clean.colors)
+    lap("mls")
+
+    rotation, level_stats = level_by_normals(surfaces.normals, surfaces.curvature, cfg)
+    pivot = smoothed.points.mean(axis=0)
+    levelling = np.eye(4)
+    levelling[:3, :3] = rotation
+    levelling[:3, 3] = pivot - rotation @ pivot
+    levelled = smoothed.transformed(levelling)
+    lap("level")
+
+    z = levelled.points[:, 2]
+    histogram, z_sums = height_histogram(z, cfg.voxel_size_m)
+    floor_z, ceiling_z, peak_stats = floor_and_ceiling(z, histogram, z_sums, cfg, warnings)
+    lap("histogram")
+
+    height = ceiling_z - floor_z
+    slice_low = floor_z + cfg.slice_min_m
+    slice_high = min(floor_z + cfg.slice_max_m, ceiling_z - cfg.slice_ceiling_margin_m)
+    if slice_high <= slice_low:
+        raise DegenerateInputError(
+            f"room height {height:.2f} m leaves no furniture slice between {cfg.slice_min_m} m above the floor "
+            f"and {cfg.slice_ceiling_margin_m} m below the ceiling"
+        )
+    in_slice = (z >= slice_low) & (z <= slice_high)
+    if not in_slice.any():
+        raise DegenerateInputError(
+            f"furniture slice {slice_low:.2f}-{slice_high:.2f} m (levelled frame) holds no points"
+        )
+    furniture_slice = levelled.subset(in_slice)
+    lap("slice")
+
+    picture = render_histogram(histogram, floor_z, ceiling_z, slice_low, slice_high)
+    lap("render")
+    timings["total"] = round(time.perf_counter() - start, 4)
+
+    metrics: dict[str, Any] = {
+        "points_in": len(cloud),
+        "points_after_voxel": len(voxels),
+        "points_after_outliers": len(clean),
+        "outliers_removed": len(voxels) - len(clean),
+        **outlier_stats,
+        **surfaces.stats,
+        **level_stats,
+        "levelling_pivot_m": [float(v) for v in pivot],
+        **peak_stats,
+        "floor_z_m": floor_z,
+        "ceiling_z_m": ceiling_z,
+        "height_m": height,
+        "slice_low_z_m": slice_low,
+        "slice_high_z_m": slice_high,
+        "slice_points": int(in_slice.sum()),
+        "points_out": len(levelled),
+        "warnings": warnings,
+        "timings_s": timings,
+        "points_per_second": len(cloud) / max(timings["total"], 1e-9),
+    }
+    return Preprocessed(
+        cloud=levelled,
+        slice=furniture_slice,
+        levelling=levelling,
+        floor_z_m=floor_z,
+        ceiling_z_m=ceiling_z,
+        height_m=height,
+        histogram=histogram,
+        histogram_png=picture,
+        metrics=metrics,
+    )
+
+
+# -------------------------------------------------------------------------------------------- voxel grid
+
+
+def _cell_centroids(
+    points: NDArray[np.float64], cell_m: float, colors: NDArray[np.uint8] | None = None
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.uint8] | None]:
+    """Centroid (K, 3), point count (K,) and mean colour (K, 3) of every occupied cell of an
+    origin-anchored grid of edge `cell_m`; cells in lexicographic (x, y, z) index order."""
+    ijk = np.floor(points / cell_m).astype(np.int64)
+    ijk -= ijk.min(axis=0)
+    dims = ijk.max(axis=0) + 1
+    if float(dims[0]) * float(dims[1]) * float(dims[2]) >= 2.0**62:
+        extent = (dims * cell_m).max()
+        raise DegenerateInputError(f"cloud extent {extent:.3g} m is too large for a {cell_m} m grid")
+    key = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+
+    def mean_of(values: NDArray[Any]) -> NDArray[np.float64]:
+        sums = [np.bincount(inverse, weights=values[:, i], minlength=len(counts)) for i in range(3)]
+        return np.stack(sums, axis=1) / counts[:, None]
+
+    centroids = mean_of(points)
+    mean_colors = None if colors is None else np.rint(mean_of(colors)).astype(np.uint8)
+    return centroids, counts, mean_colors
+
+
+def voxel_grid(cloud: Cloud, voxel_size_m: float) -> Cloud:
+    """The cloud with each occupied voxel's points replaced by their centroid, colours averaged (thesis 5.1.2)."""
+    centroids, _, colors = _cell_centroids(cloud.points, voxel_size_m, cloud.colors)
+    return Cloud(centroids, colors)
+
+
+# ----------------------------------------------------------------------------------- outlier removal
+
+
+def statistical_outliers(
+    points: NDArray[np.float64], neighbours: int = 20, std_ratio: float = 1.0
+) -> tuple[NDArray[np.bool_], dict[str, float]]:
+    """Keep-mask of the statistical outlier filter (thesis 5.1.1, eq 5.1, as PCL): each point's mean
+    distance to its `neighbours` nearest other points; points above mean + std_ratio · std (over all points)
+    are outliers. Also returns the statistic's mean, std and threshold in metres."""
+    if len(points) <= neighbours:
+        raise DegenerateInputError(f"{len(points)} points are too few for a {neighbours}-neighbour outlier test")
+    tree = cKDTree(points)
+    mean_dist = np.empty(len(points))
+    chunk = max(1, _CHUNK_ENTRIES // (neighbours + 1))
+    for lo in range(0, len(points), chunk):
+        dist, _ = tree.query(points[lo : lo + chunk], k=neighbours + 1, workers=-1)
+        mean_dist[lo : lo + chunk] = dist[:, 1:].mean(axis=1)  # column 0 is the point itself
+    # μ and σ of the Gaussian the test assumes, estimated with 3σ clipping: a few points metres away
+    # would otherwise inflate σ so much that the 1σ threshold keeps the outliers near the surfaces
+    inlier = np.ones(len(mean_dist), bool)
+    for _ in range(20):
+        mu = float(mean_dist[inlier].mean())
+        sigma = float(mean_dist[inlier].std(ddof=1))
+        clipped = mean_dist <= mu + 3 * sigma
+        if np.array_equal(clipped, inlier):
+            break
+        inlier = clipped
+    threshold = mu + std_ratio * sigma
+    stats = {
+        "outlier_knn_mean_m": mu,
+        "outlier_knn_std_m": sigma,
+        "outlier_threshold_m": threshold,
+        "outlier_knn_mean_unclipped_m": float(mean_dist.mean()),
+        "outlier_knn_std_unclipped_m": float(mean_dist.std(ddof=1)),
+    }
+    return mean_dist <= threshold, stats
+
+
+# ------------------------------------------------------------------------------------ MLS smoothing
+
+
+@dataclass(frozen=True)
+class LocalSurfaces:
+    """Result of MLS smoothing: the projected points and each point's local fit."""
+
+    points: NDArray[np.float64]
+    """(N, 3) points projected onto their local surface (unmoved where no fit was possible)."""
+    normals: NDArray[np.float64]
+    """(N, 3) unit normals of the local plane fits, arbitrary sign; NaN where no fit was possible."""
+    curvature: NDArray[np.float64]
+    """(N,) surface variation λ0/(λ0+λ1+λ2) of the weighted neighbourhood (0 plane, 1/3 isotropic); NaN where unfit."""
+    stats: dict[str, float]
+    """Shift statistics and fit counts."""
+
+
+def mls_smooth(points: NDArray[np.float64], radius_m: float, degree: int = 1) -> LocalSurfaces:
+    """Moving-least-squares projection (thesis 5.1.3, eq 5.2, as PCL's MLS with Gaussian weights
+    exp(-d²/r²) within r): for each point a weighted plane (degree 1) or quadratic height field over that
+    plane (degree 2) is fitted to the support points within `radius_m`, and the point is moved onto it.
+    Support points are the centroids of cells of r/3 weighted by their point counts; see the module doc.
+    Vectorized over chunks of points (bounded memory)."""
+    n = len(points)
+    origin = points.mean(axis=0)  # local coordinates keep the moment sums well conditioned
+    local = points - origin
+    support, counts, _ = _cell_centroids(local, radius_m / _MLS_CELLS_PER_RADIUS)
+    tree = cKDTree(support)
+    k = min(_MLS_MAX_SUPPORT, len(support))
+    min_support = 3 if degree == 1 else 6
+    moved = points.copy()
+    normals = np.full((n, 3), np.nan)
+    curvature = np.full(n, np.nan)
+    capped = 0
+    unfit = 0
+    inv_r2 = 1.0 / radius_m**2
+    chunk = max(1, _CHUNK_ENTRIES // k)
+    for lo in range(0, n, chunk):
+        hi = min(lo + chunk, n)
+        p = local[lo:hi]
+        dist, idx = tree.query(p, k=k, distance_upper_bound=radius_m, workers=-1)
+        dist = dist.reshape(len(p), k)
+        idx = idx.reshape(len(p), k)
+        valid = idx < len(support)
+        nvalid = valid.sum(axis=1)
+        capped += int((nvalid == k).sum()) if k == _MLS_MAX_SUPPORT else 0
+        idx = np.where(valid, idx, 0)
+        weight = np.where(valid, counts[idx] * np.exp(-np.where(valid, dist, 0.0) ** 2 * inv_r2), 0.0)
+        rel = support[idx] - p[:, None, :]  # (M, K, 3) support relative to the point
+        wsum = weight.sum(axis=1)
+        ok = (nvalid >= min_support) & (wsum > 0)
+        wsum = np.where(ok, wsum, 1.0)
+        mean = np.einsum("mk,mkj->mj", weight, rel) / wsum[:, None]
+        centred = rel - mean[:, None, :]
+        cov = np.matmul((centred * weight[:, :, None]).transpose(0, 2, 1), centred) / wsum[:, None, None]
+        evals, evecs = np.linalg.eigh(cov)
+        normal = evecs[:, :, 0]
+        # the point is the local origin: its foot on the plane through `mean` with normal `normal`
+        foot = np.einsum("mj,mj->m", mean, normal)[:, None] * normal
+        shift = foot
+        if degree == 2:
+            shift = foot + _quadratic_offset(rel - foot[:, None, :], weight, evecs, radius_m, ok)[:, None] * normal
+        total = evals.sum(axis=1)
+        ok &= total > 0
+        unfit += int((~ok).sum())
+        moved[lo:hi][ok] += shift[ok]
+        normals[lo:hi][ok] = normal[ok]
+        curvature[lo:hi][ok] = evals[ok, 0] / total[ok]
+    step = np.linalg.norm(moved - points, axis=1)
+    stats = {
+        "mls_mean_shift_m": float(step.mean()),
+        "mls_rms_shift_m": float(np.sqrt(np.mean(step**2))),
+        "mls_max_shift_m": float(step.max()),
+        "mls_support_points": len(support),
+        "mls_capped_fraction": capped / n,
+        "mls_unfit_points": unfit,
+    }
+    return LocalSurfaces(moved, normals, curvature, stats)
+
+
+def _quadratic_offset(
+    rel: NDArray[np.float64],
+    weight: NDArray[np.float64],
+    frames: NDArray[np.float64],
+    scale: float,
+    ok: NDArray[np.bool_],
+) -> NDArray[np.float64]:
+    """Height at the foot point (u = v = 0) of the weighted quadratic w = c0 + c1 u + c2 v + c3 u² + c4 uv + c5 v²
+    fitted to support points `rel` (M, K, 3), given relative to the foot, in each plane frame `frames`
+    (M, 3, 3: columns normal, minor, major); 0 where the fit is not `ok`."""
+    u = np.einsum("mkj,mj->mk", rel, frames[:, :, 2]) / scale
+    v = np.einsum("mkj,mj->mk", rel, frames[:, :, 1]) / scale
+    w = np.einsum("mkj,mj->mk", rel, frames[:, :, 0])
+    design = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=2)  # (M, K, 6)
+    weighted = design * weight[:, :, None]
+    normal_matrix = np.matmul(weighted.transpose(0, 2, 1), design)
+    rhs = np.einsum("mki,mk->mi", weighted, w)
+    ridge = 1e-9 * np.trace(normal_matrix, axis1=1, axis2=2) + 1e-300
+    normal_matrix += ridge[:, None, None] * np.eye(6)
+    coef = np.linalg.solve(normal_matrix, rhs[:, :, None])[:, :, 0]
+    return np.where(ok, coef[:, 0], 0.0)
+
+
+# ---------------------------------------------------------------------------------------------- levelling
+
+
+def rotation_between(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The smallest rotation (3, 3) taking unit vector a onto unit vector b (Rodrigues)."""
+    axis = np.cross(a, b)
+    s = np.linalg.norm(axis)
+    c = float(np.dot(a, b))
+    if s < 1e-15:
+        if c > 0:
+            return np.eye(3)
+        raise ValueError("rotation_between: opposite vectors have no unique smallest rotation")
+    k = axis / s
+    skew = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + s * skew + (1 - c) * skew @ skew
+
+
+def level_by_normals(
+    normals: NDArray[np.float64], curvature: NDArray[np.float64], cfg: PreprocessConfig
+) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    """Rotation (3, 3) that levels the cloud (thesis 5.1.4), and its statistics.
+
+    Each iteration classifies the (rotated) normals into horizontal surfaces (within `level_split_deg`
+    of the vertical) and vertical surfaces, takes as up the unit u maximising
+    Σ_h (n·u)² + Σ_v (1 − (n·u)²) (the top eigenvector; terms per `level_normals`), and rotates u onto z.
+    Normals of points with surface variation above `level_max_curvature` are not used."""
+    usable = np.isfinite(curvature) & (curvature <= cfg.level_max_curvature)
+    n = normals[usable]
+    if len(n) < 3:
+        raise DegenerateInputError(
+            f"levelling: only {len(n)} points lie on smooth surfaces (surface variation <= {cfg.level_max_curvature})"
+        )
+    cos_split = math.cos(math.radians(cfg.level_split_deg))
+    rotation = np.eye(3)
+    tilts: list[float] = []
+    z = np.array([0.0, 0.0, 1.0])
+    n_horizontal = n_vertical = 0
+    for _ in range(cfg.level_max_iterations):
+        current = n @ rotation.T
+        horizontal = np.abs(current[:, 2]) >= cos_split
+        n_horizontal = int(horizontal.sum())
+        n_vertical = len(current) - n_horizontal
+        scatter = np.zeros((3, 3))
+        if cfg.level_normals in ("horizontal", "both"):
+            h = current[horizontal]
+            scatter += h.T @ h
+        if cfg.level_normals in ("vertical", "both"):
+            v = current[~horizontal]
+            scatter += len(v) * np.eye(3) - v.T @ v
+        evals, evecs = np.linalg.eigh(scatter)
+        # the up direction must stand out: a single wall (or nothing usable) leaves two equal eigenvalues
+        if evals[2] <= 0 or (evals[2] - evals[1]) / evals[2] < 0.05:
+            raise DegenerateInputError(
+                f"levelling is ill-determined: {n_horizontal} horizontal and {n_vertical} vertical surface "
+                f"normals do not fix the up direction (a single wall?)"
+            )
+        up = evecs[:, 2] * np.sign(evecs[2, 2])
+        tilt = math.degrees(math.acos(min(1.0, float(up @ z))))
+        tilts.append(tilt)
+        rotation = rotation_between(up, z) @ rotation
+        if tilt < cfg.level_tol_deg:
+            break
+    total = math.degrees(math.acos(min(1.0, float(rotation[2, 2]))))
+    final = n @ rotation.T
+    horizontal = np.abs(final[:, 2]) >= cos_split
+    spread = np.degrees(np.arccos(np.clip(np.abs(final[horizontal, 2]), 0, 1))) if horizontal.any() else []
+    stats = {
+        "level_tilt_per_iteration_deg": [round(t, 6) for t in tilts],
+        "level_tilt_deg": total,
+        "level_residual_deg": tilts[-1],
+        "level_iterations": len(tilts),
+        "level_converged": tilts[-1] < cfg.level_tol_deg,
+        "level_horizontal_normals": n_horizontal,
+        "level_vertical_normals": n_vertical,
+        "level_unused_normals": int((~usable).sum()),
+        "level_horizontal_median_deg": float(np.median(spread)) if len(spread) else None,
+    }
+    if total > cfg.level_split_deg:
+        raise DegenerateInputError(
+            f"levelling found a tilt of {total:.1f}°, beyond the {cfg.level_split_deg}° the method assumes"
+        )
+    return rotation, stats
+
+
+# ------------------------------------------------------------------------------------------ heights
+
+
+def height_histogram(z: NDArray[np.float64], bin_m: float) -> tuple[HeightHistogram, NDArray[np.float64]]:
+    """Histogram of heights with bins of `bin_m` aligned to multiples of it, over the robust range of
+    the data (0.1 %-99.9 % quantiles, padded by 0.25 m); also each bin's sum of heights."""
+    lo_q, hi_q = np.quantile(z, [0.001, 0.999])
+    lo = math.floor((lo_q - 0.25) / bin_m) * bin_m
+    bins = max(1, math.ceil((hi_q + 0.25 - lo) / bin_m))
+    edges = lo + bin_m * np.arange(bins + 1)
+    index = np.floor((z - lo) / bin_m).astype(np.int64)
+    inside = (index >= 0) & (index < bins)
+    counts = np.bincount(index[inside], minlength=bins).astype(np.int64)
+    sums = np.bincount(index[inside], weights=z[inside], minlength=bins)
+    return HeightHistogram(edges, counts), sums
+
+
+def _refined_peak(i: int, hist: HeightHistogram, z_sums: NDArray[np.float64]) -> float:
+    """Sub-bin height of the peak at bin i: centroid of bins i-1..i+1 with the local background (median of
+    bins 3-8 away, e.g. walls) subtracted as if spread evenly over each bin."""
+    counts = hist.counts.astype(np.float64)
+    width = hist.edges_m[1] - hist.edges_m[0]
+    around = [j for j in (*range(i - 8, i - 2), *range(i + 3, i + 9)) if 0 <= j < len(counts)]
+    background = float(np.median(counts[around])) if around else 0.0
+    lo, hi = max(0, i - 1), min(len(counts), i + 2)
+    centres = hist.edges_m[lo:hi] + width / 2
+    excess = np.maximum(counts[lo:hi] - background, 0.0)
+    if excess.sum() <= 0:
+        return float(centres[i - lo])
+    # points of the peak: each bin's height sum minus the background's share at the bin centre
+    peak_sums = z_sums[lo:hi] - np.minimum(background, counts[lo:hi]) * centres
+    return float(peak_sums.sum() / excess.sum())
+
+
+def floor_and_ceiling(
+    z: NDArray[np.float64],
+    hist: HeightHistogram,
+    z_sums: NDArray[np.float64],
+    cfg: PreprocessConfig,
+    warnings: list[str],
+) -> tuple[float, float, dict[str, Any]]:
+    """Floor and ceiling heights from the histogram (thesis 5.1.5): the lowest and highest peaks that rise
+    `peak_min_area_m2` above their surroundings, each accepted only within `surface_search_m` of the data's
+    bottom (top). A surface not found falls back to that quantile with a warning; none found is an error."""
+    bottom, top = (float(q) for q in np.quantile(z, [_EDGE_QUANTILE, 1 - _EDGE_QUANTILE]))
+    span = top - bottom
+    if span < cfg.slice_min_m:
+        raise DegenerateInputError(
+            f"the levelled cloud spans only {span:.2f} m in height (a single plane?); "
+            f"a room needs more than slice_min_m = {cfg.slice_min_m} m"
+        )
+    bin_m = float(hist.edges_m[1] - hist.edges_m[0])
+    min_count = cfg.peak_min_area_m2 / bin_m**2
+    padded = np.concatenate([[0], hist.counts, [0]])
+    found, _ = find_peaks(padded, prominence=min_count)
+    peaks = [_refined_peak(int(i) - 1, hist, z_sums) for i in found]
+    floor = peaks[0] if peaks and peaks[0] - bottom <= cfg.surface_search_m else None
+    ceiling = peaks[-1] if peaks and top - peaks[-1] <= cfg.surface_search_m else None
+    if floor is None and ceiling is None:
+        raise DegenerateInputError(
+            f"no floor or ceiling in the height histogram: no area of {cfg.peak_min_area_m2} m² within "
+            f"{cfg.surface_search_m} m of the lowest or highest points"
+        )
+    if floor is None:
+        floor = bottom
+        warnings.append(f"no floor peak: floor taken as the lowest {_EDGE_QUANTILE:.1%} of points, z = {bottom:.3f} m")
+    if ceiling is None:
+        ceiling = top
+        warnings.append(f"no ceiling peak: ceiling taken as the highest {_EDGE_QUANTILE:.1%} of points, z = {top:.3f} m")
+    stats = {
+        "histogram_peaks_z_m": [round(p, 4) for p in peaks],
+        "histogram_peak_min_count": min_count,
+        "data_bottom_z_m": bottom,
+        "data_top_z_m": top,
+    }
+    return floor, ceiling, stats
+
+
+def render_histogram(
+    hist: HeightHistogram,
+    floor_z: float,
+    ceiling_z: float,
+    slice_low: float,
+    slice_high: float,
+    size: tuple[int, int] = (480, 640),
+) -> NDArray[np.uint8]:
+    """(H, W, 3) RGB picture of the height histogram: height upwards, log count to the right; the furniture
+    slice shaded green, the floor blue, the ceiling red."""
+    height, width = size
+    left, right, top, bottom = 64, 16, 28, 16
+    image = np.full((height, width, 3), 255, np.uint8)
+    z_lo, z_hi = float(hist.edges_m[0]), float(hist.edges_m[-1])
+
+    def row(z: float) -> int:
+        frac = (z - z_lo) / max(z_hi - z_lo, 1e-9)
+        return int(round(height - bottom - frac * (height - top - bottom)))
+
+    cv2.rectangle(image, (left, row(slice_high)), (width - right, row(slice_low)), (205, 235, 205), -1)
+    scale = np.log1p(hist.counts) / max(np.log1p(hist.counts.max()), 1e-9)
+    for i, s in enumerate(scale):
+        if s <= 0:
+            continue
+        y0, y1 = row(hist.edges_m[i + 1]), row(hist.edges_m[i])
+        x1 = left + int(round(s * (width - left - right)))
+        cv2.rectangle(image, (left, y0), (x1, max(y0, y1 - 1)), (110, 110, 110), -1)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    for z_tick in np.arange(math.ceil(z_lo * 2) / 2, z_hi, 0.5):
+        y = row(float(z_tick))
+        cv2.line(image, (left - 5, y), (left, y), (0, 0, 0), 1)
+        cv2.putText(image, f"{z_tick:.1f}", (4, y + 4), font, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.line(image, (left, top), (left, height - bottom), (0, 0, 0), 1)
+    for z_mark, colour, name in ((floor_z, (30, 80, 220), "floor"), (ceiling_z, (220, 40, 40), "ceiling")):
+        y = row(z_mark)
+        cv2.line(image, (left, y), (width - right, y), colour, 2)
+        cv2.putText(image, f"{name} {z_mark:.3f} m", (width - 190, y - 5), font, 0.45, colour, 1, cv2.LINE_AA)
+    title = f"height histogram, bin {100 * (hist.edges_m[1] - hist.edges_m[0]):.1f} cm: height {ceiling_z - floor_z:.3f} m"
+    cv2.putText(image, title, (left, 18), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(image, "slice", (left + 6, row(slice_high) + 16), font, 0.45, (40, 130, 40), 1, cv2.LINE_AA)
+    return image
