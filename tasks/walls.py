@@ -1,0 +1,606 @@
+"""Wall modelling of one room (thesis 5.2): from the furniture slice of a levelled cloud to a topologically
+correct 2D model of the inner wall faces, extruded from floor to ceiling.
+
+`model_walls(slice_points, floor_z_m, ceiling_z_m, cfg) -> WallModel` is pure: it reads and writes
+nothing. Steps (thesis section in brackets):
+
+1. projection image (5.2.1, eq 5.3): the number of occupied voxels above each grid cell, so that the
+   image measures wall height rather than point density (overlapping frames count once);
+2. binarization (5.2.2): eq 5.5 keeps the cells whose column is at least α = H_noise / H_filter full, i.e.
+   clutter shorter than α of the slice disappears (eq 5.4, μ - 1.65σ, as the alternative). Cells must
+   also hold data near the top of the slice (`top_reach_m`): walls go on up to the ceiling, furniture
+   and plants stop below it; and their data must span some height (`min_column_height_m`): table tops
+   and ceiling patches are flat. α is chosen automatically (see `choose alpha` below);
+3. 3×3 closing, Zhang-Suen skeleton (5.2.3);
+4. probabilistic Hough (5.2.4.1) with β1 votes, β2 minimum length, β3 maximum gap given in metres;
+5. 3-level clustering and regression averaging (5.2.4.2, `tasks.lines.merge_segments`);
+6. regularization (5.2.5.1, eq 5.9, `tasks.lines.regularize`), then each wall's offset is refined to the
+   median of the slice points near it (the skeleton is only good to a pixel);
+7. topology (5.2.5.2, `tasks.lines.connect`): extension / trimming, perpendicular joins of free ends,
+   removal of extensions with less than `min_overlap` of data (judged with the regularization rotation
+   undone), wall graph and room polygon;
+8. extrusion (5.2.6) to a triangle mesh, and a preview picture.
+
+Choosing α: the thesis has a person raise α until the clutter disappears. Here every candidate α runs
+steps 2-7 and the model is summarised as its set of walls. Walls are stable over a wide range of α
+(their columns are full), clutter and noise are not (they fade out gradually), and too large an α breaks
+the walls apart. The chosen α is the smallest of the longest run of consecutive candidates that give a
+closed wall graph and the same walls (same count, every wall within `stable_tol_m` of one in the
+neighbour's model); without any closed model, the longest run of equal models. The choice and the
+per-candidate summaries go to `metrics`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from tasks.cloud import DegenerateInputError
+from tasks.lines import (
+    OBSERVED,
+    LinesConfig,
+    angles,
+    connect_detailed,
+    is_closed,
+    lengths,
+    merge_segments,
+    point_segment_distances,
+    regularize,
+    room_polygons,
+    rotate_segments,
+    sample_segments,
+    transform_segments,
+    wall_graph,
+)
+
+
+@dataclass(frozen=True)
+class WallsConfig:
+    """Settings of the wall modelling stage (thesis 5.2, table 6.3)."""
+
+    grid_size_m: float = 0.01
+    """Projection image pixel size = voxel size of the occupancy count (m)."""
+    gray_levels: int = 255
+    """G in eq 5.3 / 5.5."""
+    binarization: Literal["alpha", "gaussian"] = "alpha"
+    """"alpha": eq 5.5 with α = H_noise / H_filter; "gaussian": eq 5.4 (μ - 1.65σ of the occupied cells)."""
+    alpha: float | None = None
+    """Fixed α for eq 5.5; None chooses it automatically among `alpha_candidates`."""
+    alpha_candidates: tuple[float, ...] = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5)
+    """α values tried by the automatic choice, ascending."""
+    top_reach_m: float | None = 0.25
+    """A wall cell must hold data within this distance below the top of the slice (walls reach the
+    ceiling, furniture does not); None switches the test off."""
+    min_column_height_m: float = 0.1
+    """A wall cell's data must span at least this height (flat things: table tops, ceiling patches, stray
+    points are not walls, however the counts compare)."""
+    closing_kernel_px: int = 3
+    """Morphological closing kernel (thesis: 3×3)."""
+    hough_votes_m: float = 0.15
+    """β1: minimum votes of a Hough line, as a length of skeleton (m)."""
+    hough_min_length_m: float = 0.15
+    """β2: minimum Hough segment length (m)."""
+    hough_max_gap_m: float = 0.2
+    """β3: maximum gap between points of one Hough segment (m)."""
+    hough_theta_deg: float = 0.25
+    """Angular resolution of the Hough accumulator (degrees)."""
+    lines: LinesConfig = field(default_factory=LinesConfig)
+    """Clustering, regularization and topology thresholds (metres; `tasks.lines`)."""
+    refine_band_m: float = 0.06
+    """Slice points within this distance of a wall refine its offset (median); 0 switches it off."""
+    support_tol_m: float = 0.05
+    """A point of a wall counts as backed by data when a wall pixel lies within this distance."""
+    stable_tol_m: float = 0.05
+    """Two candidate models (automatic α) are equal when their walls lie within this of each other."""
+    min_wall_length_m: float = 0.1
+    """Final walls shorter than this are dropped."""
+    min_points: int = 100
+    """Fewer slice points than this is a degenerate input."""
+    min_slice_height_m: float = 0.2
+    """A slice thinner than this (a single horizontal plane) is a degenerate input."""
+    max_image_px: int = 36_000_000
+    """Largest projection image (pixels); a larger extent is a degenerate input."""
+
+
+@dataclass(frozen=True)
+class WallModel:
+    """A room's walls in the x-y frame of the levelled cloud (metres), extruded from floor to ceiling."""
+
+    walls: NDArray[np.float64]
+    """(M, 4) x0 y0 x1 y1 of the inner wall faces."""
+    origin: NDArray[np.str_]
+    """(M,) "observed" or "extended" (made only by extension, e.g. a perpendicular join)."""
+    support: NDArray[np.float64]
+    """(M,) share of each wall's length backed by data (0..1)."""
+    floor_z_m: float
+    ceiling_z_m: float
+    polygon: Any
+    """shapely Polygon of the room when the walls enclose one, else None."""
+    mesh_vertices: NDArray[np.float64]
+    """(V, 3) extruded walls (and floor and ceiling when closed)."""
+    mesh_triangles: NDArray[np.int64]
+    """(T, 3) vertex indices, counter-clockwise seen from inside the room."""
+    preview: NDArray[np.uint8]
+    """(H, W, 3) RGB: the projection image with the walls drawn over it, north up."""
+    alpha: float | None
+    """α used for eq 5.5 (None with eq 5.4)."""
+    metrics: dict[str, Any]
+    """Counts per step, α choice and reason, timings (s), warnings."""
+
+    @property
+    def height_m(self) -> float:
+        return self.ceiling_z_m - self.floor_z_m
+
+    @property
+    def closed(self) -> bool:
+        return self.polygon is not None
+
+    def transformed(self, rotation_rad: float, translation_xy: NDArray) -> WallModel:
+        """The model moved by the 2D rigid transform p -> R(rotation) p + t (z unchanged)."""
+        import shapely.affinity
+
+        c, s = math.cos(rotation_rad), math.sin(rotation_rad)
+        r = np.array([[c, -s], [s, c]])
+        t = np.asarray(translation_xy, dtype=np.float64).reshape(2)
+        verts = self.mesh_vertices.copy()
+        verts[:, :2] = verts[:, :2] @ r.T + t
+        poly = None
+        if self.polygon is not None:
+            poly = shapely.affinity.affine_transform(self.polygon, [c, -s, s, c, t[0], t[1]])
+        return replace(self, walls=transform_segments(self.walls, r, t), polygon=poly, mesh_vertices=verts)
+
+
+# --------------------------------------------------------------------------------- projection image
+
+
+@dataclass(frozen=True)
+class _Grid:
+    origin: NDArray  # x, y of the lower-left corner of pixel (row 0, col 0)
+    size: float
+    shape: tuple[int, int]  # rows (y), cols (x)
+
+    def to_metres(self, px: NDArray) -> NDArray:
+        """Pixel coordinates (col, row), cell centres at integers, to x, y."""
+        return self.origin + (np.asarray(px, dtype=np.float64) + 0.5) * self.size
+
+    def to_pixels(self, xy: NDArray) -> NDArray:
+        return (np.asarray(xy, dtype=np.float64) - self.origin) / self.size - 0.5
+
+
+def projection_image(
+    points: NDArray, cfg: WallsConfig
+) -> tuple[NDArray[np.float64], NDArray[np.bool_], _Grid, float, NDArray[np.int64]]:
+    """Occupied-voxel count above each cell (eq 5.3's N); the wall-like cells (data spanning at least
+    `min_column_height_m` and reaching within `top_reach_m` of the slice top); the grid; the number of
+    voxel layers in the slice (the largest possible count); every point's flat cell index."""
+    g = cfg.grid_size_m
+    lo = points[:, :2].min(axis=0) - 2 * g
+    hi = points[:, :2].max(axis=0) + 2 * g
+    shape = (math.ceil((hi[1] - lo[1]) / g), math.ceil((hi[0] - lo[0]) / g))
+    if shape[0] * shape[1] > cfg.max_image_px:
+        raise DegenerateInputError(
+            f"slice spans {hi[0] - lo[0]:.1f} m x {hi[1] - lo[1]:.1f} m: over {cfg.max_image_px} pixels at "
+            f"{g} m (not one room, or far outliers)"
+        )
+    grid = _Grid(lo, g, shape)
+    z = points[:, 2]
+    z_lo = float(z.min())
+    col = np.floor((points[:, 0] - lo[0]) / g).astype(np.int64)
+    row = np.floor((points[:, 1] - lo[1]) / g).astype(np.int64)
+    lev = np.floor((z - z_lo) / g).astype(np.int64)
+    n_levels = int(lev.max()) + 1
+    cell = row * shape[1] + col
+    keys = np.sort(cell * n_levels + lev)  # a sort and a diff: much faster than np.unique's hashing here
+    voxels = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
+    vcell, vlev = voxels // n_levels, voxels % n_levels
+    counts = np.bincount(vcell, minlength=shape[0] * shape[1]).reshape(shape).astype(np.float64)
+    # voxels are sorted by cell, then level: each cell's lowest and highest voxel are its run's ends
+    first = np.concatenate([[True], vcell[1:] != vcell[:-1]])
+    last = np.concatenate([vcell[1:] != vcell[:-1], [True]])
+    wall_like = np.zeros(shape[0] * shape[1], dtype=bool)
+    extent = (vlev[last] - vlev[first]) * g
+    wall_like[vcell[first][extent >= cfg.min_column_height_m]] = True
+    if cfg.top_reach_m is not None:
+        z_top = float(np.quantile(z, 0.999))
+        wall_like[vcell[last][vlev[last] < int((z_top - cfg.top_reach_m - z_lo) / g)]] = False
+    return counts, wall_like.reshape(shape), grid, float(n_levels), cell
+
+
+def binarize(counts: NDArray, wall_like: NDArray, cfg: WallsConfig, alpha: float | None) -> NDArray[np.bool_]:
+    """Eq 5.3 gray image, then eq 5.5 (alpha) or eq 5.4 (alpha None), restricted to the `wall_like` cells.
+
+    Eq 5.5 reads I_T = G (1 - α) on the thesis' dark-is-dense picture; on I = N / N_max G it keeps the
+    cells with I >= α G, so that clutter filling less than α of the slice height goes."""
+    n_max = counts.max()
+    if n_max <= 0:
+        return np.zeros(counts.shape, dtype=bool)
+    gray = counts / n_max * cfg.gray_levels
+    if alpha is None:
+        vals = gray[gray > 0]
+        thr = vals.mean() - 1.65 * vals.std()
+        return (gray >= max(thr, 1e-9)) & wall_like
+    return (gray >= alpha * cfg.gray_levels) & wall_like
+
+
+def skeleton(binary: NDArray[np.bool_], cfg: WallsConfig) -> NDArray[np.bool_]:
+    """3x3 closing (eq 5.6), then Zhang-Suen thinning, computed on the occupied bounding box."""
+    from skimage.morphology import skeletonize
+
+    out = np.zeros_like(binary)
+    rows, cols = np.nonzero(binary.any(axis=1))[0], np.nonzero(binary.any(axis=0))[0]
+    if len(rows) == 0:
+        return out
+    pad = cfg.closing_kernel_px + 1
+    r0, r1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, binary.shape[0])
+    c0, c1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, binary.shape[1])
+    k = cv2.getStructuringElement(cv2.MORPH_RECT, (cfg.closing_kernel_px, cfg.closing_kernel_px))
+    closed = cv2.morphologyEx(binary[r0:r1, c0:c1].astype(np.uint8), cv2.MORPH_CLOSE, k)
+    out[r0:r1, c0:c1] = skeletonize(closed.astype(bool), method="zhang")
+    return out
+
+
+def hough_segments(skel: NDArray[np.bool_], grid: _Grid, cfg: WallsConfig) -> NDArray[np.float64]:
+    """Probabilistic Hough segments (M, 4) in metres; β1..β3 converted from metres to pixels."""
+    g = cfg.grid_size_m
+    found = cv2.HoughLinesP(
+        skel.astype(np.uint8) * 255,
+        rho=1.0,
+        theta=math.radians(cfg.hough_theta_deg),
+        threshold=max(1, round(cfg.hough_votes_m / g)),
+        minLineLength=max(1.0, cfg.hough_min_length_m / g),
+        maxLineGap=max(0.0, cfg.hough_max_gap_m / g),
+    )
+    if found is None:
+        return np.zeros((0, 4))
+    px = found.reshape(-1, 4).astype(np.float64)
+    return np.concatenate([grid.to_metres(px[:, :2]), grid.to_metres(px[:, 2:])], axis=1)
+
+
+# --------------------------------------------------------------------------------- lines to walls
+
+
+def refine_offsets(
+    walls: NDArray, xy: NDArray, pix: NDArray, grid: _Grid, band_m: float, iterations: int = 2
+) -> NDArray:
+    """Each wall moved along its normal to the median signed distance of the points within `band_m`
+    of it (away from its ends by `band_m`, so that the neighbouring walls do not pull). `pix` (N,) is
+    every point's flat pixel index in `grid`: points are found through a raster of the walls' bands."""
+    out = walls.copy()
+    if band_m <= 0 or len(xy) == 0 or len(walls) == 0:
+        return out
+    label = np.zeros(grid.shape, dtype=np.int32)
+    px = grid.to_pixels(walls.reshape(-1, 2)).reshape(-1, 4)
+    thick = 2 * math.ceil(band_m / grid.size) + 1
+    for i, s in enumerate(px):
+        cv2.line(label, (round(s[0]), round(s[1])), (round(s[2]), round(s[3])), i + 1, thick)
+    owner = label.ravel()[pix] - 1
+    order = np.argsort(owner, kind="stable")
+    bounds = np.searchsorted(owner[order], np.arange(len(walls) + 1))
+    for i, s in enumerate(out):
+        a, b = s[:2], s[2:]
+        L = float(np.hypot(*(b - a)))
+        if L <= 2 * band_m:
+            continue
+        u = (b - a) / L
+        n = np.array([-u[1], u[0]])
+        pts = xy[order[bounds[i] : bounds[i + 1]]] - a
+        t, d = pts @ u, pts @ n
+        inside = (t > band_m) & (t < L - band_m)
+        shift = 0.0
+        for _ in range(iterations):
+            sel = inside & (np.abs(d - shift) < band_m)
+            if sel.sum() < 10:
+                break
+            shift = float(np.median(d[sel]))
+        out[i] = s + np.concatenate([n, n]) * shift
+    return out
+
+
+def _support_sampler(data_dist: NDArray, grid: _Grid, tol_m: float):
+    """Share of a segment's length within tol_m of a data pixel (distance image in pixels)."""
+
+    def share(segments: NDArray) -> NDArray:
+        if len(segments) == 0:
+            return np.zeros(0)
+        pts, owner = sample_segments(segments, grid.size)
+        px = np.rint(grid.to_pixels(pts)).astype(np.int64)
+        ok = (
+            (px[:, 0] >= 0)
+            & (px[:, 0] < data_dist.shape[1])
+            & (px[:, 1] >= 0)
+            & (px[:, 1] < data_dist.shape[0])
+        )
+        near = np.zeros(len(pts), dtype=bool)
+        near[ok] = data_dist[px[ok, 1], px[ok, 0]] * grid.size <= tol_m
+        return np.bincount(owner, near, len(segments)) / np.bincount(owner, minlength=len(segments))
+
+    return share
+
+
+@dataclass(frozen=True)
+class _Candidate:
+    alpha: float | None
+    walls: NDArray
+    origin: NDArray
+    closed: bool
+    counts: dict[str, int]
+    binary: NDArray
+    data_dist: NDArray
+
+
+def _model_for(
+    counts: NDArray, wall_like: NDArray, grid: _Grid, cfg: WallsConfig, alpha: float | None, points=None
+) -> _Candidate:
+    """Steps 2-7 for one α. `points` = (xy (N, 2), flat pixel index (N,)) refines the wall offsets."""
+    binary = binarize(counts, wall_like, cfg, alpha)
+    skel = skeleton(binary, cfg)
+    hough = hough_segments(skel, grid, cfg)
+    lcfg = cfg.lines
+    merged = merge_segments(hough, lcfg)
+    reg, rotation = regularize(merged.segments, lcfg)
+    refined = reg if points is None else refine_offsets(reg, *points, grid, cfg.refine_band_m)
+    data_dist = cv2.distanceTransform((~binary).astype(np.uint8), cv2.DIST_L2, 3)
+    share = _support_sampler(data_dist, grid, cfg.support_tol_m)
+    centres = 0.5 * (refined[:, :2] + refined[:, 2:])
+
+    def support_fn(pieces: NDArray, parent: NDArray) -> NDArray:
+        # undo the regularization rotation about the parent wall's centre before looking at the data
+        rot = np.where(parent >= 0, -rotation[np.maximum(parent, 0)], 0.0)
+        c = np.where(
+            parent[:, None] >= 0, centres[np.maximum(parent, 0)], 0.5 * (pieces[:, :2] + pieces[:, 2:])
+        )
+        return share(rotate_segments(pieces, rot, c))
+
+    conn = connect_detailed(refined, lcfg, support_fn)
+    keep = lengths(conn.segments) >= cfg.min_wall_length_m
+    walls, origin = conn.segments[keep], conn.origin[keep]
+    closed = bool(len(walls)) and is_closed(wall_graph(walls, tol=1e-6))
+    stats = {
+        "binary_px": int(binary.sum()),
+        "skeleton_px": int(skel.sum()),
+        "hough_segments": len(hough),
+        "orientation_clusters": len(merged.orientation_deg),
+        "merged_lines": len(merged.segments),
+        "removed_extensions": len(conn.removed),
+        "walls": len(walls),
+    }
+    return _Candidate(alpha, walls, origin, closed, stats, binary, data_dist)
+
+
+def same_walls(a: NDArray, b: NDArray, tol_m: float) -> bool:
+    """Equal wall sets: same count, and every endpoint of each within tol_m of a wall of the other."""
+    if len(a) != len(b):
+        return False
+    if len(a) == 0:
+        return True
+    ea = np.concatenate([a[:, :2], a[:, 2:]])
+    eb = np.concatenate([b[:, :2], b[:, 2:]])
+    return bool(point_segment_distances(ea, b).min(axis=1).max() <= tol_m) and bool(
+        point_segment_distances(eb, a).min(axis=1).max() <= tol_m
+    )
+
+
+def choose_alpha(cands: list[_Candidate], tol_m: float) -> tuple[int, str]:
+    """Index of the chosen candidate and the reason (see the module docstring)."""
+    n = len(cands)
+    for need_closed in (True, False):
+        best, best_len = -1, 0
+        i = 0
+        while i < n:
+            if (need_closed and not cands[i].closed) or len(cands[i].walls) == 0:
+                i += 1
+                continue
+            j = i
+            while (
+                j + 1 < n
+                and (cands[j + 1].closed or not need_closed)
+                and same_walls(cands[j].walls, cands[j + 1].walls, tol_m)
+            ):
+                j += 1
+            if j - i + 1 > best_len:
+                best, best_len = i, j - i + 1
+            i = j + 1
+        if best >= 0:
+            a = cands[best].alpha
+            what = "closed" if need_closed else "unclosed (no candidate gave a closed wall graph)"
+            return best, (
+                f"smallest alpha of the longest run of equal {what} models: alpha={a} stable over "
+                f"{best_len} of {n} candidates"
+            )
+    return 0, "no candidate found any wall"
+
+
+# --------------------------------------------------------------------------------- outputs
+
+
+def extrude(walls: NDArray, floor_z: float, ceiling_z: float, polygon: Any) -> tuple[NDArray, NDArray]:
+    """Wall quads from floor to ceiling (two triangles each), plus floor and ceiling caps when the room
+    is closed. Walls must have the room on their left (`orient_walls`); every triangle then faces into
+    the room (counter-clockwise seen from inside). Returns vertices (V, 3) and triangles (T, 3)."""
+    m = len(walls)
+    verts = np.zeros((4 * m, 3))
+    verts[0::4, :2], verts[0::4, 2] = walls[:, :2], floor_z
+    verts[1::4, :2], verts[1::4, 2] = walls[:, 2:], floor_z
+    verts[2::4, :2], verts[2::4, 2] = walls[:, 2:], ceiling_z
+    verts[3::4, :2], verts[3::4, 2] = walls[:, :2], ceiling_z
+    base = 4 * np.arange(m)[:, None]
+    tris = np.concatenate([base + np.array([0, 2, 1]), base + np.array([0, 3, 2])]).astype(np.int64)
+    if polygon is not None:
+        import shapely
+
+        cap = shapely.constrained_delaunay_triangles(polygon)
+        tri_xy = [np.asarray(t.exterior.coords)[:3] for t in shapely.get_parts(cap)]
+        if tri_xy:
+            txy = np.array(tri_xy)  # (T, 3, 2)
+            # counter-clockwise seen from above for the floor (normal up, into the room), reversed above
+            area = (txy[:, 1, 0] - txy[:, 0, 0]) * (txy[:, 2, 1] - txy[:, 0, 1]) - (
+                txy[:, 2, 0] - txy[:, 0, 0]
+            ) * (txy[:, 1, 1] - txy[:, 0, 1])
+            txy[area < 0] = txy[area < 0][:, ::-1]
+            k = len(txy)
+            floor = np.concatenate([txy.reshape(-1, 2), np.full((3 * k, 1), floor_z)], axis=1)
+            ceil = np.concatenate([txy.reshape(-1, 2), np.full((3 * k, 1), ceiling_z)], axis=1)
+            n0 = len(verts)
+            verts = np.concatenate([verts, floor, ceil])
+            ft = n0 + np.arange(3 * k).reshape(k, 3)
+            ct = (n0 + 3 * k + np.arange(3 * k).reshape(k, 3))[:, ::-1]
+            tris = np.concatenate([tris, ft, ct])
+    return verts, tris
+
+
+def orient_walls(walls: NDArray, polygon: Any) -> NDArray:
+    """Walls turned so that the room lies on their left (counter-clockwise round the room): judged by the
+    room polygon when there is one, else by the side of the walls' length-weighted centre."""
+    if len(walls) == 0:
+        return walls.copy()
+    d = walls[:, 2:] - walls[:, :2]
+    L = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
+    left = np.column_stack([-d[:, 1], d[:, 0]]) / L[:, None]
+    mid = 0.5 * (walls[:, :2] + walls[:, 2:])
+    if polygon is not None:
+        import shapely
+
+        probe = mid + left * np.minimum(0.01, 0.1 * L)[:, None]
+        inside = shapely.contains_xy(polygon, probe[:, 0], probe[:, 1])
+    else:
+        centre = (mid * L[:, None]).sum(axis=0) / L.sum()
+        inside = ((centre - mid) * left).sum(axis=1) >= 0
+    out = walls.copy()
+    out[~inside] = walls[~inside][:, [2, 3, 0, 1]]
+    return out
+
+
+def render_preview(counts: NDArray, binary: NDArray, walls: NDArray, origin: NDArray, grid: _Grid) -> NDArray:
+    """RGB picture, north up: data in grey (darker = taller column), the cells kept as wall data in a
+    light blue, observed walls in dark blue, extended ones in orange, corners as red dots, a 1 m bar."""
+    n_max = max(float(counts.max()), 1.0)
+    grey = (255 - 140 * np.sqrt(counts / n_max)).astype(np.uint8)
+    img = np.repeat(grey[..., None], 3, axis=2)
+    img[binary] = (150, 190, 235)
+    scale = max(1, round(0.01 / grid.size * 1.0))  # never shrink a 1 cm grid
+    thick = max(2, round(0.02 / grid.size))
+    px = grid.to_pixels(walls.reshape(-1, 2)).reshape(-1, 4) if len(walls) else np.zeros((0, 4))
+    img = np.ascontiguousarray(img)
+    for s, o in zip(px, origin, strict=True):
+        colour = (25, 60, 170) if o == OBSERVED else (240, 140, 20)
+        p, q = (round(s[0] * scale), round(s[1] * scale)), (round(s[2] * scale), round(s[3] * scale))
+        cv2.line(img, p, q, colour, thick, cv2.LINE_AA)
+    for s in px:
+        for p in (s[:2], s[2:]):
+            cv2.circle(img, (round(p[0]), round(p[1])), thick + 2, (210, 30, 30), -1, cv2.LINE_AA)
+    img = np.ascontiguousarray(img[::-1])
+    bar = round(1.0 / grid.size)
+    h = img.shape[0]
+    if img.shape[1] > bar + 20 and h > 30:
+        cv2.rectangle(img, (10, h - 18), (10 + bar, h - 12), (0, 0, 0), -1)
+        cv2.putText(img, "1 m", (14 + bar, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    return img
+
+
+def _check_input(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg: WallsConfig) -> NDArray:
+    pts = np.asarray(slice_points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise DegenerateInputError(f"slice points must be (N, 3), got {pts.shape}")
+    if not np.isfinite(pts).all():
+        raise DegenerateInputError(
+            f"{int((~np.isfinite(pts).all(axis=1)).sum())} slice points are NaN or infinite"
+        )
+    if len(pts) < cfg.min_points:
+        raise DegenerateInputError(f"slice has {len(pts)} points, at least {cfg.min_points} needed for walls")
+    if not (math.isfinite(floor_z_m) and math.isfinite(ceiling_z_m) and ceiling_z_m > floor_z_m):
+        raise DegenerateInputError(f"floor {floor_z_m} m and ceiling {ceiling_z_m} m do not bound a room")
+    spread = float(np.quantile(pts[:, 2], 0.99) - np.quantile(pts[:, 2], 0.01))
+    if spread < cfg.min_slice_height_m:
+        raise DegenerateInputError(
+            f"slice is {spread:.3f} m thick (a single horizontal plane?), at least {cfg.min_slice_height_m} m needed"
+        )
+    return pts
+
+
+def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg: WallsConfig) -> WallModel:
+    """The wall model of one room from the furniture slice (N, 3) of its levelled cloud (z up, metres).
+
+    Raises DegenerateInputError (one line) for an input that cannot hold walls: too few points, NaN, a
+    flat slice, an extent too large for the grid. A slice in which no wall is found gives an empty model
+    with a warning in `metrics["warnings"]`."""
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    pts = _check_input(slice_points, floor_z_m, ceiling_z_m, cfg)
+    counts, wall_like, grid, n_levels, pix = projection_image(pts, cfg)
+    points = (np.ascontiguousarray(pts[:, :2]), pix)
+    timings["projection_s"] = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    if cfg.binarization == "gaussian":
+        alphas: list[float | None] = [None]
+    elif cfg.alpha is not None:
+        alphas = [float(cfg.alpha)]
+    else:
+        alphas = sorted(float(a) for a in cfg.alpha_candidates)
+    if len(alphas) == 1:
+        cands = [_model_for(counts, wall_like, grid, cfg, alphas[0], points)]
+        chosen, reason = 0, ("eq 5.4 (mean - 1.65 sigma)" if alphas[0] is None else "alpha fixed in config")
+        best = cands[0]
+    else:
+        # candidates are compared on the pixel-accurate model; the chosen one is refined on the points
+        cands = [_model_for(counts, wall_like, grid, cfg, a) for a in alphas]
+        chosen, reason = choose_alpha(cands, cfg.stable_tol_m)
+        best = _model_for(counts, wall_like, grid, cfg, alphas[chosen], points)
+    timings["walls_s"] = time.perf_counter() - t1
+
+    t2 = time.perf_counter()
+    walls, origin = best.walls, best.origin
+    share = _support_sampler(best.data_dist, grid, cfg.support_tol_m)
+    support = share(walls)
+    polys = room_polygons(walls) if best.closed or len(walls) >= 3 else []
+    polygon = polys[0] if polys else None
+    walls = orient_walls(walls, polygon)
+    verts, tris = extrude(walls, floor_z_m, ceiling_z_m, polygon)
+    preview = render_preview(counts, best.binary, walls, origin, grid)
+    timings["outputs_s"] = time.perf_counter() - t2
+    timings["total_s"] = time.perf_counter() - t0
+
+    warnings = []
+    if len(walls) == 0:
+        warnings.append("no wall found in the slice")
+    elif polygon is None:
+        warnings.append("the walls do not enclose a room (open wall graph)")
+    elif not best.closed:
+        warnings.append("the walls enclose a room but some walls have free ends")
+    metrics: dict[str, Any] = {
+        "points": len(pts),
+        "image_shape": list(counts.shape),
+        "slice_voxel_layers": int(n_levels),
+        "alpha": best.alpha,
+        "alpha_reason": reason,
+        "alpha_candidates": [{"alpha": c.alpha, "closed": c.closed, **c.counts} for c in cands],
+        **best.counts,
+        "walls_observed": int((origin == OBSERVED).sum()),
+        "walls_extended": int((origin != OBSERVED).sum()),
+        "closed": polygon is not None and best.closed,
+        "room_area_m2": float(polygon.area) if polygon is not None else None,
+        "orientations_deg": sorted({round(float(a), 2) for a in np.degrees(angles(walls))})
+        if len(walls)
+        else [],
+        "timings": timings,
+        "warnings": warnings,
+    }
+    return WallModel(
+        walls=walls,
+        origin=origin,
+        support=support,
+        floor_z_m=float(floor_z_m),
+        ceiling_z_m=float(ceiling_z_m),
+        polygon=polygon,
+        mesh_vertices=verts,
+        mesh_triangles=tris,
+        preview=preview,
+        alpha=best.alpha,
+        metrics=metrics,
+    )

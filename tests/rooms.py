@@ -1,0 +1,392 @@
+"""Synthetic rooms with known inner wall faces, sampled as a registered cloud with a sensor's errors.
+
+Reusable by any test or benchmark: `make_room(kind, rng)` gives a `Room` (outline, openings, clutter) in
+a random position and heading, `truth_walls(room)` its inner wall faces (M, 4) (what a room model should
+find), and `sample_room(room, sensor, rng)` a cloud (N, 3) in metres with z up, floor at z = 0.
+
+Sensors:
+- "kinect_v1": range noise along the ray sigma = 3 mm at 1 m growing with H^2 (thesis 6.1: 3 / 7 / 15 mm at
+  1 / 1.8 / 2.6 m), depth quantization in steps that also grow with H^2 (8 cm at 5.5 m: the stripes of
+  fig 5.3) with a different phase per frame, registration misalignment per camera position (a few mm and
+  a few hundredths of a degree), 0.3 % flying pixels;
+- "tls": 2 mm range noise from two scanner stations, 1 mm registration error.
+Doors and windows leave gaps (glass gives no return); furniture against a wall hides the wall behind
+it; a plant is a loose cloud of leaves. Only what lies inside `z_range` is sampled, to keep tests fast.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class Opening:
+    """A door or window in wall `wall` (edge outline[wall] -> outline[wall + 1])."""
+
+    wall: int
+    start_m: float
+    """Distance of the opening's first jamb from the wall's first corner."""
+    width_m: float
+    bottom_m: float
+    top_m: float
+
+
+@dataclass(frozen=True)
+class Box:
+    """Furniture: a box with footprint corners (4, 2) standing on the floor, `height_m` tall."""
+
+    footprint: tuple[tuple[float, float], ...]
+    height_m: float
+    against_wall: bool = True
+    """Hides the wall behind it (up to its height)."""
+
+
+@dataclass(frozen=True)
+class Plant:
+    centre: tuple[float, float]
+    radius_m: float
+    z_range: tuple[float, float]
+    leaves: int = 4000
+
+
+@dataclass(frozen=True)
+class Room:
+    name: str
+    outline: NDArray[np.float64]
+    """(K, 2) inner wall faces, counter-clockwise, metres."""
+    height_m: float = 2.7
+    columns: tuple[NDArray[np.float64], ...] = ()
+    """Free-standing columns: (4, 2) counter-clockwise footprints; their faces are walls too."""
+    openings: tuple[Opening, ...] = ()
+    boxes: tuple[Box, ...] = ()
+    plants: tuple[Plant, ...] = ()
+    cameras_xy: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
+    """Where the capture stood (set by `make_room`)."""
+
+
+# ------------------------------------------------------------------------------------------- rooms
+
+KINDS = ("rectangle", "l_shape", "wall70", "alcove_column")
+"""The rooms of the accuracy tests; "square10" (10 m x 10 m) is the benchmark's."""
+
+
+def _outline(kind: str) -> tuple[NDArray, tuple[NDArray, ...]]:
+    if kind == "rectangle":
+        return np.array([(0, 0), (5.0, 0), (5.0, 4.0), (0, 4.0)]), ()
+    if kind == "square10":
+        return np.array([(0, 0), (10.0, 0), (10.0, 10.0), (0, 10.0)]), ()
+    if kind == "l_shape":
+        return np.array([(0, 0), (6.0, 0), (6.0, 3.0), (3.5, 3.0), (3.5, 5.0), (0, 5.0)]), ()
+    if kind == "wall70":
+        return np.array([(0, 0), (5.0, 0), (5.0, 4.0), (4.0 / math.tan(math.radians(70)), 4.0)]), ()
+    if kind == "alcove_column":
+        outline = np.array(
+            [(0, 0), (1.5, 0), (1.5, 0.35), (2.0, 0.35), (2.0, 0), (6.0, 0), (6.0, 4.0), (4.0, 4.0),
+             (4.0, 4.6), (2.8, 4.6), (2.8, 4.0), (0, 4.0)]
+        )  # fmt: skip
+        column = np.array([(4.3, 1.8), (4.7, 1.8), (4.7, 2.2), (4.3, 2.2)])
+        return outline, (column,)
+    raise ValueError(f"unknown room kind {kind!r}")
+
+
+def _wall_point(outline: NDArray, wall: int, s: float) -> NDArray:
+    a, b = outline[wall], outline[(wall + 1) % len(outline)]
+    return a + (b - a) * s / np.hypot(*(b - a))
+
+
+def _box_on_wall(outline: NDArray, wall: int, start: float, width: float, depth: float) -> NDArray:
+    a, b = outline[wall], outline[(wall + 1) % len(outline)]
+    u = (b - a) / np.hypot(*(b - a))
+    n = np.array([-u[1], u[0]])  # inward for a counter-clockwise outline
+    p0 = a + u * start
+    return np.array([p0, p0 + u * width, p0 + u * width + n * depth, p0 + n * depth])
+
+
+def make_room(kind: str, rng: np.random.Generator, *, clutter: bool = True, move: bool = True) -> Room:
+    """A room of one of `KINDS` with a door, a window, a tall cabinet against a wall and a plant (when
+    `clutter`), turned by a random heading and moved by a random offset (when `move`)."""
+    outline, columns = _outline(kind)
+    longest = int(np.argmax(np.hypot(*(np.roll(outline, -1, 0) - outline).T)))
+    k = len(outline)
+    walls_by_length = np.argsort(-np.hypot(*(np.roll(outline, -1, 0) - outline).T))
+    door_wall, window_wall, cabinet_wall = int(longest), int(walls_by_length[1]), int(walls_by_length[2])
+
+    def wall_len(i: int) -> float:
+        return float(np.hypot(*(outline[(i + 1) % k] - outline[i])))
+
+    openings: tuple[Opening, ...] = ()
+    boxes: tuple[Box, ...] = ()
+    plants: tuple[Plant, ...] = ()
+    if clutter:
+        door_h = float(rng.uniform(2.0, 2.1))
+        openings = (
+            Opening(door_wall, float(rng.uniform(0.5, wall_len(door_wall) - 1.5)), 0.9, 0.0, door_h),
+            Opening(window_wall, float(rng.uniform(0.4, wall_len(window_wall) - 1.8)), 1.3, 0.9, 2.2),
+        )
+        cab_len = wall_len(cabinet_wall)
+        cab = _box_on_wall(outline, cabinet_wall, float(rng.uniform(0.3, cab_len - 1.3)), 1.0, 0.6)
+        boxes = (Box(tuple(map(tuple, cab)), float(rng.uniform(1.9, 2.2))),)
+        centre = outline.mean(axis=0)
+        corner = outline[int(rng.integers(k))]
+        spot = corner + 0.5 * (centre - corner) / np.hypot(*(centre - corner))
+        plants = (Plant((float(spot[0]), float(spot[1])), 0.35, (1.0, 1.9)),)
+    room = Room(kind, outline, 2.7, columns, openings, boxes, plants)
+    room = replace(room, cameras_xy=_camera_path(room))
+    if move:
+        room = moved(room, float(rng.uniform(0, 2 * np.pi)), rng.uniform(-20, 20, 2))
+    return room
+
+
+def _camera_path(room: Room, inset_m: float = 1.2, n: int = 12) -> NDArray:
+    """Camera positions on a loop about `inset_m` inside the walls (someone walking round the room)."""
+    from shapely.geometry import Polygon
+
+    poly = Polygon(room.outline)
+    for inset in (inset_m, 0.8, 0.5):
+        inner = poly.buffer(-inset, join_style="mitre")
+        if not inner.is_empty and inner.geom_type == "Polygon":
+            ring = inner.exterior
+            return np.array([ring.interpolate(t, normalized=True).coords[0] for t in np.arange(n) / n])
+    return np.array([poly.representative_point().coords[0]])
+
+
+def moved(room: Room, angle_rad: float, offset_xy: NDArray) -> Room:
+    """The room turned by `angle_rad` about the origin and then shifted by `offset_xy`."""
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    r = np.array([[c, -s], [s, c]])
+    t = np.asarray(offset_xy, dtype=np.float64)
+
+    def tf(p: NDArray) -> NDArray:
+        return np.asarray(p, dtype=np.float64) @ r.T + t
+
+    return replace(
+        room,
+        outline=tf(room.outline),
+        columns=tuple(tf(c_) for c_ in room.columns),
+        boxes=tuple(replace(b, footprint=tuple(map(tuple, tf(np.array(b.footprint))))) for b in room.boxes),
+        plants=tuple(replace(p, centre=tuple(tf(np.array(p.centre)))) for p in room.plants),
+        cameras_xy=tf(room.cameras_xy),
+    )
+
+
+def _edges(poly: NDArray) -> NDArray:
+    return np.concatenate([poly, np.roll(poly, -1, axis=0)], axis=1)
+
+
+def truth_walls(room: Room) -> NDArray[np.float64]:
+    """(M, 4) the inner wall faces: the outline's edges (doors and windows included: the lintel above a
+    door and the wall above a window are in the slice) and the faces of free-standing columns."""
+    return np.concatenate([_edges(room.outline), *[_edges(c) for c in room.columns]])
+
+
+# ------------------------------------------------------------------------------------------- sampling
+
+
+@dataclass(frozen=True)
+class Sensor:
+    name: str
+    sigma_1m: float
+    """Range noise at 1 m (m); grows with H^2 when `quadratic`."""
+    quadratic: bool
+    quant_1m: float
+    """Depth quantization step at 1 m (m), growing with H^2; 0 for none."""
+    misreg_m: float
+    """Per-station registration error (m), translation sigma; rotation gives as much at 3 m."""
+    flying: float
+    """Share of flying pixels (points pulled toward the camera)."""
+    stations: int | None
+    """Camera stations used (None: the room's whole camera path)."""
+
+
+SENSORS = {
+    "kinect_v1": Sensor("kinect_v1", 0.003, True, 0.0026, 0.003, 0.003, None),
+    "tls": Sensor("tls", 0.002, False, 0.0, 0.001, 0.0, 2),
+}
+
+
+def _sample_quads(quads: list[tuple[NDArray, NDArray, float, float]], density: float, rng) -> tuple:
+    """Uniform points on vertical rectangles (a, b, z0, z1): returns points (N, 3) and quad index."""
+    pts, owner = [], []
+    for i, (a, b, z0, z1) in enumerate(quads):
+        area = float(np.hypot(*(b - a))) * max(z1 - z0, 0.0)
+        n = rng.poisson(area * density)
+        if n == 0:
+            continue
+        s = rng.random(n)
+        xy = a + s[:, None] * (b - a)
+        z = rng.uniform(z0, z1, n)
+        pts.append(np.column_stack([xy, z]))
+        owner.append(np.full(n, i))
+    if not pts:
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.intp)
+    return np.concatenate(pts), np.concatenate(owner)
+
+
+def _wall_quads(room: Room, z_lo: float, z_hi: float) -> list[tuple[NDArray, NDArray, float, float]]:
+    """Visible wall rectangles: each wall minus its openings, and minus what furniture hides."""
+    quads = []
+    for poly, is_outline in [(room.outline, True), *[(c, False) for c in room.columns]]:
+        k = len(poly)
+        for i in range(k):
+            a, b = poly[i], poly[(i + 1) % k]
+            L = float(np.hypot(*(b - a)))
+            u = (b - a) / L
+            holes = []  # (s0, s1, z0, z1) regions of the wall with no return
+            if is_outline:
+                holes += [
+                    (o.start_m, o.start_m + o.width_m, o.bottom_m, o.top_m)
+                    for o in room.openings
+                    if o.wall == i
+                ]
+                for box in room.boxes:
+                    fp = np.array(box.footprint)
+                    s = (fp - a) @ u
+                    d = np.abs((fp - a) @ np.array([-u[1], u[0]]))
+                    if box.against_wall and d.min() < 0.05:
+                        holes.append((float(s.min()), float(s.max()), 0.0, box.height_m))
+            quads += _split_wall(a, u, L, holes, z_lo, z_hi)
+    return quads
+
+
+def _split_wall(a, u, L, holes, z_lo, z_hi):
+    """Rectangles covering [0, L] x [z_lo, z_hi] minus the hole rectangles (holes may not overlap)."""
+    cuts = sorted(
+        {0.0, L, *[max(0.0, min(L, h[0])) for h in holes], *[max(0.0, min(L, h[1])) for h in holes]}
+    )
+    quads = []
+    for s0, s1 in itertools.pairwise(cuts):
+        if s1 - s0 <= 1e-9:
+            continue
+        mid = 0.5 * (s0 + s1)
+        zs = [(z_lo, z_hi)]
+        for h in holes:
+            if h[0] <= mid <= h[1]:
+                zs = [(z0, min(z1, h[2])) for z0, z1 in zs] + [(max(z0, h[3]), z1) for z0, z1 in zs]
+        for z0, z1 in zs:
+            if z1 > z0:
+                quads.append((a + u * s0, a + u * s1, z0, z1))
+    return quads
+
+
+def _box_quads(room: Room, z_lo: float, z_hi: float) -> list[tuple[NDArray, NDArray, float, float]]:
+    quads = []
+    for box in room.boxes:
+        fp = np.array(box.footprint)
+        for i in range(4):
+            quads.append((fp[i], fp[(i + 1) % 4], max(z_lo, 0.0), min(z_hi, box.height_m)))
+    return quads
+
+
+def _box_tops(room: Room, density: float, rng, z_lo: float, z_hi: float) -> NDArray:
+    out = []
+    for box in room.boxes:
+        if not z_lo <= box.height_m <= z_hi:
+            continue
+        fp = np.array(box.footprint)
+        e1, e2 = fp[1] - fp[0], fp[3] - fp[0]
+        n = rng.poisson(abs(e1[0] * e2[1] - e1[1] * e2[0]) * density)
+        st = rng.random((n, 2))
+        xy = fp[0] + st[:, :1] * e1 + st[:, 1:] * e2
+        out.append(np.column_stack([xy, np.full(n, box.height_m)]))
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
+def _plants(room: Room, rng, z_lo: float, z_hi: float) -> NDArray:
+    out = []
+    for p in room.plants:
+        n = p.leaves
+        r = p.radius_m * rng.random(n) ** (1 / 3)
+        phi = rng.uniform(0, 2 * np.pi, n)
+        z = rng.uniform(*p.z_range, n)
+        xy = np.array(p.centre) + np.column_stack([r * np.cos(phi), r * np.sin(phi)])
+        pts = np.column_stack([xy, z])
+        out.append(pts[(z >= z_lo) & (z <= z_hi)])
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
+def _ceiling_and_floor(room: Room, density: float, rng, z_lo: float, z_hi: float) -> NDArray:
+    import shapely
+    from shapely.geometry import Polygon
+
+    poly = Polygon(room.outline)
+    x0, y0, x1, y1 = poly.bounds
+    out = []
+    for z in (0.0, room.height_m):
+        if not z_lo - 0.1 <= z <= z_hi + 0.1:
+            continue
+        n = rng.poisson((x1 - x0) * (y1 - y0) * density)
+        xy = rng.uniform([x0, y0], [x1, y1], (n, 2))
+        xy = xy[shapely.contains_xy(poly, xy[:, 0], xy[:, 1])]
+        out.append(np.column_stack([xy, np.full(len(xy), z)]))
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
+def sample_room(
+    room: Room,
+    sensor: str,
+    rng: np.random.Generator,
+    *,
+    density: float = 20000.0,
+    z_range: tuple[float, float] = (1.4, 2.6),
+    floor_ceiling_density: float = 500.0,
+) -> NDArray[np.float64]:
+    """A registered cloud (N, 3) of the room as `sensor` sees it, floor at z = 0, limited to `z_range`.
+
+    `density` is points per m^2 of wall before noise (a registered RGB-D cloud after a 1 cm voxel filter
+    holds about 1e4 per m^2 on every surface, more in the noise layer)."""
+    sen = SENSORS[sensor]
+    quads = _wall_quads(room, *z_range) + _box_quads(room, *z_range)
+    surf, _ = _sample_quads(quads, density, rng)
+    surf = np.concatenate([surf, _box_tops(room, density, rng, *z_range)])
+    surf = np.concatenate([surf, _ceiling_and_floor(room, floor_ceiling_density, rng, *z_range)])
+    leaves = _plants(room, rng, *z_range)
+
+    cams = room.cameras_xy
+    if sen.stations is not None:
+        idx = np.linspace(0, len(cams), sen.stations, endpoint=False).astype(int)
+        cams = cams[idx]
+    cam_z = 1.5 if sen.quadratic else 1.6
+    cam3 = np.column_stack([cams, np.full(len(cams), cam_z)])
+    pts = np.concatenate([surf, leaves])
+    # each point is seen from a random station among the nearer half (a walking capture sees each wall
+    # mostly from across the room, sometimes from close)
+    d = np.linalg.norm(pts[:, None, :] - cam3[None], axis=2)
+    order = np.argsort(d, axis=1)
+    half = max(1, (len(cams) + 1) // 2)
+    pick = order[np.arange(len(pts)), rng.integers(0, half, len(pts))]
+    cam = cam3[pick]
+    ray = pts - cam
+    rng_true = np.linalg.norm(ray, axis=1)
+    ray /= rng_true[:, None]
+    scale = rng_true**2 if sen.quadratic else np.ones_like(rng_true)
+    meas = rng_true + rng.normal(0.0, 1.0, len(pts)) * sen.sigma_1m * scale
+    if sen.quant_1m > 0:
+        q = sen.quant_1m * scale
+        phase = rng.random(len(cams))[pick]
+        meas = q * (np.round(meas / q - phase) + phase)
+    if sen.flying > 0:
+        fly = rng.random(len(pts)) < sen.flying
+        meas[fly] *= rng.uniform(0.6, 1.0, int(fly.sum()))
+    out = cam + ray * meas[:, None]
+    # registration misalignment: one small rigid motion per station
+    ang = rng.normal(0.0, sen.misreg_m / 3.0, len(cams))  # radians: misreg_m at 3 m
+    shift = rng.normal(0.0, sen.misreg_m, (len(cams), 3))
+    centre = room.outline.mean(axis=0)
+    c, s = np.cos(ang)[pick], np.sin(ang)[pick]
+    dx, dy = out[:, 0] - centre[0], out[:, 1] - centre[1]
+    out[:, 0] = centre[0] + c * dx - s * dy
+    out[:, 1] = centre[1] + s * dx + c * dy
+    out += shift[pick]
+    return out
+
+
+def furniture_slice(points: NDArray, floor_z: float = 0.0, lo_m: float = 1.5, hi_m: float = 2.5) -> NDArray:
+    """The points between `lo_m` and `hi_m` above the floor (the preprocess stage's selective height
+    filter, thesis 5.1.5)."""
+    z = points[:, 2] - floor_z
+    return np.ascontiguousarray(points[(z >= lo_m) & (z <= hi_m)])
