@@ -54,7 +54,7 @@ def box_slice(rng, w=4.0, h=3.0, noise=0.0):
 def test_projection_counts_occupied_voxels_not_points(rng):
     wall = wall_points((0, 0), (1, 0), 1.5, 2.5, rng)
     doubled = np.concatenate([wall, wall + 1e-4])  # two overlapping frames: same voxels
-    counts, top, grid, levels, _ = projection_image(doubled, CFG)
+    counts, top, _, levels, _ = projection_image(doubled, CFG)
     assert levels == pytest.approx(100, abs=1)
     assert counts.max() == pytest.approx(levels, abs=1)
     assert counts.sum() == pytest.approx(100 * 100, rel=0.02)  # 100 columns of 100 voxels
@@ -64,7 +64,7 @@ def test_projection_counts_occupied_voxels_not_points(rng):
 def test_alpha_removes_clutter_shorter_than_alpha_of_the_slice(rng):
     wall = wall_points((0, 0), (2, 0), 1.5, 2.5, rng)
     low = wall_points((0, 1), (2, 1), 1.5, 1.7, rng)  # 20 % of the slice: a cabinet top edge
-    counts, top, grid, _, _ = projection_image(np.concatenate([wall, low]), WallsConfig(top_reach_m=None))
+    counts, top, _, _, _ = projection_image(np.concatenate([wall, low]), WallsConfig(top_reach_m=None))
     rows_with_data = lambda b: np.unique(np.nonzero(b)[0])  # noqa: E731
     assert len(rows_with_data(binarize(counts, top, CFG, 0.1))) == 2
     assert len(rows_with_data(binarize(counts, top, CFG, 0.3))) == 1
@@ -98,7 +98,7 @@ def test_hough_parameters_are_metres(rng):
 
 def test_refine_offsets_moves_a_wall_to_the_median_of_its_points(rng):
     pts = wall_points((0, 0.0123), (3, 0.0123), 1.5, 2.5, rng, noise=0.005)
-    counts, top, grid, _, pix = projection_image(pts, CFG)
+    _, _, grid, _, pix = projection_image(pts, CFG)
     wall = np.array([[0.0, 0.0, 3.0, 0.0]])
     out = refine_offsets(wall, pts[:, :2], pix, grid, 0.06)
     assert out[0, 1] == pytest.approx(0.0123, abs=0.0005) and out[0, 3] == pytest.approx(0.0123, abs=0.0005)
