@@ -24,7 +24,9 @@ for _name, _value in {
     "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "120",
     "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
     "DO_NOT_TRACK": "1",
-    "PREFECT_LOGGING_LEVEL": "WARNING",
+    # Stage failures are reported by the run summary in one line each; Prefect's own copy of them is a
+    # traceback. PREFECT_LOGGING_LEVEL=ERROR in the environment brings those back for debugging.
+    "PREFECT_LOGGING_LEVEL": "CRITICAL",
     "PREFECT_LOGGING_TO_API_ENABLED": "false",
     "PREFECT_RESULTS_PERSIST_BY_DEFAULT": "true",
 }.items():
@@ -247,7 +249,6 @@ def room_flow(req: RunRequest) -> list[StageOutcome]:
     log_prints=False,
     validate_parameters=False,
     persist_result=False,
-    task_runner=ThreadPoolTaskRunner(max_workers=2),
 )
 def building_flow(req: RunRequest) -> list[StageOutcome]:
     """All rooms of a survey (or those in `req.rooms`), concurrently."""
@@ -279,21 +280,24 @@ def outcomes(futures: dict[tuple[str, str], PrefectFuture]) -> list[StageOutcome
             rows.append(
                 StageOutcome(room, stage, kind if state.name != "Cached" else "cached", seconds, "", result)
             )
-        else:
+        elif state.is_failed() or state.is_crashed():
             exc = state.result(raise_on_failure=False)
             message = (
                 " ".join(str(exc).split()) if isinstance(exc, BaseException) else state.message or state.name
             )
-            upstream_failed = "upstream" in (state.message or "").lower() or state.name == "NotReady"
-            rows.append(StageOutcome(room, stage, "skipped" if upstream_failed else "failed", 0.0, message))
+            rows.append(StageOutcome(room, stage, "failed", 0.0, message))
+        else:  # never ran: an upstream stage failed
+            rows.append(StageOutcome(room, stage, "skipped", 0.0, "an earlier stage failed"))
     return rows
 
 
 def run_survey(req: RunRequest) -> list[StageOutcome]:
     """Run the building flow (or the room flow for one room) and report every stage's outcome."""
+    workers = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets)).flow.max_workers
     runner = room_flow if len(req.rooms) == 1 else building_flow
     store_for(req.work).sweep_temporaries()
-    return runner(req)
+    _outcomes.clear()
+    return runner.with_options(task_runner=ThreadPoolTaskRunner(max_workers=max(1, workers)))(req)
 
 
 def save_resolved_config(work: Path, cfg: cfgmod.PipelineConfig, argv: Iterable[str]) -> Path:

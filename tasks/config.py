@@ -35,9 +35,7 @@ class FlowConfig:
     """How the flows run (not part of any stage's cache key)."""
 
     max_workers: int = 2
-    """Rooms processed at once by the thread-pool task runner."""
-    task_runner: str = "threads"
-    """"threads" (one machine) or "dask" (a local Dask cluster; needs prefect-dask)."""
+    """Stage runs (of different rooms) processed at once by the thread-pool task runner."""
 
 
 @dataclass(frozen=True)

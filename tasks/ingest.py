@@ -296,7 +296,7 @@ class McapReader(FrameReader):
                 reader = self._open_reader(fh)
                 summary = reader.get_summary()
             except Exception as exc:
-                raise IngestError(f"{self.path}: not a readable MCAP file ({_one_line(exc)})") from exc
+                raise IngestError(f"{self.path}: truncated or corrupt MCAP file ({_one_line(exc)})") from exc
             if summary is None:
                 raise IngestError(f"{self.path}: truncated MCAP (no summary section; was the recording cut?)")
             return {ch.topic: summary.schemas[ch.schema_id].name for ch in summary.channels.values()}

@@ -89,7 +89,7 @@ def write_rgbd_mcap(
                 }
                 writer.write_message(TOPICS["depth"], schemas[rosmsgs.IMAGE], msg, t)
             rgb = np.zeros((h, w, 3), np.uint8)
-            rgb[..., 0] = 40 * i
+            rgb[..., 0] = (40 * i) % 256
             ok, jpeg = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
             assert ok
             tr = t + rgb_offset_ns

@@ -1,0 +1,90 @@
+from pathlib import Path
+
+import pytest
+import yaml
+
+from tasks import config as cfgmod
+from tasks.config import ConfigError, load_config, load_survey, parse_set
+from tests.captures import write_survey
+
+
+def test_defaults_and_default_yaml_agree_on_keys():
+    cfg = load_config()
+    assert cfg.preprocess.outlier_neighbours == 20  # thesis table 6.3
+    assert cfg.preprocess.slice_min_m == 1.5 and cfg.preprocess.slice_max_m == 2.5
+    # every key in default.yaml is a real field: loading it would have raised otherwise
+    data = yaml.safe_load(cfgmod.DEFAULT_YAML.read_text())
+    assert set(data) <= {"flow", *cfgmod.STAGE_SECTIONS}
+
+
+def test_set_overrides_file_overrides_default(tmp_path):
+    override = tmp_path / "o.yaml"
+    override.write_text("preprocess:\n  voxel_size_m: 0.04\n  mls_radius_m: 0.2\n")
+    cfg = load_config([override], ["preprocess.voxel_size_m=0.03"])
+    assert cfg.preprocess.voxel_size_m == 0.03
+    assert cfg.preprocess.mls_radius_m == 0.2
+
+
+def test_unknown_key_names_file_and_key(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("preprocess:\n  voxl_size_m: 0.03\n")
+    with pytest.raises(ConfigError, match=r"bad\.yaml.*preprocess\.voxl_size_m"):
+        load_config([bad])
+    with pytest.raises(ConfigError, match=r"--set preprocess\.nope=1.*preprocess\.nope"):
+        load_config([], ["preprocess.nope=1"])
+    with pytest.raises(ConfigError, match="unknown section 'prepro'"):
+        load_config([], ["prepro.voxel_size_m=1"])
+
+
+def test_wrong_types_and_malformed_set():
+    with pytest.raises(ConfigError, match="expected a number"):
+        load_config([], ["preprocess.voxel_size_m=abc"])
+    with pytest.raises(ConfigError, match=r"expected stage\.key=value"):
+        parse_set("voxel_size_m")
+    assert parse_set("a.b=[1, 2]") == {"a": {"b": [1, 2]}}
+
+
+def test_resolved_config_round_trips():
+    cfg = load_config([], ["preprocess.voxel_size_m=0.05"])
+    text = cfgmod.to_yaml(cfg)
+    assert yaml.safe_load(text)["preprocess"]["voxel_size_m"] == 0.05
+
+
+def test_sensor_profiles_present():
+    assert {"kinect_v1", "kinect_v2", "realsense_d435", "tls"} <= set(cfgmod.sensor_profiles())
+    k1 = cfgmod.load_sensor_profile("kinect_v1")
+    assert k1["ir"]["K"][0][0] == pytest.approx(585.7)  # thesis table 6.1
+    with pytest.raises(ConfigError, match="unknown sensor profile 'nope'"):
+        cfgmod.load_sensor_profile("nope")
+
+
+def test_survey_loads(tmp_path):
+    root = write_survey(tmp_path / "s", {"a": "rooms/a.ply"}, plan={"image": "plan/p.png", "m_per_px": 0.02})
+    survey = load_survey(root)
+    assert survey.room_ids == ["a"]
+    assert survey.rooms[0].capture == root / "rooms" / "a.ply"
+    assert survey.plan.m_per_px == 0.02
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("rooms: [a, b", "survey.yaml: line"),  # malformed YAML
+        ("- just a list", "expected a mapping"),
+        ("name: x\nrooms: []", "non-empty list"),
+        ("rooms:\n - {id: a, capture: a.ply}\n - {id: a, capture: b.ply}", "duplicate room id 'a'"),
+        ("rooms:\n - {id: ../x, capture: a.ply}", "room id '../x' is not a plain name"),
+        ("rooms:\n - {id: a/b, capture: a.ply}", "room id 'a/b' is not a plain name"),
+        ("rooms:\n - {id: a}", r"rooms\[0\] needs 'id' and 'capture'"),
+        ("sensor: kinect_v9\nrooms:\n - {id: a, capture: a.ply}", "unknown sensor profile 'kinect_v9'"),
+        ("roms: []", "unknown key 'roms'"),
+        ("rooms:\n - {id: a, capture: a.ply}\nplan: {image: p.png, m_per_px: 20}", "implausible"),
+    ],
+)
+def test_bad_surveys_give_one_line_naming_the_file(tmp_path, content, message):
+    (tmp_path / "survey.yaml").write_text(content)
+    with pytest.raises(ConfigError, match=message) as err:
+        load_survey(tmp_path)
+    text = str(err.value)
+    assert "\n" not in text
+    assert str(Path(tmp_path) / "survey.yaml") in text

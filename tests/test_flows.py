@@ -1,0 +1,156 @@
+"""The flows end to end on a tiny survey: caching, targeted recomputes, crash safety and bad input."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flows.cli import main
+from tasks.artefacts import ArtefactStore
+from tests.captures import tiny_survey, write_box_room_ply, write_survey
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def prefect_home(tmp_path_factory):
+    """One Prefect home (its SQLite database) for the module: the in-process flows and the subprocess."""
+    from prefect.testing.utilities import prefect_test_harness
+
+    with prefect_test_harness(server_startup_timeout=120):
+        yield
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out = capsys.readouterr()
+    states = {}
+    for line in out.out.splitlines()[1:]:
+        parts = line.split()
+        if len(parts) >= 3 and parts[1] in {"ingest", "preprocess", "register", "walls"}:
+            states[(parts[0], parts[1])] = parts[2]
+    return code, states, out
+
+
+def test_cache_rerun_and_targeted_recompute(tmp_path, capsys, prefect_home):
+    survey = tiny_survey(tmp_path / "s", np.random.default_rng(1))
+    work = str(tmp_path / "w")
+    code, states, _ = run(capsys, "run", str(survey), "--work", work)
+    assert code == 0
+    assert set(states.values()) == {"computed"}
+    assert states[("a", "preprocess")] == "computed"
+
+    code, states, _ = run(capsys, "run", str(survey), "--work", work)
+    assert code == 0
+    assert set(states.values()) == {"cached"}, states  # Prefect's own cache hits
+
+    code, states, _ = run(capsys, "run", str(survey), "--work", work, "--set", "preprocess.voxel_size_m=0.03")
+    assert code == 0
+    assert {k: v for k, v in states.items() if v != "cached"} == {
+        ("a", "preprocess"): "computed",
+        ("b", "preprocess"): "computed",
+    }
+
+    code, states, _ = run(
+        capsys, "rerun", str(survey), "--work", work, "--stage", "preprocess", "--room", "a"
+    )
+    assert code == 0
+    assert states == {("a", "ingest"): "cached", ("a", "preprocess"): "computed"}
+
+    code, _, out = run(capsys, "status", str(survey), "--work", work)
+    assert code == 0
+    assert "a            preprocess   done" in out.out
+
+
+def test_bad_capture_fails_that_room_only_and_keeps_earlier_artefacts(tmp_path, capsys, prefect_home):
+    survey = tiny_survey(tmp_path / "s", np.random.default_rng(2))
+    work = tmp_path / "w"
+    assert run(capsys, "run", str(survey), "--work", str(work))[0] == 0
+    store = ArtefactStore(work)
+    before = store.latest("c", "ingest")
+    assert before is not None
+
+    capture = survey / "rooms" / "c" / "capture.mcap"
+    capture.write_bytes(capture.read_bytes()[:5000])  # truncated
+    nan_cloud = survey / "rooms" / "b" / "cloud.ply"
+    write_box_room_ply(nan_cloud, np.random.default_rng(3))
+    text = nan_cloud.read_bytes()
+    # NaN coordinates written into a valid PLY: the stage must refuse the cloud, not crash later.
+    pts = np.frombuffer(
+        text[text.index(b"end_header\n") + 11 :], dtype=[("p", "<f8", 3), ("c", "u1", 3)]
+    ).copy()
+    pts["p"][::50] = np.nan
+    nan_cloud.write_bytes(text[: text.index(b"end_header\n") + 11] + pts.tobytes())
+
+    code, states, out = run(capsys, "run", str(survey), "--work", str(work))
+    assert code == 1
+    assert states[("a", "preprocess")] == "cached"
+    assert states[("c", "ingest")] == "failed" and states[("b", "ingest")] == "failed"
+    errors = [line for line in out.err.splitlines() if line.startswith("error:")]
+    assert any("capture.mcap: truncated or corrupt MCAP" in line for line in errors)
+    assert any("cloud.ply" in line and "NaN" in line for line in errors)
+    # what an earlier run computed for the failed rooms is still there, verified
+    assert store.lookup("c", "ingest", before.key) == before
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--set", "preprocess.voxl_size_m=0.03"], "unknown key 'preprocess.voxl_size_m'"),
+        (["--rooms", "zz"], "no room 'zz'"),
+    ],
+)
+def test_bad_arguments_exit_2_with_one_line(tmp_path, capsys, argv, message):
+    survey = write_survey(tmp_path / "s", {"a": "a.ply"})
+    write_box_room_ply(survey / "a.ply", np.random.default_rng(0))
+    code = main(["run", str(survey), "--work", str(tmp_path / "w"), *argv])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and message in err[0]
+    assert not (tmp_path / "w" / "cache").exists()
+
+
+def test_malformed_survey_exit_2(tmp_path, capsys):
+    (tmp_path / "survey.yaml").write_text("rooms: [")
+    assert main(["run", str(tmp_path), "--work", str(tmp_path / "w")]) == 2
+    assert "survey.yaml" in capsys.readouterr().err
+
+
+def test_sigkill_mid_stage_then_rerun_completes(tmp_path, prefect_home):
+    rng = np.random.default_rng(4)
+    survey = write_survey(tmp_path / "s", {"big": "big.ply"})
+    # dense enough that preprocess runs for a few seconds
+    write_box_room_ply(survey / "big.ply", rng, size_m=(6.0, 5.0, 2.7), spacing_m=0.012)
+    work = tmp_path / "w"
+    from prefect.settings import PREFECT_API_URL
+
+    # The subprocess talks to the harness' server instead of starting its own.
+    env = {**os.environ, "PREFECT_API_URL": PREFECT_API_URL.value()}
+    cmd = [sys.executable, "-m", "flows.cli", "-q", "run", str(survey), "--work", str(work)]
+    proc = subprocess.Popen(
+        cmd, env=env, cwd=Path(__file__).parents[1], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    stage_root = work / "cache" / "big" / "preprocess"
+    deadline = time.time() + 240
+    while time.time() < deadline and not any(stage_root.glob(".tmp-*")):
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    assert any(stage_root.glob(".tmp-*")), "preprocess never started"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    store = ArtefactStore(work)
+    assert store.latest("big", "preprocess") is None  # the half-written folder is not an artefact
+
+    done = subprocess.run(
+        cmd, env=env, cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=600
+    )
+    assert done.returncode == 0, done.stderr
+    assert "big          preprocess   computed" in done.stdout
+    assert "big          ingest       cached" in done.stdout
+    assert store.latest("big", "preprocess") is not None
+    assert not any(stage_root.glob(".tmp-*"))  # swept
