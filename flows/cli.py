@@ -111,6 +111,25 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("config", help="print the resolved configuration (defaults + files + --set)")
     _add_config_args(p)
 
+    p = sub.add_parser(
+        "model-room",
+        help="ingest -> preprocess -> walls on one registered cloud (PLY/PCD, metres, z roughly up)",
+        description="Model one room from a registered cloud. Writes walls.parquet, plan.geojson, model.ply, "
+        "preview.png and levelling.json to --out; wall coordinates are in the cloud's own x-y frame.",
+    )
+    p.add_argument("cloud", type=Path, help="registered room cloud (PLY or PCD, metres)")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--work", type=Path, default=None, help="stage cache (default: OUT/.cache)")
+    _add_config_args(p)
+
+    p = sub.add_parser(
+        "evaluate-walls",
+        help="wall completeness, correctness, accuracy, corner F1, angle error, room IoU of PRED vs TRUTH",
+    )
+    p.add_argument("pred", type=Path, help="predicted walls: walls.parquet or plan.geojson")
+    p.add_argument("truth", type=Path, help="truth walls: Parquet (x0 y0 x1 y1 ...) or GeoJSON LineStrings")
+    p.add_argument("--tol-m", type=float, default=0.10, help="distance tolerance in metres (default 0.10)")
+
     return parser
 
 
@@ -188,6 +207,50 @@ def cmd_config(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_model_room(args: argparse.Namespace) -> int:
+    import json
+
+    from flows import pipeline
+    from tasks import config as cfgmod
+
+    cfg = cfgmod.load_config(args.config, args.set)
+    if not args.cloud.is_file():
+        raise CliError(f"{args.cloud}: no such file")
+    work = args.work or args.out / ".cache"
+    metrics = pipeline.model_room(args.cloud, args.out, cfg, work)
+    walls = metrics["walls"]
+    pre = metrics["preprocess"]
+    print(
+        json.dumps(
+            {
+                "walls": walls.get("walls"),
+                "closed": walls.get("closed"),
+                "alpha": walls.get("alpha"),
+                "height_m": pre.get("height_m"),
+                "out": str(args.out),
+            }
+        )
+    )
+    return 0
+
+
+def cmd_evaluate_walls(args: argparse.Namespace) -> int:
+    import json
+
+    from tasks.artefacts import read_segments
+    from tasks.evaluate import evaluate_walls
+
+    pred, _ = read_segments(args.pred)
+    truth, _ = read_segments(args.truth)
+    if len(truth) == 0:
+        raise CliError(f"{args.truth}: no walls")
+    print(json.dumps(evaluate_walls(pred, truth, args.tol_m), indent=2))
+    return 0
+
+
+COMMANDS = {"model-room": cmd_model_room, "evaluate-walls": cmd_evaluate_walls}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -201,6 +264,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_status(args)
         if args.command == "config":
             return cmd_config(args)
+        if args.command in COMMANDS:
+            return COMMANDS[args.command](args)
     except _user_errors() as exc:
         print(f"error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2

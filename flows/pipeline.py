@@ -37,9 +37,10 @@ from prefect.futures import PrefectFuture, wait  # noqa: E402
 from prefect.task_runners import ThreadPoolTaskRunner  # noqa: E402
 
 from tasks import config as cfgmod  # noqa: E402
-from tasks.artefacts import ArtefactStore, StageResult, atomic_path  # noqa: E402
+from tasks.artefacts import ArtefactStore, StageResult, atomic_path, sha256_file  # noqa: E402
+from tasks.cloud import DegenerateInputError  # noqa: E402
 from tasks.ingest import capture_kind  # noqa: E402
-from tasks.stages import STAGES, StageContext  # noqa: E402
+from tasks.stages import ROOM_DELIVERABLES, STAGES, StageContext  # noqa: E402
 
 log = logging.getLogger("indoor_survey")
 
@@ -234,8 +235,23 @@ def _run(req: RunRequest) -> list[StageOutcome]:
         for stage_name, future in _submit_room(req, cfg, survey, profile, room_id).items():
             futures[(room_id, stage_name)] = future
     wait(list(futures.values()))
-    store_for(req.work).save_memo()
-    return outcomes(futures)
+    store = store_for(req.work)
+    store.save_memo()
+    rows = outcomes(futures)
+    publish_deliverables(store, rows)
+    return rows
+
+
+def publish_deliverables(store: ArtefactStore, rows: list[StageOutcome]) -> None:
+    """Copy each room's finished deliverables to outputs/rooms/<id>/ (only what changed)."""
+    for row in rows:
+        if row.result is None or row.stage not in ROOM_DELIVERABLES:
+            continue
+        for name in ROOM_DELIVERABLES[row.stage]:
+            dest = store.outputs / "rooms" / row.room / name
+            digest = row.result.files.get(name)
+            if digest and not (dest.is_file() and sha256_file(dest) == digest):
+                store.publish(row.result.file(name), "rooms", row.room, name)
 
 
 @flow(name="room", log_prints=False, validate_parameters=False, persist_result=False)
@@ -307,3 +323,32 @@ def save_resolved_config(work: Path, cfg: cfgmod.PipelineConfig, argv: Iterable[
     with atomic_path(path) as tmp:
         tmp.write_text(f"# indoor-survey {' '.join(argv)}\n" + cfgmod.to_yaml(cfg))
     return path
+
+
+def model_room(cloud: Path, out_dir: Path, cfg: cfgmod.PipelineConfig, work: Path) -> dict[str, Any]:
+    """ingest -> preprocess -> walls on one registered cloud, without Prefect (a one-off tool), through
+    the same cached stages; the room's deliverables and its levelling transform are copied to `out_dir`."""
+    room = cfgmod.RoomSpec("room", Path(cloud).resolve())
+    profile = cfgmod.load_sensor_profile("tls")
+    results: dict[str, StageResult] = {}
+    for stage_name in ("ingest", "preprocess", "walls"):
+        call = make_call(work, cfg, profile, room, stage_name)
+        upstream = {n: results[n] for n in UPSTREAM.get(stage_name, ()) if n in results}
+        try:
+            results[stage_name] = execute(call, upstream)
+        except ValueError as exc:  # bad input (DegenerateInputError, IngestError...): name the file
+            message = " ".join(str(exc).split())
+            raise DegenerateInputError(message if str(cloud) in message else f"{cloud}: {message}") from exc
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    store = store_for(work)
+    for name in ROOM_DELIVERABLES["walls"]:
+        with atomic_path(out_dir / name) as tmp:
+            tmp.write_bytes(results["walls"].file(name).read_bytes())
+    with atomic_path(out_dir / "levelling.json") as tmp:
+        tmp.write_bytes(results["preprocess"].file("levelling.json").read_bytes())
+    store.save_memo()
+    return {
+        "preprocess": results["preprocess"].manifest.get("metrics", {}),
+        "walls": results["walls"].manifest.get("metrics", {}),
+    }

@@ -230,6 +230,8 @@ def read_cloud(path: Path) -> Cloud:
         raise ArtefactError(f"{path}: unsupported cloud format {path.suffix!r} (PLY or PCD expected)")
     if path.stat().st_size == 0:
         raise DegenerateInputError(f"{path}: empty file")
+    if path.suffix.lower() == ".ply" and ply_vertex_count(path) == 0:
+        raise DegenerateInputError(f"{path}: the cloud has no points (empty or unreadable)")
     pcd = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
     points = np.asarray(pcd.points, dtype=np.float64)
     if len(points) == 0:
@@ -292,7 +294,7 @@ FRAMES_SCHEMA = pa.schema(
 )
 """frames.parquet: one row per depth frame with its nearest colour image. `rgb` is the encoded image as
 received (jpeg/png bytes); `depth` is a 16-bit PNG: millimetres (kind "mm", 1000 units per metre), TUM
-(kind "tum", 5000) or raw Kinect v1 disparity (kind "disparity", kept raw for calibration)."""
+(kind "tum5000", 5000) or raw Kinect v1 disparity (kind "disparity", kept raw for calibration)."""
 
 
 def segments_table(segments: NDArray[np.float64], **extra: Any) -> dict[str, Any]:

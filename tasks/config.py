@@ -20,6 +20,7 @@ import yaml
 from tasks.artefacts import check_room_id
 from tasks.ingest import IngestConfig
 from tasks.preprocess import PreprocessConfig
+from tasks.walls import WallsConfig
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 DEFAULT_YAML = CONFIG_DIR / "default.yaml"
@@ -45,6 +46,7 @@ class PipelineConfig:
     flow: FlowConfig = field(default_factory=FlowConfig)
     ingest: IngestConfig = field(default_factory=IngestConfig)
     preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
+    walls: WallsConfig = field(default_factory=WallsConfig)
 
 
 STAGE_SECTIONS = tuple(f.name for f in dataclasses.fields(PipelineConfig) if f.name != "flow")

@@ -66,7 +66,7 @@ class Frame:
 
     t_ns: int
     depth_png: bytes
-    depth_kind: str  # "mm" | "tum" | "disparity"
+    depth_kind: str  # "mm" | "tum5000" | "disparity"
     depth_units_per_m: float
     rgb: bytes = b""
     rgb_format: str = ""
@@ -462,7 +462,7 @@ class TumReader(FrameReader):
         for (t_ns, depth_path), rgb_path, _ in _pair_nearest(
             iter(merged), int(self.cfg.max_sync_gap_ms * 1e6)
         ):
-            frame = Frame(t_ns, _read_png16(depth_path), "tum", units)
+            frame = Frame(t_ns, _read_png16(depth_path), "tum5000", units)
             if rgb_path is not None:
                 frame.rgb, frame.rgb_format = _read_bytes(rgb_path), _image_format(rgb_path)
                 frame.rgb_t_ns = rgb_times[rgb_path]

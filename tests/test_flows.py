@@ -53,14 +53,18 @@ def test_cache_rerun_and_targeted_recompute(tmp_path, capsys, prefect_home):
     assert code == 0
     assert {k: v for k, v in states.items() if v != "cached"} == {
         ("a", "preprocess"): "computed",
+        ("a", "walls"): "computed",
         ("b", "preprocess"): "computed",
+        ("b", "walls"): "computed",
     }
 
     code, states, _ = run(
         capsys, "rerun", str(survey), "--work", work, "--stage", "preprocess", "--room", "a"
     )
     assert code == 0
-    assert states == {("a", "ingest"): "cached", ("a", "preprocess"): "computed"}
+    assert states == {("a", "ingest"): "cached", ("a", "preprocess"): "computed", ("a", "walls"): "computed"}
+    for name in ("walls.parquet", "plan.geojson", "model.ply", "preview.png"):
+        assert (Path(work) / "outputs" / "rooms" / "a" / name).is_file()
 
     code, _, out = run(capsys, "status", str(survey), "--work", work)
     assert code == 0
