@@ -130,6 +130,57 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("truth", type=Path, help="truth walls: Parquet (x0 y0 x1 y1 ...) or GeoJSON LineStrings")
     p.add_argument("--tol-m", type=float, default=0.10, help="distance tolerance in metres (default 0.10)")
 
+    p = sub.add_parser(
+        "synth",
+        help="write a synthetic building survey with ground truth (deterministic per seed)",
+        description="Generate a complete survey folder: a floor with a hallway and rooms, RGB-D captures as "
+        "ROS 2 MCAP, one TLS-like cloud, an IMU track, a calibration set, an evacuation-plan raster that "
+        "differs from the as-built floor, and truth/. The same seed gives byte-identical files.",
+    )
+    p.add_argument("out", type=Path, help="output survey folder")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--rooms", type=int, default=None, help="number of rooms besides the hallway (default: all)"
+    )
+    p.add_argument("--profile", default="kinect_v1", choices=["kinect_v1", "kinect_v2", "tls"], help="sensor")
+    p.add_argument(
+        "--size", default="mini", choices=["mini", "full"], help="mini: 320x240, few frames; full: 640x480"
+    )
+
+    p = sub.add_parser(
+        "calibrate",
+        help="RGB-D calibration from target images: Brown intrinsics, IR->RGB pose, disparity model",
+        description="Writes OUT/calibration.json: {ir: {K, dist [k1 k2 p1 p2 k3], size, rms_px}, rgb: {...}, "
+        "ir_to_rgb: {R, t_m}, stereo_rms_px, depth_model}. --ir alone calibrates one camera.",
+    )
+    p.add_argument(
+        "--ir", required=True, metavar="GLOB", help="IR (or left) target images, e.g. 'cal/ir/*.png'"
+    )
+    p.add_argument("--rgb", default=None, metavar="GLOB", help="RGB (or right) images taken with the IR ones")
+    p.add_argument(
+        "--pattern",
+        required=True,
+        help="chessboard:COLSxROWS:SQUARE_M (inner corners) or circles:COLSxROWS:SPACING_M (asymmetric grid)",
+    )
+    p.add_argument("--flat", default=None, metavar="GLOB", help="raw disparity frames of a flat target")
+    p.add_argument("--distances", default=None, help="their distances in metres, comma separated")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+
+    p = sub.add_parser(
+        "register-room",
+        help="ingest -> SfM -> metric scale -> fused coloured cloud for one RGB-D capture",
+        description="Writes OUT/poses.parquet (frame_id t_ns qw qx qy qz tx ty tz method), OUT/cloud.ply and "
+        "OUT/scale.json. CAPTURE is an MCAP recording, a TUM RGB-D folder or a 7-Scenes folder.",
+    )
+    p.add_argument("capture", type=Path)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--intrinsics", default=None, metavar="FX,FY,CX,CY", help="pinhole intrinsics (pixels)")
+    p.add_argument(
+        "--depth-scale", type=float, default=None, metavar="UNITS_PER_M", help="depth units per metre"
+    )
+    p.add_argument("--calibration", type=Path, default=None, help="calibration.json from `calibrate`")
+    p.add_argument("--sensor", default="kinect_v1", help="sensor profile when there is no calibration")
+
     return parser
 
 
@@ -248,7 +299,55 @@ def cmd_evaluate_walls(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"model-room": cmd_model_room, "evaluate-walls": cmd_evaluate_walls}
+def cmd_synth(args: argparse.Namespace) -> int:
+    from tasks.synth.survey import generate_survey
+
+    started = time.perf_counter()
+    out = generate_survey(args.out, seed=args.seed, rooms=args.rooms, profile=args.profile, size=args.size)
+    print(f"survey written to {out} in {time.perf_counter() - started:.1f} s")
+    return 0
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from tasks.calibration import run_calibrate
+
+    distances = None
+    if args.distances:
+        try:
+            distances = [float(v) for v in args.distances.split(",")]
+        except ValueError as exc:
+            raise CliError(f"--distances {args.distances!r}: expected metres separated by commas") from exc
+    path = run_calibrate(
+        args.ir, args.rgb, args.pattern, args.out, flat_glob=args.flat, known_distances=distances
+    )
+    print(f"calibration written to {path}")
+    return 0
+
+
+def cmd_register_room(args: argparse.Namespace) -> int:
+    import json
+
+    from tasks.register import run_register_room
+
+    report = run_register_room(
+        args.capture,
+        args.out,
+        intrinsics=args.intrinsics,
+        depth_units_per_m=args.depth_scale,
+        calibration_path=args.calibration,
+        profile_name=args.sensor,
+    )
+    print(json.dumps(report, indent=2, default=str))
+    return 0
+
+
+COMMANDS = {
+    "model-room": cmd_model_room,
+    "evaluate-walls": cmd_evaluate_walls,
+    "synth": cmd_synth,
+    "calibrate": cmd_calibrate,
+    "register-room": cmd_register_room,
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
