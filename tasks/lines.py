@@ -505,10 +505,11 @@ def connect_detailed(segments: Segments, cfg: LinesConfig, support_fn: SupportFn
     pieces, piece_parent, piece_wall, extended = _node_pieces(walls, eps)
 
     removed = np.zeros(len(pieces), dtype=bool)
-    if support_fn is not None and len(pieces):
-        support = np.asarray(support_fn(pieces, piece_parent), dtype=np.float64)
-        # pieces beyond the observed span, and bridged spans between two junctions, need data
-        removed = (support < cfg.min_overlap) & (extended | _between_junctions(pieces, piece_wall, eps))
+    # pieces beyond the observed span, and bridged spans between two junctions, need data
+    judged = np.flatnonzero(extended | _between_junctions(pieces, piece_wall, eps)) if len(pieces) else []
+    if support_fn is not None and len(judged):
+        support = np.asarray(support_fn(pieces[judged], piece_parent[judged]), dtype=np.float64)
+        removed[judged] = support < cfg.min_overlap
     out, origin, parent = _rejoin(pieces[~removed], piece_wall[~removed], extended[~removed], walls, eps)
     return Connected(out, origin, parent, pieces[removed])
 
@@ -689,41 +690,85 @@ def _rejoin(
 # ---------------------------------------------------------------- graph and rooms
 
 
-def node_segments(segments: Segments, tol: float = 1e-6) -> Segments:
-    """Segments split wherever another segment's end or a crossing lies on them (tol: snapping distance)."""
-    segments = as_segments(segments)
-    if len(segments) == 0:
-        return segments.copy()
-    import shapely
+def _split_points(segments: Segments, tol: float) -> list[NDArray]:
+    """For every segment, the parameters t in (0, 1) where another segment's end lies within tol of it
+    or another segment crosses it."""
+    n = len(segments)
+    a, d = segments[:, :2], segments[:, 2:] - segments[:, :2]
+    L = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-300)
+    cuts: list[list[float]] = [[] for _ in range(n)]
+    # other segments' ends on a segment (T-junctions)
+    ends = np.concatenate([segments[:, :2], segments[:, 2:]])
+    owner = np.concatenate([np.arange(n), np.arange(n)])
+    dist = point_segment_distances(ends, segments)  # (2n, n)
+    t = ((ends[:, None, :] - a[None]) * d[None]).sum(-1) / (L**2)[None]
+    hit = (
+        (dist <= tol)
+        & (t * L[None] > tol)
+        & ((1 - t) * L[None] > tol)
+        & (owner[:, None] != np.arange(n)[None])
+    )
+    for e, i in zip(*np.nonzero(hit), strict=True):
+        cuts[i].append(float(t[e, i]))
+    # proper crossings
+    den = d[:, None, 0] * d[None, :, 1] - d[:, None, 1] * d[None, :, 0]
+    qp = a[None, :, :] - a[:, None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (qp[..., 0] * d[None, :, 1] - qp[..., 1] * d[None, :, 0]) / den
+        t2 = (qp[..., 0] * d[:, None, 1] - qp[..., 1] * d[:, None, 0]) / den
+    inner = lambda tt, ll: (tt * ll > tol) & ((1 - tt) * ll > tol)  # noqa: E731
+    cross = (np.abs(den) > 1e-12 * L[:, None] * L[None, :]) & inner(t1, L[:, None]) & inner(t2, L[None, :])
+    for i, j in zip(*np.nonzero(cross), strict=True):
+        cuts[i].append(float(t1[i, j]))
+    return [np.unique(c) for c in cuts]
 
-    lines = shapely.linestrings(segments.reshape(-1, 2, 2))
-    merged = shapely.unary_union(shapely.set_precision(lines, tol) if tol > 0 else lines)
-    parts = shapely.get_parts(merged)
-    out = []
-    for part in parts:
-        c = shapely.get_coordinates(part)
-        out.extend(np.concatenate([c[:-1], c[1:]], axis=1))
-    return np.array(out).reshape(-1, 4)
+
+def _noded(segments: Segments, tol: float) -> tuple[Segments, NDArray[np.intp], NDArray[np.float64]]:
+    """Segments split at junctions and crossings, with ends closer than tol merged into one node.
+    Returns (pieces (K, 4) whose ends are exactly their nodes' positions, node index (K, 2), node xy)."""
+    segments = as_segments(segments)
+    segments = segments[lengths(segments) > tol]
+    if len(segments) == 0:
+        return np.zeros((0, 4)), np.zeros((0, 2), dtype=np.intp), np.zeros((0, 2))
+    pieces = []
+    for s, c in zip(segments, _split_points(segments, tol), strict=True):
+        ts = np.concatenate([[0.0], c, [1.0]])
+        p = s[:2] + ts[:, None] * (s[2:] - s[:2])
+        pieces.append(np.concatenate([p[:-1], p[1:]], axis=1))
+    pieces = np.concatenate(pieces)
+    pts = np.concatenate([pieces[:, :2], pieces[:, 2:]])
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(pts).query_pairs(max(tol, 0.0), output_type="ndarray")
+    adj = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(pts), len(pts)))
+    _, label = connected_components(adj, directed=False)
+    count = np.bincount(label)
+    xy = np.column_stack([np.bincount(label, pts[:, k]) / count for k in (0, 1)])
+    k = len(pieces)
+    nodes = np.column_stack([label[:k], label[k:]]).astype(np.intp)
+    keep = nodes[:, 0] != nodes[:, 1]
+    nodes = nodes[keep]
+    snapped = np.concatenate([xy[nodes[:, 0]], xy[nodes[:, 1]]], axis=1)
+    return snapped, nodes, xy
+
+
+def node_segments(segments: Segments, tol: float = 1e-6) -> Segments:
+    """Segments split wherever another segment's end (within tol) or a crossing lies on them, with ends
+    closer than tol snapped together."""
+    return _noded(segments, tol)[0]
 
 
 def wall_graph(segments: Segments, tol: float = 1e-6) -> nx.Graph:
-    """Undirected graph of the walls: nodes are endpoints and junctions (snapped to `tol`, attribute
-    `xy`), edges are wall pieces (attributes `length`, `segment`)."""
+    """Undirected graph of the walls: nodes are ends and junctions (ends closer than `tol` are one node;
+    attribute `xy`), edges are wall pieces between them (attributes `length`, `segment`)."""
     g = nx.Graph()
-    noded = node_segments(segments, tol)
-    keys: dict[tuple[int, int], int] = {}
-
-    def node(p: NDArray) -> int:
-        key = (round(float(p[0]) / tol), round(float(p[1]) / tol)) if tol > 0 else (float(p[0]), float(p[1]))
-        if key not in keys:
-            keys[key] = len(keys)
-            g.add_node(keys[key], xy=(float(p[0]), float(p[1])))
-        return keys[key]
-
-    for s in noded:
-        a, b = node(s[:2]), node(s[2:])
-        if a != b:
-            g.add_edge(a, b, length=float(np.hypot(s[2] - s[0], s[3] - s[1])), segment=s.copy())
+    pieces, nodes, xy = _noded(segments, tol)
+    for i in np.unique(nodes):
+        g.add_node(int(i), xy=(float(xy[i, 0]), float(xy[i, 1])))
+    for s, (a, b) in zip(pieces, nodes, strict=True):
+        g.add_edge(int(a), int(b), length=float(np.hypot(s[2] - s[0], s[3] - s[1])), segment=s.copy())
     return g
 
 
@@ -739,7 +784,7 @@ def room_polygons(segments: Segments, tol: float = 1e-6) -> list:
     import shapely
     from shapely.ops import polygonize
 
-    noded = node_segments(segments, tol)
+    noded = node_segments(segments, tol)  # ends snapped exactly together, as polygonize needs
     if len(noded) == 0:
         return []
     polys = list(polygonize(shapely.linestrings(noded.reshape(-1, 2, 2)).tolist()))

@@ -72,7 +72,7 @@ class WallsConfig:
     """"alpha": eq 5.5 with α = H_noise / H_filter; "gaussian": eq 5.4 (μ - 1.65σ of the occupied cells)."""
     alpha: float | None = None
     """Fixed α for eq 5.5; None chooses it automatically among `alpha_candidates`."""
-    alpha_candidates: tuple[float, ...] = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5)
+    alpha_candidates: tuple[float, ...] = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5)
     """α values tried by the automatic choice, ascending."""
     top_reach_m: float | None = 0.25
     """A wall cell must hold data within this distance below the top of the slice (walls reach the
@@ -88,7 +88,10 @@ class WallsConfig:
     """β2: minimum Hough segment length (m)."""
     hough_max_gap_m: float = 0.2
     """β3: maximum gap between points of one Hough segment (m)."""
-    hough_theta_deg: float = 0.25
+    hough_min_px: int = 8
+    """Floor under β1 and β2 in pixels: on a coarse grid a few pixels of a staircase skeleton are not a
+    line (at 1 cm the metre values are larger and rule)."""
+    hough_theta_deg: float = 0.5
     """Angular resolution of the Hough accumulator (degrees)."""
     lines: LinesConfig = field(default_factory=LinesConfig)
     """Clustering, regularization and topology thresholds (metres; `tasks.lines`)."""
@@ -252,8 +255,8 @@ def hough_segments(skel: NDArray[np.bool_], grid: _Grid, cfg: WallsConfig) -> ND
         skel.astype(np.uint8) * 255,
         rho=1.0,
         theta=math.radians(cfg.hough_theta_deg),
-        threshold=max(1, round(cfg.hough_votes_m / g)),
-        minLineLength=max(1.0, cfg.hough_min_length_m / g),
+        threshold=max(cfg.hough_min_px, round(cfg.hough_votes_m / g)),
+        minLineLength=max(float(cfg.hough_min_px), cfg.hough_min_length_m / g),
         maxLineGap=max(0.0, cfg.hough_max_gap_m / g),
     )
     if found is None:
@@ -302,22 +305,22 @@ def refine_offsets(
     return out
 
 
-def _support_sampler(data_dist: NDArray, grid: _Grid, tol_m: float):
-    """Share of a segment's length within tol_m of a data pixel (distance image in pixels)."""
+def _support_sampler(binary: NDArray[np.bool_], grid: _Grid, tol_m: float):
+    """share(segments (P, 4)) -> (P,): share of each segment's length within tol_m of a wall pixel."""
+    r = max(0, int(tol_m / grid.size))
+    dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
+    disk = (dx**2 + dy**2) * grid.size**2 <= tol_m**2 + 1e-12
+    offsets = np.column_stack([dx[disk], dy[disk]])  # (K, 2) col, row
+    hi = np.array([binary.shape[1] - 1, binary.shape[0] - 1])
 
     def share(segments: NDArray) -> NDArray:
         if len(segments) == 0:
             return np.zeros(0)
         pts, owner = sample_segments(segments, grid.size)
         px = np.rint(grid.to_pixels(pts)).astype(np.int64)
-        ok = (
-            (px[:, 0] >= 0)
-            & (px[:, 0] < data_dist.shape[1])
-            & (px[:, 1] >= 0)
-            & (px[:, 1] < data_dist.shape[0])
-        )
-        near = np.zeros(len(pts), dtype=bool)
-        near[ok] = data_dist[px[ok, 1], px[ok, 0]] * grid.size <= tol_m
+        # the image border holds no data (a margin of empty cells), so clipping adds none
+        win = np.clip(px[:, None, :] + offsets[None], 0, hi)  # (P, K, 2)
+        near = binary[win[..., 1], win[..., 0]].any(axis=1)
         return np.bincount(owner, near, len(segments)) / np.bincount(owner, minlength=len(segments))
 
     return share
@@ -331,7 +334,6 @@ class _Candidate:
     closed: bool
     counts: dict[str, int]
     binary: NDArray
-    data_dist: NDArray
 
 
 def _model_for(
@@ -345,8 +347,7 @@ def _model_for(
     merged = merge_segments(hough, lcfg)
     reg, rotation = regularize(merged.segments, lcfg)
     refined = reg if points is None else refine_offsets(reg, *points, grid, cfg.refine_band_m)
-    data_dist = cv2.distanceTransform((~binary).astype(np.uint8), cv2.DIST_L2, 3)
-    share = _support_sampler(data_dist, grid, cfg.support_tol_m)
+    share = _support_sampler(binary, grid, cfg.support_tol_m)
     centres = 0.5 * (refined[:, :2] + refined[:, 2:])
 
     def support_fn(pieces: NDArray, parent: NDArray) -> NDArray:
@@ -370,7 +371,7 @@ def _model_for(
         "removed_extensions": len(conn.removed),
         "walls": len(walls),
     }
-    return _Candidate(alpha, walls, origin, closed, stats, binary, data_dist)
+    return _Candidate(alpha, walls, origin, closed, stats, binary)
 
 
 def same_walls(a: NDArray, b: NDArray, tol_m: float) -> bool:
@@ -556,7 +557,7 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
 
     t2 = time.perf_counter()
     walls, origin = best.walls, best.origin
-    share = _support_sampler(best.data_dist, grid, cfg.support_tol_m)
+    share = _support_sampler(best.binary, grid, cfg.support_tol_m)
     support = share(walls)
     polys = room_polygons(walls) if best.closed or len(walls) >= 3 else []
     polygon = polys[0] if polys else None
