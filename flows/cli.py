@@ -211,7 +211,10 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     if force_stage:
         if force_stage not in pipeline.STAGES:
             raise CliError(f"unknown stage {force_stage!r} (stages: {', '.join(pipeline.STAGES)})")
-        force = [(r, force_stage) for r in (rooms or survey.room_ids)]
+        if force_stage in pipeline.BUILDING_STAGES:
+            force = [(pipeline.BUILDING, force_stage)]
+        else:
+            force = [(r, force_stage) for r in (rooms or survey.room_ids)]
     work = args.work.resolve()
     argv = ["indoor-survey", *sys.argv[1:]]
     saved = pipeline.save_resolved_config(work, cfg, argv)

@@ -37,7 +37,7 @@ from prefect.futures import PrefectFuture, wait  # noqa: E402
 from prefect.task_runners import ThreadPoolTaskRunner  # noqa: E402
 
 from tasks import config as cfgmod  # noqa: E402
-from tasks.artefacts import ArtefactStore, StageResult, atomic_path, sha256_file  # noqa: E402
+from tasks.artefacts import BUILDING, ArtefactStore, StageResult, atomic_path, sha256_file  # noqa: E402
 from tasks.cloud import DegenerateInputError  # noqa: E402
 from tasks.ingest import capture_kind  # noqa: E402
 from tasks.stages import ROOM_DELIVERABLES, STAGES, StageContext  # noqa: E402
@@ -83,7 +83,7 @@ def cache_key(call: StageCall, upstream: dict[str, StageResult]) -> str:
     stage = STAGES[call.stage]
     inputs = {name: result.content_hash for name, result in upstream.items()}
     inputs.update({name: store.input_hash(Path(path)) for name, path in call.raw_inputs.items()})
-    if call.stage == "ingest":  # the profile says how to read a capture (topics, depth convention)
+    if stage.uses_profile:  # e.g. how to read a capture (topics, depth convention), fallback intrinsics
         inputs["sensor_profile"] = cfgmod.hash_profile(call.profile)
     return store.cache_key(stage.name, stage.code_version(), call.config, inputs)
 
@@ -161,18 +161,25 @@ def stage_task(call: StageCall, upstream: dict[str, StageResult]) -> StageResult
 
 def room_stages(capture: Path) -> list[str]:
     """The stages that apply to a room, given what its capture is."""
-    stages = ["ingest"]
     if capture_kind(capture) == "cloud":
-        stages += ["preprocess"]
-    else:
-        stages += [s for s in ("register", "preprocess") if s in STAGES]
-        if "register" not in STAGES:  # frames but no registration yet: nothing beyond ingest
-            stages = ["ingest"]
-    stages += [s for s in ("walls",) if s in STAGES and "preprocess" in stages]
+        stages = ["ingest", "preprocess"]
+    elif "register" in STAGES:
+        stages = ["ingest", "register", "preprocess"]
+    else:  # frames, but no registration stage: nothing beyond ingest
+        stages = ["ingest"]
+    if "preprocess" in stages and "walls" in STAGES:
+        stages.append("walls")
     return stages
 
 
-UPSTREAM = {"preprocess": ("register", "ingest"), "register": ("ingest",), "walls": ("preprocess",)}
+UPSTREAM: dict[str, tuple[str, ...]] = {
+    "register": ("ingest", "calibrate", "plan"),
+    "preprocess": ("register", "ingest"),
+    "walls": ("preprocess",),
+}
+"""Stage -> the stages whose results it reads (those that apply to the room, or the building's)."""
+
+BUILDING_STAGES = ("calibrate", "plan")
 
 
 @dataclass(frozen=True)
@@ -188,52 +195,100 @@ class RunRequest:
     """(room, stage) pairs to recompute whatever the cache says."""
 
 
+def survey_inputs(
+    survey: cfgmod.Survey | None, room: cfgmod.RoomSpec | None, stage_name: str
+) -> dict[str, str]:
+    """The raw survey files a stage reads (their content hashes enter its cache key)."""
+    if stage_name == "ingest" and room is not None:
+        return {"capture": str(room.capture)}
+    if survey is None:
+        return {}
+    if stage_name == "calibrate" and survey.calibration is not None and survey.calibration.is_dir():
+        return {"calibration": str(survey.calibration)}
+    if stage_name == "plan" and survey.plan is not None:
+        return {"plan": str(survey.plan.image)}
+    if stage_name == "register" and survey.track is not None and survey.track.is_file():
+        return {"track": str(survey.track)}
+    return {}
+
+
 def make_call(
     work: str | Path,
     cfg: cfgmod.PipelineConfig,
     profile: dict[str, Any],
-    room: cfgmod.RoomSpec,
+    room: cfgmod.RoomSpec | None,
     stage_name: str,
     force: bool = False,
+    survey: cfgmod.Survey | None = None,
 ) -> StageCall:
-    """The call for one room stage: its config section, and the raw survey files it reads."""
+    """The call for one stage of one room (room None: of the building): its config section and the raw
+    survey files it reads."""
     return StageCall(
         stage=stage_name,
-        room=room.id,
+        room=room.id if room is not None else BUILDING,
         work=str(Path(work).resolve()),
         config=cfgmod.section(cfg, STAGES[stage_name].section),
         profile=profile,
-        raw_inputs={"capture": str(room.capture)} if stage_name == "ingest" else {},
+        raw_inputs=survey_inputs(survey, room, stage_name),
         force=force,
     )
 
 
-def _submit_room(
-    req: RunRequest, cfg: cfgmod.PipelineConfig, survey: cfgmod.Survey, profile: dict[str, Any], room_id: str
-) -> dict[str, PrefectFuture]:
-    room = survey.room(room_id)
-    results = Path(req.work).resolve() / PREFECT_RESULTS
-    futures: dict[str, PrefectFuture] = {}
-    forced_upstream = False
-    for stage_name in room_stages(room.capture):
-        force = (room_id, stage_name) in req.force or forced_upstream
-        forced_upstream = forced_upstream or force
-        call = make_call(req.work, cfg, profile, room, stage_name, force)
-        upstream = {name: futures[name] for name in UPSTREAM.get(stage_name, ()) if name in futures}
-        futures[stage_name] = stage_task.with_options(
-            result_storage=results, refresh_cache=force or None
-        ).submit(call, upstream)
-    return futures
+@dataclass(frozen=True)
+class PlannedStage:
+    call: StageCall
+    upstream: dict[str, tuple[str, str]]
+    """Input name -> (room, stage) of the run that provides it."""
+
+
+def plan_survey(
+    req: RunRequest, cfg: cfgmod.PipelineConfig, survey: cfgmod.Survey, profile: dict[str, Any]
+) -> list[PlannedStage]:
+    """Every stage run a request implies, in dependency order: the building's stages the rooms need,
+    then each room's chain. Forcing a stage forces what follows it in that room."""
+    rooms = [survey.room(r) for r in (req.rooms or survey.room_ids)]
+    chains = {room.id: room_stages(room.capture) for room in rooms}
+    needed = {up for chain in chains.values() for s in chain for up in UPSTREAM.get(s, ())}
+    planned: list[PlannedStage] = []
+    available: set[str] = set()
+    for stage_name in BUILDING_STAGES:
+        if (
+            stage_name in STAGES
+            and stage_name in needed
+            and (stage_name != "plan" or survey.plan is not None)
+        ):
+            force = (BUILDING, stage_name) in req.force
+            planned.append(
+                PlannedStage(make_call(req.work, cfg, profile, None, stage_name, force, survey), {})
+            )
+            available.add(stage_name)
+    for room in rooms:
+        forced = False
+        for stage_name in chains[room.id]:
+            forced = forced or (room.id, stage_name) in req.force
+            upstream = {}
+            for name in UPSTREAM.get(stage_name, ()):
+                if name in chains[room.id][: chains[room.id].index(stage_name)]:
+                    upstream[name] = (room.id, name)
+                elif name in available:
+                    upstream[name] = (BUILDING, name)
+            call = make_call(req.work, cfg, profile, room, stage_name, forced, survey)
+            planned.append(PlannedStage(call, upstream))
+    return planned
 
 
 def _run(req: RunRequest) -> list[StageOutcome]:
     cfg = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets))
     survey = cfgmod.load_survey(Path(req.survey))
     profile = cfgmod.load_sensor_profile(survey.sensor)
+    results = Path(req.work).resolve() / PREFECT_RESULTS
     futures: dict[tuple[str, str], PrefectFuture] = {}
-    for room_id in req.rooms or survey.room_ids:
-        for stage_name, future in _submit_room(req, cfg, survey, profile, room_id).items():
-            futures[(room_id, stage_name)] = future
+    for item in plan_survey(req, cfg, survey, profile):
+        call = item.call
+        upstream = {name: futures[ref] for name, ref in item.upstream.items()}
+        futures[(call.room, call.stage)] = stage_task.with_options(
+            result_storage=results, refresh_cache=call.force or None
+        ).submit(call, upstream)
     wait(list(futures.values()))
     store = store_for(req.work)
     store.save_memo()
@@ -331,7 +386,7 @@ def model_room(cloud: Path, out_dir: Path, cfg: cfgmod.PipelineConfig, work: Pat
     room = cfgmod.RoomSpec("room", Path(cloud).resolve())
     profile = cfgmod.load_sensor_profile("tls")
     results: dict[str, StageResult] = {}
-    for stage_name in ("ingest", "preprocess", "walls"):
+    for stage_name in room_stages(room.capture):
         call = make_call(work, cfg, profile, room, stage_name)
         upstream = {n: results[n] for n in UPSTREAM.get(stage_name, ()) if n in results}
         try:

@@ -8,7 +8,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from flows.pipeline import UPSTREAM, cache_key, make_call, room_stages, store_for
+from flows.pipeline import RunRequest, cache_key, plan_survey, store_for
 from tasks import config as cfgmod
 from tasks.artefacts import StageResult
 
@@ -31,29 +31,32 @@ def survey_status(survey_dir: Path, work: Path, config_files: list[Path], sets: 
     survey = cfgmod.load_survey(survey_dir)
     profile = cfgmod.load_sensor_profile(survey.sensor)
     store = store_for(work)
+    req = RunRequest(survey=str(survey.root), work=str(Path(work).resolve()))
+    done: dict[tuple[str, str], StageResult] = {}
     rows = []
-    for room in survey.rooms:
-        done: dict[str, StageResult] = {}
-        for stage in room_stages(room.capture):
-            needs = [name for name in UPSTREAM.get(stage, ()) if name in room_stages(room.capture)]
-            previous = store.latest(room.id, stage)
-            if any(name not in done for name in needs):
-                status = "stale" if previous else "missing"
-                rows.append(StatusRow(room.id, stage, status, f"waits for {', '.join(needs)}"))
-                continue
-            call = make_call(work, cfg, profile, room, stage)
-            key = cache_key(call, {name: done[name] for name in needs})
-            hit = store.lookup(room.id, stage, key)
-            if hit:
-                done[stage] = hit
-                rows.append(StatusRow(room.id, stage, "done", f"{key[:12]} at {_when(hit)}"))
-            elif previous:
-                rows.append(
-                    StatusRow(
-                        room.id, stage, "stale", f"last run {_when(previous)}; inputs, config or code changed"
-                    )
+    for item in plan_survey(req, cfg, survey, profile):
+        call = item.call
+        previous = store.latest(call.room, call.stage)
+        waiting = [f"{stage}" for ref in item.upstream.values() if ref not in done for stage in [ref[1]]]
+        if waiting:
+            status = "stale" if previous else "missing"
+            rows.append(StatusRow(call.room, call.stage, status, f"waits for {', '.join(waiting)}"))
+            continue
+        key = cache_key(call, {name: done[ref] for name, ref in item.upstream.items()})
+        hit = store.lookup(call.room, call.stage, key)
+        if hit:
+            done[(call.room, call.stage)] = hit
+            rows.append(StatusRow(call.room, call.stage, "done", f"{key[:12]} at {_when(hit)}"))
+        elif previous:
+            rows.append(
+                StatusRow(
+                    call.room,
+                    call.stage,
+                    "stale",
+                    f"last run {_when(previous)}; inputs, config or code changed",
                 )
-            else:
-                rows.append(StatusRow(room.id, stage, "missing", "never run"))
+            )
+        else:
+            rows.append(StatusRow(call.room, call.stage, "missing", "never run"))
     store.save_memo()
     return rows

@@ -18,6 +18,7 @@ from typing import Any
 import yaml
 
 from tasks.artefacts import check_room_id
+from tasks.calibration import CalibrateConfig
 from tasks.ingest import IngestConfig
 from tasks.preprocess import PreprocessConfig
 from tasks.walls import WallsConfig
@@ -44,6 +45,7 @@ class PipelineConfig:
     """The whole configuration: one section per stage."""
 
     flow: FlowConfig = field(default_factory=FlowConfig)
+    calibrate: CalibrateConfig = field(default_factory=CalibrateConfig)
     ingest: IngestConfig = field(default_factory=IngestConfig)
     preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
     walls: WallsConfig = field(default_factory=WallsConfig)

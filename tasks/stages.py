@@ -45,6 +45,8 @@ class Stage:
     """The module holding the stage's computation (its source is part of the code version)."""
     run: Callable[[StageContext, Any, Path], dict[str, Any]]
     """(context, config section, output folder) -> metrics; writes its files into the folder."""
+    uses_profile: bool = False
+    """Whether the survey's sensor profile is an input (then its content is part of the cache key)."""
 
     def code_version(self) -> str:
         """Hash of the computation's module source and of this stage's shell, so editing either
@@ -56,6 +58,39 @@ class Stage:
 
 
 # ------------------------------------------------------------------------------------------------ shells
+
+
+def run_calibrate(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
+    """The survey's calibration from its target images, else the sensor profile's values (said so)."""
+    from tasks.calibration import calibrate_folder, profile_calibration
+
+    folder = ctx.raw_inputs.get("calibration")
+    if folder:
+        ctx.progress(f"calibrating from {folder}")
+        calib = calibrate_folder(Path(folder), cfg)
+    else:
+        ctx.progress(f"no calibration data: using the {ctx.profile.get('name')} profile's values")
+        calib = profile_calibration(ctx.profile)
+    data = calib.to_json()
+    art.write_json(out / "calibration.json", data)
+    return {
+        "metrics": {
+            "source": data.get("source", "targets" if folder else "profile"),
+            **_calibration_figures(data),
+        }
+    }
+
+
+def _calibration_figures(data: dict[str, Any]) -> dict[str, Any]:
+    figures: dict[str, Any] = {}
+    for cam in ("ir", "rgb"):
+        if data.get(cam):
+            figures[f"{cam}_rms_px"] = data[cam].get("rms_px")
+            figures[f"{cam}_fx_px"] = data[cam]["K"][0][0]
+    if data.get("ir_to_rgb"):
+        figures["baseline_mm"] = 1000.0 * float(np.linalg.norm(data["ir_to_rgb"]["t_m"]))
+    figures["stereo_rms_px"] = data.get("stereo_rms_px")
+    return figures
 
 
 def run_ingest(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
@@ -190,7 +225,8 @@ ROOM_DELIVERABLES = {"walls": ("walls.parquet", "plan.geojson", "model.ply", "pr
 STAGES: dict[str, Stage] = {
     stage.name: stage
     for stage in (
-        Stage("ingest", "ingest", "tasks.ingest", run_ingest),
+        Stage("calibrate", "calibrate", "tasks.calibration", run_calibrate, uses_profile=True),
+        Stage("ingest", "ingest", "tasks.ingest", run_ingest, uses_profile=True),
         Stage("preprocess", "preprocess", "tasks.preprocess", run_preprocess),
         Stage("walls", "walls", "tasks.walls", run_walls),
     )
