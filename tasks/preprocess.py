@@ -73,12 +73,11 @@ from tasks.cloud import Cloud, DegenerateInputError, require_finite
 
 # Support cells per MLS radius: with cells of r/3 a plane has ~28 support points within r.
 _MLS_CELLS_PER_RADIUS = 3
-# At most this many support points per fit (a corner of three planes has ~60 within r).
-_MLS_MAX_SUPPORT = 64
+# At most this many support points per fit: the nearest, so the cut drops the lightest (99 % of
+# points on the bench room have fewer; a corner of three planes has ~60).
+_MLS_MAX_SUPPORT = 48
 # Neighbour entries per chunk of the MLS and outlier queries: bounds memory (~25 MB per (M, K, 3) array).
 _CHUNK_ENTRIES = 1_000_000
-# Quantile of heights taken as the data's bottom and top (robust to the few points left below or above).
-_EDGE_QUANTILE = 0.005
 
 
 @dataclass(frozen=True)
@@ -95,12 +94,12 @@ class PreprocessConfig:
     """Moving-least-squares search radius in metres; also the Gaussian weight's scale (thesis: 10-15 cm Kinect)."""
     mls_degree: Literal[1, 2] = 1
     """Local fit polynomial: 1 plane (the thesis' choice for Kinect), 2 quadratic."""
+    mls_edge_ratio: float = 10.0
+    """A point whose surface variation exceeds this × the cloud's median lies on an edge or clutter: MLS leaves it in place (a plane fit would round the edge) and levelling ignores its normal; 0 disables (unitless)."""
     level_normals: Literal["horizontal", "vertical", "both"] = "both"
     """Normals the tilt is estimated from: horizontal surfaces (the thesis), walls, or both."""
     level_split_deg: float = 45.0
     """Normals within this angle of the vertical axis are horizontal surfaces, the rest vertical (degrees)."""
-    level_max_curvature: float = 0.05
-    """Surface variation λ0/(λ0+λ1+λ2) above which a point (edge, clutter) is left out of levelling (unitless)."""
     level_max_iterations: int = 10
     """Levelling iterations at most (rotate, reclassify, re-estimate)."""
     level_tol_deg: float = 0.005
@@ -126,7 +125,7 @@ class PreprocessConfig:
             (0 < self.level_split_deg < 90, "level_split_deg must be between 0 and 90"),
             (self.level_max_iterations >= 1, "level_max_iterations must be at least 1"),
             (self.level_tol_deg > 0, "level_tol_deg must be positive"),
-            (0 < self.level_max_curvature <= 1 / 3, "level_max_curvature must be in (0, 1/3]"),
+            (self.mls_edge_ratio >= 0, "mls_edge_ratio must be >= 0"),
             (self.peak_min_area_m2 > 0, "peak_min_area_m2 must be positive"),
             (self.surface_search_m > 0, "surface_search_m must be positive"),
             (0 <= self.slice_min_m < self.slice_max_m, "slice_min_m must be >= 0 and below slice_max_m"),
@@ -191,7 +190,8 @@ def preprocess(cloud: Cloud, cfg: PreprocessConfig | None = None) -> Preprocesse
     require_finite(cloud, min_points=min_points)
     lap("check")
 
-    voxels = voxel_grid(cloud, cfg.voxel_size_m)
+    centroids, voxel_counts, voxel_colors = _cell_centroids(cloud.points, cfg.voxel_size_m, cloud.colors)
+    voxels = Cloud(centroids, voxel_colors)
     if len(voxels) < min_points:
         raise DegenerateInputError(
             f"only {len(voxels)} voxels of {cfg.voxel_size_m} m are occupied, at least {min_points} needed"
@@ -202,11 +202,11 @@ def preprocess(cloud: Cloud, cfg: PreprocessConfig | None = None) -> Preprocesse
     clean = voxels.subset(keep)
     lap("outliers")
 
-    surfaces = mls_smooth(clean.points, cfg.mls_radius_m, cfg.mls_degree)
+    surfaces = mls_smooth(clean.points, cfg.mls_radius_m, cfg.mls_degree, cfg.mls_edge_ratio, voxel_counts[keep])
     smoothed = Cloud(surfaces.points, clean.colors)
     lap("mls")
 
-    rotation, level_stats = level_by_normals(surfaces.normals, surfaces.curvature, cfg)
+    rotation, level_stats = level_by_normals(surfaces.normals[~surfaces.edge], cfg)
     pivot = smoothed.points.mean(axis=0)
     levelling = np.eye(4)
     levelling[:3, :3] = rotation
@@ -216,7 +216,7 @@ def preprocess(cloud: Cloud, cfg: PreprocessConfig | None = None) -> Preprocesse
 
     z = levelled.points[:, 2]
     histogram, z_sums = height_histogram(z, cfg.voxel_size_m)
-    floor_z, ceiling_z, peak_stats = floor_and_ceiling(z, histogram, z_sums, cfg, warnings)
+    floor_z, ceiling_z, peak_stats = floor_and_ceiling(histogram, z_sums, cfg, warnings)
     lap("histogram")
 
     height = ceiling_z - floor_z
@@ -277,10 +277,13 @@ def preprocess(cloud: Cloud, cfg: PreprocessConfig | None = None) -> Preprocesse
 
 
 def _cell_centroids(
-    points: NDArray[np.float64], cell_m: float, colors: NDArray[np.uint8] | None = None
-) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.uint8] | None]:
-    """Centroid (K, 3), point count (K,) and mean colour (K, 3) of every occupied cell of an
-    origin-anchored grid of edge `cell_m`; cells in lexicographic (x, y, z) index order."""
+    points: NDArray[np.float64],
+    cell_m: float,
+    colors: NDArray[np.uint8] | None = None,
+    weights: NDArray[np.float64] | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.uint8] | None]:
+    """Weighted centroid (K, 3), total weight (K,) (the point count by default) and mean colour (K, 3) of
+    every occupied cell of an origin-anchored grid of edge `cell_m`, cells in (x, y, z) index order."""
     ijk = np.floor(points / cell_m).astype(np.int64)
     ijk -= ijk.min(axis=0)
     dims = ijk.max(axis=0) + 1
@@ -288,16 +291,19 @@ def _cell_centroids(
         extent = (dims * cell_m).max()
         raise DegenerateInputError(f"cloud extent {extent:.3g} m is too large for a {cell_m} m grid")
     key = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
-    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    _, inverse = np.unique(key, return_inverse=True)
     inverse = inverse.ravel()
+    cells = int(inverse.max()) + 1
+    totals = np.bincount(inverse, weights=weights, minlength=cells).astype(np.float64)
 
     def mean_of(values: NDArray[Any]) -> NDArray[np.float64]:
-        sums = [np.bincount(inverse, weights=values[:, i], minlength=len(counts)) for i in range(3)]
-        return np.stack(sums, axis=1) / counts[:, None]
+        columns = values if weights is None else values * weights[:, None]
+        sums = [np.bincount(inverse, weights=columns[:, i], minlength=cells) for i in range(3)]
+        return np.stack(sums, axis=1) / totals[:, None]
 
     centroids = mean_of(points)
     mean_colors = None if colors is None else np.rint(mean_of(colors)).astype(np.uint8)
-    return centroids, counts, mean_colors
+    return centroids, totals, mean_colors
 
 
 def voxel_grid(cloud: Cloud, voxel_size_m: float) -> Cloud:
@@ -357,24 +363,35 @@ class LocalSurfaces:
     """(N, 3) unit normals of the local plane fits, arbitrary sign; NaN where no fit was possible."""
     curvature: NDArray[np.float64]
     """(N,) surface variation λ0/(λ0+λ1+λ2) of the weighted neighbourhood (0 plane, 1/3 isotropic); NaN where unfit."""
+    edge: NDArray[np.bool_]
+    """(N,) points left in place: on an edge or clutter (surface variation above the edge ratio × median), or unfit."""
     stats: dict[str, float]
     """Shift statistics and fit counts."""
 
 
-def mls_smooth(points: NDArray[np.float64], radius_m: float, degree: int = 1) -> LocalSurfaces:
+def mls_smooth(
+    points: NDArray[np.float64],
+    radius_m: float,
+    degree: int = 1,
+    edge_ratio: float = 0.0,
+    weights: NDArray[np.float64] | None = None,
+) -> LocalSurfaces:
     """Moving-least-squares projection (thesis 5.1.3, eq 5.2, as PCL's MLS with Gaussian weights
     exp(-d²/r²) within r): for each point a weighted plane (degree 1) or quadratic height field over that
     plane (degree 2) is fitted to the support points within `radius_m`, and the point is moved onto it.
-    Support points are the centroids of cells of r/3 weighted by their point counts; see the module doc.
-    Vectorized over chunks of points (bounded memory)."""
+    Support points are the centroids of cells of r/3 weighted by their total `weights` (per point, default
+    1; pass the voxel counts so the fits see the raw points' moments, see the module doc).
+    With `edge_ratio` > 0, points whose surface variation exceeds edge_ratio × the median stay in place:
+    near an edge the plane fit mixes both faces and would round the edge. Vectorized over chunks of
+    points (bounded memory)."""
     n = len(points)
     origin = points.mean(axis=0)  # local coordinates keep the moment sums well conditioned
     local = points - origin
-    support, counts, _ = _cell_centroids(local, radius_m / _MLS_CELLS_PER_RADIUS)
+    support, counts, _ = _cell_centroids(local, radius_m / _MLS_CELLS_PER_RADIUS, weights=weights)
     tree = cKDTree(support)
     k = min(_MLS_MAX_SUPPORT, len(support))
     min_support = 3 if degree == 1 else 6
-    moved = points.copy()
+    shifts = np.zeros((n, 3))
     normals = np.full((n, 3), np.nan)
     curvature = np.full(n, np.nan)
     capped = 0
@@ -389,16 +406,17 @@ def mls_smooth(points: NDArray[np.float64], radius_m: float, degree: int = 1) ->
         idx = idx.reshape(len(p), k)
         valid = idx < len(support)
         nvalid = valid.sum(axis=1)
-        capped += int((nvalid == k).sum()) if k == _MLS_MAX_SUPPORT else 0
-        idx = np.where(valid, idx, 0)
-        weight = np.where(valid, counts[idx] * np.exp(-np.where(valid, dist, 0.0) ** 2 * inv_r2), 0.0)
-        rel = support[idx] - p[:, None, :]  # (M, K, 3) support relative to the point
+        capped += int((nvalid == _MLS_MAX_SUPPORT).sum())
+        idx[~valid] = 0
+        weight = np.take(counts, idx) * np.exp(-(dist * dist) * inv_r2)  # missing neighbours: dist inf, weight 0
+        rel = np.take(support, idx, axis=0)
+        rel -= p[:, None, :]  # (M, K, 3) support relative to the point
         wsum = weight.sum(axis=1)
         ok = (nvalid >= min_support) & (wsum > 0)
-        wsum = np.where(ok, wsum, 1.0)
-        mean = np.einsum("mk,mkj->mj", weight, rel) / wsum[:, None]
-        centred = rel - mean[:, None, :]
-        cov = np.matmul((centred * weight[:, :, None]).transpose(0, 2, 1), centred) / wsum[:, None, None]
+        wsum[~ok] = 1.0
+        weighted = rel * weight[:, :, None]
+        mean = weighted.sum(axis=1) / wsum[:, None]
+        cov = np.matmul(weighted.transpose(0, 2, 1), rel) / wsum[:, None, None] - mean[:, :, None] * mean[:, None, :]
         evals, evecs = np.linalg.eigh(cov)
         normal = evecs[:, :, 0]
         # the point is the local origin: its foot on the plane through `mean` with normal `normal`
@@ -409,10 +427,17 @@ def mls_smooth(points: NDArray[np.float64], radius_m: float, degree: int = 1) ->
         total = evals.sum(axis=1)
         ok &= total > 0
         unfit += int((~ok).sum())
-        moved[lo:hi][ok] += shift[ok]
+        shifts[lo:hi][ok] = shift[ok]
         normals[lo:hi][ok] = normal[ok]
         curvature[lo:hi][ok] = evals[ok, 0] / total[ok]
-    step = np.linalg.norm(moved - points, axis=1)
+    fitted = np.isfinite(curvature)
+    edge = ~fitted
+    median = float(np.median(curvature[fitted])) if fitted.any() else math.nan
+    if edge_ratio > 0 and fitted.any():
+        edge[fitted] = curvature[fitted] > edge_ratio * median
+    shifts[edge] = 0.0
+    moved = points + shifts
+    step = np.linalg.norm(shifts, axis=1)
     stats = {
         "mls_mean_shift_m": float(step.mean()),
         "mls_rms_shift_m": float(np.sqrt(np.mean(step**2))),
@@ -420,8 +445,10 @@ def mls_smooth(points: NDArray[np.float64], radius_m: float, degree: int = 1) ->
         "mls_support_points": len(support),
         "mls_capped_fraction": capped / n,
         "mls_unfit_points": unfit,
+        "mls_median_surface_variation": median,
+        "mls_edge_points": int(edge.sum()) - unfit,
     }
-    return LocalSurfaces(moved, normals, curvature, stats)
+    return LocalSurfaces(moved, normals, curvature, edge, stats)
 
 
 def _quadratic_offset(
@@ -465,20 +492,17 @@ def rotation_between(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[
 
 
 def level_by_normals(
-    normals: NDArray[np.float64], curvature: NDArray[np.float64], cfg: PreprocessConfig
+    normals: NDArray[np.float64], cfg: PreprocessConfig
 ) -> tuple[NDArray[np.float64], dict[str, Any]]:
     """Rotation (3, 3) that levels the cloud (thesis 5.1.4), and its statistics.
 
-    Each iteration classifies the (rotated) normals into horizontal surfaces (within `level_split_deg`
-    of the vertical) and vertical surfaces, takes as up the unit u maximising
-    Σ_h (n·u)² + Σ_v (1 − (n·u)²) (the top eigenvector; terms per `level_normals`), and rotates u onto z.
-    Normals of points with surface variation above `level_max_curvature` are not used."""
-    usable = np.isfinite(curvature) & (curvature <= cfg.level_max_curvature)
-    n = normals[usable]
+    Each iteration classifies the (rotated) unit normals (N, 3; sign free; NaN rows ignored) into
+    horizontal surfaces (within `level_split_deg` of the vertical) and vertical surfaces, takes as up the
+    unit u maximising Σ_h (n·u)² + Σ_v (1 − (n·u)²) (the top eigenvector; terms per `level_normals`), and
+    rotates u onto z, until the correction is below `level_tol_deg`."""
+    n = normals[np.isfinite(normals).all(axis=1)]
     if len(n) < 3:
-        raise DegenerateInputError(
-            f"levelling: only {len(n)} points lie on smooth surfaces (surface variation <= {cfg.level_max_curvature})"
-        )
+        raise DegenerateInputError(f"levelling: only {len(n)} points lie on smooth surfaces")
     cos_split = math.cos(math.radians(cfg.level_split_deg))
     rotation = np.eye(3)
     tilts: list[float] = []
@@ -521,7 +545,7 @@ def level_by_normals(
         "level_converged": tilts[-1] < cfg.level_tol_deg,
         "level_horizontal_normals": n_horizontal,
         "level_vertical_normals": n_vertical,
-        "level_unused_normals": int((~usable).sum()),
+        "level_unused_normals": len(normals) - len(n),
         "level_horizontal_median_deg": float(np.median(spread)) if len(spread) else None,
     }
     if total > cfg.level_split_deg:
@@ -549,33 +573,58 @@ def height_histogram(z: NDArray[np.float64], bin_m: float) -> tuple[HeightHistog
 
 
 def _refined_peak(i: int, hist: HeightHistogram, z_sums: NDArray[np.float64]) -> float:
-    """Sub-bin height of the peak at bin i: centroid of bins i-1..i+1 with the local background (median of
-    bins 3-8 away, e.g. walls) subtracted as if spread evenly over each bin."""
+    """Sub-bin height of the peak at bin i: the mean height of its points in bins i-1..i+1, the two
+    neighbours less the background on their side (median of bins 3-8 further out: walls, which end at a
+    floor or ceiling), spread evenly over the bin. The peak bin counts whole: its wall points lie within
+    a bin of the surface and are few beside it."""
     counts = hist.counts.astype(np.float64)
-    width = hist.edges_m[1] - hist.edges_m[0]
-    around = [j for j in (*range(i - 8, i - 2), *range(i + 3, i + 9)) if 0 <= j < len(counts)]
-    background = float(np.median(counts[around])) if around else 0.0
-    lo, hi = max(0, i - 1), min(len(counts), i + 2)
-    centres = hist.edges_m[lo:hi] + width / 2
-    excess = np.maximum(counts[lo:hi] - background, 0.0)
-    if excess.sum() <= 0:
-        return float(centres[i - lo])
-    # points of the peak: each bin's height sum minus the background's share at the bin centre
-    peak_sums = z_sums[lo:hi] - np.minimum(background, counts[lo:hi]) * centres
-    return float(peak_sums.sum() / excess.sum())
+    width = float(hist.edges_m[1] - hist.edges_m[0])
+    n = len(counts)
+
+    def background(side: int) -> float:
+        around = [j for j in range(i + 3 * side, i + 9 * side, side) if 0 <= j < n]
+        return float(np.median(counts[around])) if around else 0.0
+
+    total_count, total_sum = counts[i], z_sums[i]
+    for side in (-1, 1):
+        j = i + side
+        if 0 <= j < n:
+            wall = min(background(side), counts[j])
+            centre = hist.edges_m[j] + width / 2
+            total_count += counts[j] - wall
+            total_sum += z_sums[j] - wall * centre
+    return float(total_sum / total_count)
+
+
+def _band_edges(hist: HeightHistogram) -> tuple[float, float]:
+    """Bottom and top of the data: the outermost bins holding at least half the median occupied bin (the
+    walls' level), each refined by how full that bin is compared with its five inner neighbours."""
+    counts = hist.counts.astype(np.float64)
+    width = float(hist.edges_m[1] - hist.edges_m[0])
+    level = 0.5 * float(np.median(counts[counts > 0]))
+    dense = np.flatnonzero(counts >= level)
+    lo, hi = int(dense[0]), int(dense[-1])
+
+    def fill(i: int, inner: NDArray[np.float64]) -> float:
+        reference = float(np.median(inner)) if len(inner) else 0.0
+        return min(1.0, counts[i] / reference) if reference > 0 else 1.0
+
+    fill_lo = fill(lo, counts[lo + 1 : lo + 6])
+    fill_hi = fill(hi, counts[max(0, hi - 5) : hi])
+    return float(hist.edges_m[lo + 1] - width * fill_lo), float(hist.edges_m[hi] + width * fill_hi)
 
 
 def floor_and_ceiling(
-    z: NDArray[np.float64],
     hist: HeightHistogram,
     z_sums: NDArray[np.float64],
     cfg: PreprocessConfig,
     warnings: list[str],
 ) -> tuple[float, float, dict[str, Any]]:
     """Floor and ceiling heights from the histogram (thesis 5.1.5): the lowest and highest peaks that rise
-    `peak_min_area_m2` above their surroundings, each accepted only within `surface_search_m` of the data's
-    bottom (top). A surface not found falls back to that quantile with a warning; none found is an error."""
-    bottom, top = (float(q) for q in np.quantile(z, [_EDGE_QUANTILE, 1 - _EDGE_QUANTILE]))
+    `peak_min_area_m2` above their surroundings, each accepted only within `surface_search_m` of the
+    bottom (top) of the data. A surface not captured falls back to that bottom (top), the end of the walls,
+    with a warning; neither captured is an error."""
+    bottom, top = _band_edges(hist)
     span = top - bottom
     if span < cfg.slice_min_m:
         raise DegenerateInputError(
@@ -596,10 +645,10 @@ def floor_and_ceiling(
         )
     if floor is None:
         floor = bottom
-        warnings.append(f"no floor peak: floor taken as the lowest {_EDGE_QUANTILE:.1%} of points, z = {bottom:.3f} m")
+        warnings.append(f"no floor peak: floor taken as the bottom of the walls, z = {bottom:.3f} m")
     if ceiling is None:
         ceiling = top
-        warnings.append(f"no ceiling peak: ceiling taken as the highest {_EDGE_QUANTILE:.1%} of points, z = {top:.3f} m")
+        warnings.append(f"no ceiling peak: ceiling taken as the top of the walls, z = {top:.3f} m")
     stats = {
         "histogram_peaks_z_m": [round(p, 4) for p in peaks],
         "histogram_peak_min_count": min_count,
