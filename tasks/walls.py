@@ -334,6 +334,7 @@ class _Candidate:
     closed: bool
     counts: dict[str, int]
     binary: NDArray
+    polygon: Any
 
 
 def _model_for(
@@ -359,9 +360,12 @@ def _model_for(
         return share(rotate_segments(pieces, rot, c))
 
     conn = connect_detailed(refined, lcfg, support_fn)
-    keep = lengths(conn.segments) >= cfg.min_wall_length_m
-    walls, origin = conn.segments[keep], conn.origin[keep]
-    closed = bool(len(walls)) and is_closed(wall_graph(walls, tol=1e-6))
+    walls, origin = _drop_short_stubs(conn.segments, conn.origin, cfg.min_wall_length_m)
+    polygon, inside = _room_polygon(walls, grid.size)
+    outside = int((~inside).sum())
+    # walls outside the room (seen through doors and windows) are not the room's inner faces
+    walls, origin = walls[inside], origin[inside]
+    closed = polygon is not None and is_closed(wall_graph(walls, tol=1e-6))
     stats = {
         "binary_px": int(binary.sum()),
         "skeleton_px": int(skel.sum()),
@@ -369,9 +373,44 @@ def _model_for(
         "orientation_clusters": len(merged.orientation_deg),
         "merged_lines": len(merged.segments),
         "removed_extensions": len(conn.removed),
+        "walls_outside_room": outside,
         "walls": len(walls),
     }
-    return _Candidate(alpha, walls, origin, closed, stats, binary)
+    return _Candidate(alpha, walls, origin, closed, stats, binary, polygon)
+
+
+def _drop_short_stubs(walls: NDArray, origin: NDArray, min_length_m: float) -> tuple[NDArray, NDArray]:
+    """Walls shorter than min_length_m with a free end go (short connectors between walls stay)."""
+    short = lengths(walls) < min_length_m
+    if not short.any():
+        return walls, origin
+    ends = np.concatenate([walls[:, :2], walls[:, 2:]])
+    d = point_segment_distances(ends, walls)
+    n = len(walls)
+    d[np.arange(2 * n), np.tile(np.arange(n), 2)] = np.inf
+    free = d.min(axis=1) > 1e-6 if n > 1 else np.ones(2 * n, dtype=bool)
+    drop = short & (free[:n] | free[n:])
+    return walls[~drop], origin[~drop]
+
+
+def _room_polygon(walls: NDArray, tol_m: float) -> tuple[Any, NDArray[np.bool_]]:
+    """The room: the largest face the walls enclose, provided the walls on or inside its outline hold most
+    of the wall length (else it is a column or a cupboard, not the room: None). Also which walls lie on
+    or inside it (all of them when there is no room)."""
+    everything = np.ones(len(walls), dtype=bool)
+    polys = room_polygons(walls) if len(walls) >= 3 else []
+    if not polys:
+        return None, everything
+    import shapely
+    from shapely.geometry import Polygon
+
+    shell = Polygon(polys[0].exterior).buffer(tol_m)
+    mid = 0.5 * (walls[:, :2] + walls[:, 2:])
+    inside = shapely.contains_xy(shell, mid[:, 0], mid[:, 1])
+    L = lengths(walls)
+    if L[inside].sum() < 0.5 * L.sum():
+        return None, everything
+    return polys[0], inside
 
 
 def same_walls(a: NDArray, b: NDArray, tol_m: float) -> bool:
@@ -559,8 +598,7 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
     walls, origin = best.walls, best.origin
     share = _support_sampler(best.binary, grid, cfg.support_tol_m)
     support = share(walls)
-    polys = room_polygons(walls) if best.closed or len(walls) >= 3 else []
-    polygon = polys[0] if polys else None
+    polygon = best.polygon
     walls = orient_walls(walls, polygon)
     verts, tris = extrude(walls, floor_z_m, ceiling_z_m, polygon)
     preview = render_preview(counts, best.binary, walls, origin, grid)

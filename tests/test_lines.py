@@ -72,8 +72,8 @@ def test_two_collinear_pieces_with_a_03_m_gap_give_one_wall():
     assert merged.segments.shape == (1, 4)
     assert lengths(merged.segments)[0] == pytest.approx(4.0)
     assert list(merged.labels) == [0, 0]
-    # a gap wider than max_gap_m stays two walls
-    far = np.array([[0.0, 1.0, 2.0, 1.0], [2.6, 1.0, 4.0, 1.0]])
+    # a gap wider than max_gap_m (a door) stays two walls
+    far = np.array([[0.0, 1.0, 2.0, 1.0], [2.9, 1.0, 4.0, 1.0]])
     assert len(merge_segments(far, CFG).segments) == 2
 
 
@@ -98,7 +98,7 @@ def test_70_degree_wall_stays_70():
             [0, 0, 5, 0],
             [5, 0, 5, 3],
             [0, 3, 5, 3],
-                    [0, 0, 0, 0],  # replaced below
+            [0, 0, 0, 0],  # replaced below
         ],
         dtype=float,
     )
@@ -176,7 +176,7 @@ def test_pixels_and_metres_give_the_same_walls(rng):
     walls_m, _ = connect(regularize(merge_segments(hough, CFG).segments, CFG)[0], CFG)
     px = 100.0
     cfg_px = CFG.scaled(px)
-    assert cfg_px.max_gap_m == pytest.approx(50.0)
+    assert cfg_px.max_gap_m == pytest.approx(100 * CFG.max_gap_m)
     walls_px, _ = connect(regularize(merge_segments(hough * px, cfg_px).segments, cfg_px)[0], cfg_px)
     np.testing.assert_allclose(np.sort(walls_px / px, axis=0), np.sort(walls_m, axis=0), atol=1e-6)
 

@@ -154,7 +154,7 @@ def test_alpha_choice_prefers_the_longest_stable_closed_run():
     broken = box[:3]
 
     def cand(alpha, walls, closed):
-        return _Candidate(alpha, walls, np.array(["observed"] * len(walls)), closed, {}, None)
+        return _Candidate(alpha, walls, np.array(["observed"] * len(walls)), closed, {}, None, None)
 
     cands = [
         cand(0.05, clutter, True),
