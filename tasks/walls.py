@@ -516,31 +516,41 @@ def orient_walls(walls: NDArray, polygon: Any) -> NDArray:
     return out
 
 
-def render_preview(counts: NDArray, binary: NDArray, walls: NDArray, origin: NDArray, grid: _Grid) -> NDArray:
-    """RGB picture, north up: data in grey (darker = taller column), the cells kept as wall data in a
-    light blue, observed walls in dark blue, extended ones in orange, corners as red dots, a 1 m bar."""
+def render_preview(
+    counts: NDArray, binary: NDArray, walls: NDArray, origin: NDArray, grid: _Grid, min_side_px: int = 800
+) -> NDArray:
+    """RGB picture, north up: data in grey (darker = taller column), the cells kept as wall data in light
+    blue, observed walls in dark blue, extended ones in orange, wall ends as red dots, a 1 m bar below.
+    Coarse grids are enlarged (whole pixels) so that the longer side has at least `min_side_px`."""
     n_max = max(float(counts.max()), 1.0)
     grey = (255 - 140 * np.sqrt(counts / n_max)).astype(np.uint8)
     img = np.repeat(grey[..., None], 3, axis=2)
     img[binary] = (150, 190, 235)
-    scale = max(1, round(0.01 / grid.size * 1.0))  # never shrink a 1 cm grid
-    thick = max(2, round(0.02 / grid.size))
+    scale = int(min(10, max(1, math.ceil(min_side_px / max(counts.shape)))))
+    if scale > 1:
+        img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    img = np.ascontiguousarray(img[::-1])  # north up: row 0 is the largest y
+    h = img.shape[0]
+    shift = 4  # sub-pixel drawing
+    thick = 3
+
+    def at(p: NDArray) -> tuple[int, int]:
+        col, row = (p[0] + 0.5) * scale - 0.5, h - 1 - ((p[1] + 0.5) * scale - 0.5)
+        return round(col * (1 << shift)), round(row * (1 << shift))
+
     px = grid.to_pixels(walls.reshape(-1, 2)).reshape(-1, 4) if len(walls) else np.zeros((0, 4))
-    img = np.ascontiguousarray(img)
     for s, o in zip(px, origin, strict=True):
         colour = (25, 60, 170) if o == OBSERVED else (240, 140, 20)
-        p, q = (round(s[0] * scale), round(s[1] * scale)), (round(s[2] * scale), round(s[3] * scale))
-        cv2.line(img, p, q, colour, thick, cv2.LINE_AA)
+        cv2.line(img, at(s[:2]), at(s[2:]), colour, thick, cv2.LINE_AA, shift)
     for s in px:
         for p in (s[:2], s[2:]):
-            cv2.circle(img, (round(p[0]), round(p[1])), thick + 2, (210, 30, 30), -1, cv2.LINE_AA)
-    img = np.ascontiguousarray(img[::-1])
-    bar = round(1.0 / grid.size)
-    h = img.shape[0]
-    if img.shape[1] > bar + 20 and h > 30:
-        cv2.rectangle(img, (10, h - 18), (10 + bar, h - 12), (0, 0, 0), -1)
-        cv2.putText(img, "1 m", (14 + bar, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
-    return img
+            cv2.circle(img, at(p), 5 << shift, (210, 30, 30), -1, cv2.LINE_AA, shift)
+    bar = round(scale / grid.size)
+    foot = np.full((34, img.shape[1], 3), 255, dtype=np.uint8)
+    if img.shape[1] > bar + 60:
+        cv2.rectangle(foot, (10, 14), (10 + bar, 20), (0, 0, 0), -1)
+        cv2.putText(foot, "1 m", (16 + bar, 23), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.concatenate([img, foot])
 
 
 def _check_input(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg: WallsConfig) -> NDArray:
