@@ -431,8 +431,8 @@ def _perpendicular_targets(means: NDArray, weight: NDArray, tol: float) -> NDArr
         if len(comp) < 2:
             continue
         ref = means[comp[0]]
-        # express every member as ref-frame angle: phi_i = mean_i reduced modulo 90° around ref
-        phis = np.array([ref + angle_difference(4 * means[i], 4 * ref) / 4 for i in comp])
+        # every member's angle reduced modulo 90° to near ref (doubling makes the period 90°)
+        phis = np.array([ref + angle_difference(2 * means[i], 2 * ref) / 2 for i in comp])
         ww = weight[comp]
         phi = float((ww * phis).sum() / ww.sum())
         for i in comp:
@@ -524,36 +524,34 @@ def connect_detailed(segments: Segments, cfg: LinesConfig, support_fn: SupportFn
 
 def _extend_and_trim(walls: list[_Wall], T: float, sin_tol: float) -> None:
     """Move every end to the best intersection with a non-parallel line when the end moves at most T
-    and the intersection lies within T of the other segment (5.2.5.2, fig 5.14 a-c)."""
-    snapshot = [(w.end(0), w.end(1), w.as_segment()) for w in walls]
+    and the intersection lies within T of the other segment (5.2.5.2, fig 5.14 a-c). All walls are
+    judged against the segments as they were before this step."""
+    if len(walls) < 2:
+        return
+    segs = np.array([w.as_segment() for w in walls])
+    A, D = segs[:, :2], segs[:, 2:] - segs[:, :2]
+    Lv = np.hypot(D[:, 0], D[:, 1])
+    U = np.array([w.u for w in walls])
     for i, w in enumerate(walls):
-        for e in (0, 1):
-            outward = -1.0 if e == 0 else 1.0
-            t_end = w.t0 if e == 0 else w.t1
-            best, best_score = None, np.inf
-            for j, v in enumerate(walls):
-                if j == i or abs(w.u[0] * v.u[1] - w.u[1] * v.u[0]) < sin_tol:
-                    continue
-                hit = line_intersection(w.as_segment(), snapshot[j][2])
-                if hit is None:
-                    continue
-                x, _, t2 = hit
-                t = float((x - w.a) @ w.u)
-                move = (t - t_end) * outward  # > 0 extends, < 0 trims
-                lv = v.t1 - v.t0
-                beyond = max(0.0, -t2, t2 - 1.0) * lv  # distance of the hit outside segment j
-                if abs(move) > T or beyond > T:
-                    continue
-                if move < 0 and -move > 0.5 * (w.t1 - w.t0):
-                    continue  # never trim away more than half a wall
-                score = abs(move) + beyond
-                if score < best_score:
-                    best, best_score = t, score
-            if best is not None:
-                if e == 0:
-                    w.t0 = best
-                else:
-                    w.t1 = best
+        ok = np.abs(U[i, 0] * U[:, 1] - U[i, 1] * U[:, 0]) >= sin_tol
+        ok[i] = False
+        if not ok.any():
+            continue
+        den = np.where(ok, U[i, 0] * D[:, 1] - U[i, 1] * D[:, 0], 1.0)
+        qp = A - w.a
+        t = (qp[:, 0] * D[:, 1] - qp[:, 1] * D[:, 0]) / den  # along wall i (unit direction)
+        sj = (qp[:, 0] * U[i, 1] - qp[:, 1] * U[i, 0]) / den  # along segment j (0..1)
+        beyond = np.maximum(0.0, np.maximum(-sj, sj - 1.0)) * Lv  # distance of the hit outside segment j
+        length = w.t1 - w.t0
+        new = {}
+        for e, t_end, outward in ((0, w.t0, -1.0), (1, w.t1, 1.0)):
+            move = (t - t_end) * outward  # > 0 extends, < 0 trims
+            valid = ok & (np.abs(move) <= T) & (beyond <= T) & ~((move < 0) & (-move > 0.5 * length))
+            if valid.any():
+                score = np.where(valid, np.abs(move) + beyond, np.inf)
+                new[e] = float(t[int(np.argmin(score))])
+        w.t0 = new.get(0, w.t0)
+        w.t1 = new.get(1, w.t1)
 
 
 def _free_ends(walls: list[_Wall], eps: float) -> list[tuple[int, int]]:
