@@ -488,7 +488,15 @@ def connect(
 
 
 def connect_detailed(segments: Segments, cfg: LinesConfig, support_fn: SupportFn | None = None) -> Connected:
-    """`connect` with the parent of every wall and the removed pieces."""
+    """`connect` with the parent of every wall and the removed pieces.
+
+    Every wall is cut where other walls end on it and where its observed span ends, so that each
+    extension is a piece of its own. With `support_fn`, a piece is removed when its support is below
+    `cfg.min_overlap` and it is either an extension in the original direction that does not close a
+    corner (a corner: both its ends meet exactly one other piece, so removing it would open the room,
+    typically where the data stops short of a corner) or a span bridged between two junctions (a wall
+    behind a column). Perpendicular joins are kept, as in the thesis. Kept pieces of one wall are joined
+    again."""
     segments = as_segments(segments)
     walls: list[_Wall] = []
     for i, s in enumerate(segments):

@@ -18,16 +18,21 @@ nothing. Steps (thesis section in brackets):
    median of the slice points near it (the skeleton is only good to a pixel);
 7. topology (5.2.5.2, `tasks.lines.connect`): extension / trimming, perpendicular joins of free ends,
    removal of extensions with less than `min_overlap` of data (judged with the regularization rotation
-   undone), wall graph and room polygon;
+   undone; an extension that closes a corner stays, see `tasks.lines.connect_detailed`), wall graph
+   and room polygon. The room is the largest face the walls enclose when the walls on or inside it hold
+   most of the wall length; walls outside it (seen through doors and windows) are dropped, and so are
+   dangling walls shorter than `min_wall_length_m`. Walls are turned to have the room on their left;
 8. extrusion (5.2.6) to a triangle mesh, and a preview picture.
 
 Choosing α: the thesis has a person raise α until the clutter disappears. Here every candidate α runs
-steps 2-7 and the model is summarised as its set of walls. Walls are stable over a wide range of α
-(their columns are full), clutter and noise are not (they fade out gradually), and too large an α breaks
-the walls apart. The chosen α is the smallest of the longest run of consecutive candidates that give a
-closed wall graph and the same walls (same count, every wall within `stable_tol_m` of one in the
-neighbour's model); without any closed model, the longest run of equal models. The choice and the
-per-candidate summaries go to `metrics`.
+steps 2-7 (without the point-level offset refinement) and the model is summarised as its set of walls.
+Walls are stable over a wide range of α (their columns are full), clutter and noise are not (they fade
+out gradually), and too large an α breaks the walls apart. The chosen α is the smallest of the longest
+run of consecutive candidates that give a closed wall graph and the same walls (same count, every wall
+end within `stable_tol_m` of a wall of the neighbour's model); without any closed model, the longest
+run of equal models. The chosen α is then run again with the refinement. The choice, the reason and
+the per-candidate summaries go to `metrics`. Occupancy alone cannot tell a tall cabinet from the wall
+above a window (both fill part of the slice): the top-reach test does that, not α.
 """
 
 from __future__ import annotations
