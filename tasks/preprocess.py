@@ -3,53 +3,66 @@ floor, ceiling and height, and the furniture slice the wall stage projects.
 
 Steps, in this order:
 
-1. **Voxel grid** (5.1.2): every voxel's points are replaced by their centroid, colours averaged. The grid
-   is anchored at the origin (voxel i covers [i·v, (i+1)·v)), so it does not move with the cloud's extent.
-2. **Statistical outlier removal** (5.1.1, eq 5.1): the mean distance of each point to its K = 20 nearest
-   neighbours; points above the global mean + 1·std of those means are removed (one-tailed 1σ test).
+1. **Voxel grid** (5.1.2): every voxel's points are replaced by their centroid, colours averaged; each
+   voxel's point count is kept. The grid is anchored at the origin (voxel i covers [i·v, (i+1)·v)), so it
+   does not move with the cloud's extent.
+2. **Statistical outlier removal** (5.1.1, eq 5.1): each point's mean distance to its K = 20 nearest
+   neighbours; points above μ + 1σ of those distances are removed (one-tailed 1σ test).
 3. **Moving-least-squares smoothing** (5.1.3, eq 5.2): a Gaussian-weighted plane (or quadratic) fit within
-   `mls_radius_m` around every point, the point projected onto it. The fit's normal and surface variation
-   are kept for levelling.
-4. **Levelling by normals** (5.1.4): normals split at 45° into horizontal and vertical surfaces; the up
-   direction that best fits both groups gives the tilt; rotate, reclassify, repeat until the step is below
+   `mls_radius_m` around every point, the point projected onto it. The fit's normal is kept for levelling.
+4. **Levelling by normals** (5.1.4): normals split at 45° into horizontal and vertical surfaces, an up
+   direction estimated from them, rotate, reclassify, repeat until the correction is below
    `level_tol_deg`. The rotation turns about the cleaned cloud's centroid, so x-y and heights stay close
    to the input's; the floor is not moved to z = 0.
 5. **Height histogram** (5.1.5): bins of the voxel size, so counts measure horizontal area; the lowest and
    highest significant peaks are floor and ceiling, refined below the bin size.
-6. **Furniture slice** (5.1.5): points between `slice_min_m` and `slice_max_m` above the floor, kept
+6. **Furniture slice** (5.1.5): points from `slice_min_m` to `slice_max_m` above the floor, and at least
    `slice_ceiling_margin_m` below the ceiling (lamps, and rooms lower than 2.5 m).
 
-Choices, with what was measured (synthetic tilted box room of bench/preprocess.py, 2 cores shared with
-other work, so timings are indicative):
+Choices and what was measured (`python -m bench.preprocess --order-study --level-study --voxel-study`,
+synthetic furnished 6 x 5 x 2.7 m room tilted 3°, 2 % outliers; 2 cores shared with other work, so
+wall-clock seconds are indicative and CPU seconds are given too):
 
-- **Order: downsample first.** The thesis filters outliers before the voxel grid. Filtering the raw cloud
-  costs a K-NN query per raw point; after the voxel grid it is a query per voxel, and since the voxel grid
-  makes the density uniform, the mean-distance statistic compares like with like (raw captures are far
-  denser near the sensor). An outlier merged into a surface voxel moves that voxel's centroid by less than
-  one voxel divided by the voxel's point count. Measured on a 1 M point room with 2 % outliers
-  (`python -m bench.preprocess --order-study`): raw-first 12.1 s for the two steps vs 1.1 s voxel-first; far
-  outliers left after the whole stage 0 vs 0; height 2.7007 vs 2.7005 m.
+- **Downsample first, then filter outliers** (the thesis filters first). Filtering costs a K-NN query per
+  point: per raw point before the grid, per voxel after it; and after the grid the density is uniform, so
+  the mean-distance statistic compares like with like (raw captures are far denser near the sensor). An
+  outlier merged into a surface voxel shifts its centroid by at most a voxel over the voxel's count.
+  1 M points: raw-first 32 s vs voxel-first 7 s for the two steps; far voxels left 0 and 0 (of 18 270);
+  surface voxels kept 80.9 % vs 81.9 %; residual tilt after the stage 0.002° vs 0.017°.
+- **μ and σ of eq 5.1 with 3σ clipping.** Outliers metres away inflate σ: on the test room (7 284
+  outliers more than 10 cm from any surface), plain μ + 1σ gave a 0.39 m threshold and the stage's output
+  kept 3 712 points more than 10 cm off; clipped, the threshold was 0.040 m and none were left. On data
+  without gross outliers it is PCL's test.
 - **Voxel size 0.02 m.** The thesis uses 3-5 cm for Kinect clouds (noise) and 1 cm where accuracy matters
-  (TLS, 7 mm model error). Kinect v1 range noise is 7 mm at 1.8 m and 15 mm at 2.6 m, so a voxel below
-  ~2 cm mostly keeps noise; the wall stage grids at this size, whose quantization error (at most half a
-  cell, 5.8 mm RMS at 2 cm) fits the 15 mm wall-accuracy budget, while 3-5 cm would not. A TLS profile
-  should set 0.01.
-- **MLS on a support grid.** open3d has no MLS. Fitting each point against all its neighbours within
-  10 cm at a 2 cm voxel means ~100-200 neighbours per point. Instead, the local fits use the cloud
-  aggregated into cells of a third of the radius, each cell a support point at its centroid weighted by its
-  point count (the Gaussian weight varies little across a cell). That bounds the neighbours at ~30 on a
-  plane whatever the voxel size, and makes the cost linear in the point count. On a noisy plane the result
-  matches the full fit to well under a millimetre (tests/test_preprocess.py).
-- **Levelling uses horizontal and vertical normals** ("both"): the up vector u maximises
+  (TLS: 7 mm model error). Kinect v1 range noise is 7 mm at 1.8 m and 15 mm at 2.6 m, so finer voxels
+  mostly keep noise; the wall stage grids at this size, and half a 2 cm cell (5.8 mm RMS) fits the
+  15 mm wall budget where 3-5 cm would not. On 1 M points, 1 / 1.5 / 2 / 3 cm: 12.3 / 8.4 / 5.8 / 3.4 CPU
+  s, height error 0.1-0.5 mm and residual tilt <= 0.01° at every size. A 5 M point room at 1 cm would
+  take ~4x longer; the TLS profile should set 0.01.
+- **MLS on a support grid, with voxel counts as weights.** open3d has no MLS. The local fits use the
+  cloud aggregated into cells of a third of the radius, each cell a support point at its (count-weighted)
+  centroid carrying its total count (the Gaussian weight varies little across a cell): ~30 support points
+  per fit on a plane whatever the voxel size, a cost linear in the points, and fits that agree with the
+  textbook all-neighbours fit to a fraction of the noise removed (tests). Weighting by the voxel counts
+  matters: unweighted voxel centroids of a noisy tilted surface form terraces along the grid (a voxel with
+  a few points of the noise's tail counts as much as a full one), which biased normals by 0.2° (1 M
+  points) to 0.7° (5 M) towards the input's axes; with the counts the fits see the raw points' moments.
+- **Edges are not smoothed.** Near an edge the plane fit mixes both faces and MLS rounds the edge (99th
+  percentile of distance to the true surfaces 18.8 mm, against 12.0 mm before MLS). Points whose surface
+  variation λ0/Σλ exceeds `mls_edge_ratio` × its median (16 % of them) stay in place, and their normals
+  are not used for levelling: 99th percentile 7.1 mm, median 0.4 mm (2.4 mm before MLS). The median adapts to the noise: with 4x the noise the test
+  hardly fires, as there MLS helps everywhere.
+- **Levelling on horizontal and vertical normals** ("both"): the up vector u maximises
   Σ_horizontal (n·u)² + Σ_vertical (1 − (n·u)²), the sign-free form of averaging the sign-aligned
-  horizontal normals, plus the wall condition that u is orthogonal to wall normals. With floor and ceiling
-  both captured the two agree; with little floor and no ceiling the walls keep the error small (measured in
-  `--level-study`). Points on edges and clutter (surface variation above `level_max_curvature`) are left
-  out. A levelling that is ill-determined (one wall and nothing horizontal) is an error.
-- **Missing floor or ceiling.** A peak counts as the floor (ceiling) only if it lies within
-  `surface_search_m` of the lowest (highest) 0.5 % of points: otherwise it is a table or a lamp and the
-  surface was not captured. One missing surface: its height is taken from that 0.5 % quantile of the
-  walls, with a warning in `metrics["warnings"]`. Both missing: an error.
+  horizontal normals plus the condition that walls are vertical. Residual tilt, degrees, 500 k points,
+  horizontal / vertical / both: full floor and ceiling 0.006 / 0.003 / 0.004; 30 % of each 0.008 /
+  0.005 / 0.006; 10 % floor, no ceiling 0.198 / 0.041 / 0.025; 4x noise 0.066 / 0.116 / 0.010; 10 %
+  floor, no ceiling, 4x noise 0.735 / 0.235 / 0.070. One wall and nothing horizontal is an error.
+- **Missing floor or ceiling.** A peak counts as the floor (ceiling) only within `surface_search_m` of
+  where the walls end at the bottom (top): otherwise it is a table or a lamp and the surface was not
+  captured. One surface missing: its height is where the walls end, with a warning in
+  `metrics["warnings"]`; with no ceiling the height came out 22 mm low, as the outlier filter thins the
+  walls' free top edge by about a voxel. Both missing: an error.
 
 Degenerate inputs raise `DegenerateInputError` with one line: an empty cloud, NaNs, fewer than K + 1
 points, a single plane (vertical: levelling ill-determined; horizontal: no height span), or a room too low
@@ -73,9 +86,10 @@ from tasks.cloud import Cloud, DegenerateInputError, require_finite
 
 # Support cells per MLS radius: with cells of r/3 a plane has ~28 support points within r.
 _MLS_CELLS_PER_RADIUS = 3
-# At most this many support points per fit: the nearest, so the cut drops the lightest (99 % of
-# points on the bench room have fewer; a corner of three planes has ~60).
-_MLS_MAX_SUPPORT = 48
+# At most this many support points per fit, the nearest, so a cut drops the lightest. A corner of three
+# planes has ~60. On the 2 M point bench room 48 capped 3.8 % of the fits, 64 none, both with the same
+# result and CPU time.
+_MLS_MAX_SUPPORT = 64
 # Neighbour entries per chunk of the MLS and outlier queries: bounds memory (~25 MB per (M, K, 3) array).
 _CHUNK_ENTRIES = 1_000_000
 
@@ -85,35 +99,35 @@ class PreprocessConfig:
     """Preprocess parameters (thesis 5.1, table 6.3)."""
 
     outlier_neighbours: int = 20
-    """K: neighbours whose mean distance each point is tested on (thesis: 20)."""
+    """K: nearest neighbours whose mean distance each point is tested on (count; thesis: 20)."""
     outlier_std_ratio: float = 1.0
-    """Points whose mean K-NN distance exceeds the global mean + this × std are removed (1σ one-tailed, eq 5.1)."""
+    """Removed: mean K-NN distance above μ + this × σ of those distances (unitless; eq 5.1: 1σ)."""
     voxel_size_m: float = 0.02
-    """Voxel grid edge in metres; also the height histogram's bin (thesis: 3-5 cm Kinect, 1 cm TLS)."""
+    """Voxel grid edge (m); also the height histogram's bin (thesis: 3-5 cm Kinect, 1 cm TLS)."""
     mls_radius_m: float = 0.10
-    """Moving-least-squares search radius in metres; also the Gaussian weight's scale (thesis: 10-15 cm Kinect)."""
+    """MLS search radius, also the Gaussian weight's scale (m; thesis: 10-15 cm for Kinect)."""
     mls_degree: Literal[1, 2] = 1
-    """Local fit polynomial: 1 plane (the thesis' choice for Kinect), 2 quadratic."""
+    """Degree of the MLS local fit: 1 plane (the thesis' choice for Kinect), 2 quadratic (unitless)."""
     mls_edge_ratio: float = 10.0
-    """A point whose surface variation exceeds this × the cloud's median lies on an edge or clutter: MLS leaves it in place (a plane fit would round the edge) and levelling ignores its normal; 0 disables (unitless)."""
+    """Surface variation above this × its median marks an edge: not moved by MLS, not levelled on (0: off)."""
     level_normals: Literal["horizontal", "vertical", "both"] = "both"
-    """Normals the tilt is estimated from: horizontal surfaces (the thesis), walls, or both."""
+    """Normals the tilt comes from: horizontal surfaces (the thesis), walls, or both (measured best)."""
     level_split_deg: float = 45.0
     """Normals within this angle of the vertical axis are horizontal surfaces, the rest vertical (degrees)."""
     level_max_iterations: int = 10
-    """Levelling iterations at most (rotate, reclassify, re-estimate)."""
+    """Most levelling iterations (rotate, reclassify, re-estimate) (count)."""
     level_tol_deg: float = 0.005
     """Levelling stops once an iteration's tilt correction is below this (degrees)."""
     peak_min_area_m2: float = 0.25
-    """A height-histogram peak is a floor/ceiling candidate if it rises this much horizontal area (m²) above its surroundings."""
+    """A histogram peak can be floor or ceiling if it rises this much area above its surroundings (m²)."""
     surface_search_m: float = 0.20
-    """Floor (ceiling) peak must lie within this of the lowest (highest) 0.5 % of points, else it is taken as not captured (m)."""
+    """Floor (ceiling) peak must lie within this of where the walls end, else it is not captured (m)."""
     slice_min_m: float = 1.5
     """Furniture slice lower edge above the floor (m)."""
     slice_max_m: float = 2.5
     """Furniture slice upper edge above the floor (m)."""
     slice_ceiling_margin_m: float = 0.15
-    """The slice stops at least this far below the ceiling (lamps; rooms lower than slice_max_m) (m)."""
+    """The slice stops at least this far below the ceiling: lamps, rooms lower than slice_max_m (m)."""
 
     def __post_init__(self) -> None:
         checks = [
@@ -154,7 +168,7 @@ class Preprocessed:
     slice: Cloud
     """The furniture slice of `cloud`."""
     levelling: NDArray[np.float64]
-    """(4, 4) rigid transform input frame -> levelled frame (a rotation about the cleaned cloud's centroid)."""
+    """(4, 4) rigid transform input frame -> levelled frame: a rotation about the cleaned cloud's centroid."""
     floor_z_m: float
     """Floor height."""
     ceiling_z_m: float
@@ -190,8 +204,7 @@ def preprocess(cloud: Cloud, cfg: PreprocessConfig | None = None) -> Preprocesse
     require_finite(cloud, min_points=min_points)
     lap("check")
 
-    centroids, voxel_counts, voxel_colors = _cell_centroids(cloud.points, cfg.voxel_size_m, cloud.colors)
-    voxels = Cloud(centroids, voxel_colors)
+    voxels, voxel_counts = voxel_grid(cloud, cfg.voxel_size_m)
     if len(voxels) < min_points:
         raise DegenerateInputError(
             f"only {len(voxels)} voxels of {cfg.voxel_size_m} m are occupied, at least {min_points} needed"
@@ -202,7 +215,9 @@ def preprocess(cloud: Cloud, cfg: PreprocessConfig | None = None) -> Preprocesse
     clean = voxels.subset(keep)
     lap("outliers")
 
-    surfaces = mls_smooth(clean.points, cfg.mls_radius_m, cfg.mls_degree, cfg.mls_edge_ratio, voxel_counts[keep])
+    surfaces = mls_smooth(
+        clean.points, cfg.mls_radius_m, cfg.mls_degree, cfg.mls_edge_ratio, voxel_counts[keep]
+    )
     smoothed = Cloud(surfaces.points, clean.colors)
     lap("mls")
 
@@ -224,8 +239,8 @@ def preprocess(cloud: Cloud, cfg: PreprocessConfig | None = None) -> Preprocesse
     slice_high = min(floor_z + cfg.slice_max_m, ceiling_z - cfg.slice_ceiling_margin_m)
     if slice_high <= slice_low:
         raise DegenerateInputError(
-            f"room height {height:.2f} m leaves no furniture slice between {cfg.slice_min_m} m above the floor "
-            f"and {cfg.slice_ceiling_margin_m} m below the ceiling"
+            f"room height {height:.2f} m leaves no furniture slice between {cfg.slice_min_m} m above the "
+            f"floor and {cfg.slice_ceiling_margin_m} m below the ceiling"
         )
     in_slice = (z >= slice_low) & (z <= slice_high)
     if not in_slice.any():
@@ -306,10 +321,11 @@ def _cell_centroids(
     return centroids, totals, mean_colors
 
 
-def voxel_grid(cloud: Cloud, voxel_size_m: float) -> Cloud:
-    """The cloud with each occupied voxel's points replaced by their centroid, colours averaged (thesis 5.1.2)."""
-    centroids, _, colors = _cell_centroids(cloud.points, voxel_size_m, cloud.colors)
-    return Cloud(centroids, colors)
+def voxel_grid(cloud: Cloud, voxel_size_m: float) -> tuple[Cloud, NDArray[np.float64]]:
+    """The cloud with each occupied voxel's points replaced by their centroid, colours averaged (thesis
+    5.1.2), and each voxel's point count (K,)."""
+    centroids, counts, colors = _cell_centroids(cloud.points, voxel_size_m, cloud.colors)
+    return Cloud(centroids, colors), counts
 
 
 # ----------------------------------------------------------------------------------- outlier removal
@@ -322,7 +338,9 @@ def statistical_outliers(
     distance to its `neighbours` nearest other points; points above mean + std_ratio · std (over all points)
     are outliers. Also returns the statistic's mean, std and threshold in metres."""
     if len(points) <= neighbours:
-        raise DegenerateInputError(f"{len(points)} points are too few for a {neighbours}-neighbour outlier test")
+        raise DegenerateInputError(
+            f"{len(points)} points are too few for a {neighbours}-neighbour outlier test"
+        )
     tree = cKDTree(points)
     mean_dist = np.empty(len(points))
     chunk = max(1, _CHUNK_ENTRIES // (neighbours + 1))
@@ -362,9 +380,9 @@ class LocalSurfaces:
     normals: NDArray[np.float64]
     """(N, 3) unit normals of the local plane fits, arbitrary sign; NaN where no fit was possible."""
     curvature: NDArray[np.float64]
-    """(N,) surface variation λ0/(λ0+λ1+λ2) of the weighted neighbourhood (0 plane, 1/3 isotropic); NaN where unfit."""
+    """(N,) surface variation λ0/(λ0+λ1+λ2) of the fit (0 plane, 1/3 isotropic); NaN where unfit."""
     edge: NDArray[np.bool_]
-    """(N,) points left in place: on an edge or clutter (surface variation above the edge ratio × median), or unfit."""
+    """(N,) points left in place: unfit, or on an edge (surface variation above edge ratio × median)."""
     stats: dict[str, float]
     """Shift statistics and fit counts."""
 
@@ -408,7 +426,8 @@ def mls_smooth(
         nvalid = valid.sum(axis=1)
         capped += int((nvalid == _MLS_MAX_SUPPORT).sum())
         idx[~valid] = 0
-        weight = np.take(counts, idx) * np.exp(-(dist * dist) * inv_r2)  # missing neighbours: dist inf, weight 0
+        # Gaussian weights (eq 5.2) times the support weights; a missing neighbour has dist inf, weight 0
+        weight = np.take(counts, idx) * np.exp(-(dist * dist) * inv_r2)
         rel = np.take(support, idx, axis=0)
         rel -= p[:, None, :]  # (M, K, 3) support relative to the point
         wsum = weight.sum(axis=1)
@@ -416,14 +435,20 @@ def mls_smooth(
         wsum[~ok] = 1.0
         weighted = rel * weight[:, :, None]
         mean = weighted.sum(axis=1) / wsum[:, None]
-        cov = np.matmul(weighted.transpose(0, 2, 1), rel) / wsum[:, None, None] - mean[:, :, None] * mean[:, None, :]
+        cov = (
+            np.matmul(weighted.transpose(0, 2, 1), rel) / wsum[:, None, None]
+            - mean[:, :, None] * mean[:, None, :]
+        )
         evals, evecs = np.linalg.eigh(cov)
         normal = evecs[:, :, 0]
         # the point is the local origin: its foot on the plane through `mean` with normal `normal`
         foot = np.einsum("mj,mj->m", mean, normal)[:, None] * normal
         shift = foot
         if degree == 2:
-            shift = foot + _quadratic_offset(rel - foot[:, None, :], weight, evecs, radius_m, ok)[:, None] * normal
+            shift = (
+                foot
+                + _quadratic_offset(rel - foot[:, None, :], weight, evecs, radius_m, ok)[:, None] * normal
+            )
         total = evals.sum(axis=1)
         ok &= total > 0
         unfit += int((~ok).sum())
@@ -458,7 +483,8 @@ def _quadratic_offset(
     scale: float,
     ok: NDArray[np.bool_],
 ) -> NDArray[np.float64]:
-    """Height at the foot point (u = v = 0) of the weighted quadratic w = c0 + c1 u + c2 v + c3 u² + c4 uv + c5 v²
+    """Height at the foot point (u = v = 0) of the weighted quadratic
+    w = c0 + c1 u + c2 v + c3 u² + c4 uv + c5 v²
     fitted to support points `rel` (M, K, 3), given relative to the foot, in each plane frame `frames`
     (M, 3, 3: columns normal, minor, major); 0 where the fit is not `ok`."""
     u = np.einsum("mkj,mj->mk", rel, frames[:, :, 2]) / scale
@@ -666,24 +692,28 @@ def render_histogram(
     slice_high: float,
     size: tuple[int, int] = (480, 640),
 ) -> NDArray[np.uint8]:
-    """(H, W, 3) RGB picture of the height histogram: height upwards, log count to the right; the furniture
-    slice shaded green, the floor blue, the ceiling red."""
+    """(H, W, 3) RGB picture of the height histogram: height upwards, count to the right on a square-root
+    scale (walls stay visible beside the floor peak); the furniture slice shaded green, the floor blue, the
+    ceiling red."""
     height, width = size
-    left, right, top, bottom = 64, 16, 28, 16
+    left, right, top, bottom = 64, 16, 28, 20
     image = np.full((height, width, 3), 255, np.uint8)
     z_lo, z_hi = float(hist.edges_m[0]), float(hist.edges_m[-1])
 
     def row(z: float) -> int:
         frac = (z - z_lo) / max(z_hi - z_lo, 1e-9)
-        return int(round(height - bottom - frac * (height - top - bottom)))
+        return round(height - bottom - frac * (height - top - bottom))
 
     cv2.rectangle(image, (left, row(slice_high)), (width - right, row(slice_low)), (205, 235, 205), -1)
-    scale = np.log1p(hist.counts) / max(np.log1p(hist.counts.max()), 1e-9)
+    marks = ((floor_z, (30, 80, 220), "floor"), (ceiling_z, (220, 40, 40), "ceiling"))
+    for z_mark, colour, _ in marks:  # under the bars, so a floor or ceiling peak stays visible
+        cv2.line(image, (left, row(z_mark)), (width - right, row(z_mark)), colour, 1)
+    scale = np.sqrt(hist.counts / max(int(hist.counts.max()), 1))
     for i, s in enumerate(scale):
         if s <= 0:
             continue
         y0, y1 = row(hist.edges_m[i + 1]), row(hist.edges_m[i])
-        x1 = left + int(round(s * (width - left - right)))
+        x1 = left + round(s * (width - left - right))
         cv2.rectangle(image, (left, y0), (x1, max(y0, y1 - 1)), (110, 110, 110), -1)
     font = cv2.FONT_HERSHEY_SIMPLEX
     for z_tick in np.arange(math.ceil(z_lo * 2) / 2, z_hi, 0.5):
@@ -691,11 +721,17 @@ def render_histogram(
         cv2.line(image, (left - 5, y), (left, y), (0, 0, 0), 1)
         cv2.putText(image, f"{z_tick:.1f}", (4, y + 4), font, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.line(image, (left, top), (left, height - bottom), (0, 0, 0), 1)
-    for z_mark, colour, name in ((floor_z, (30, 80, 220), "floor"), (ceiling_z, (220, 40, 40), "ceiling")):
+    for z_mark, colour, name in marks:
         y = row(z_mark)
-        cv2.line(image, (left, y), (width - right, y), colour, 2)
         cv2.putText(image, f"{name} {z_mark:.3f} m", (width - 190, y - 5), font, 0.45, colour, 1, cv2.LINE_AA)
-    title = f"height histogram, bin {100 * (hist.edges_m[1] - hist.edges_m[0]):.1f} cm: height {ceiling_z - floor_z:.3f} m"
+    bin_cm = 100 * (hist.edges_m[1] - hist.edges_m[0])
+    title = f"height histogram, bin {bin_cm:.1f} cm: height {ceiling_z - floor_z:.3f} m"
     cv2.putText(image, title, (left, 18), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(image, "slice", (left + 6, row(slice_high) + 16), font, 0.45, (40, 130, 40), 1, cv2.LINE_AA)
+    cv2.putText(
+        image, "slice", (width - right - 50, row(slice_high) + 16), font, 0.45, (40, 130, 40), 1, cv2.LINE_AA
+    )
+    cv2.putText(image, "z (m)", (4, 18), font, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(
+        image, "points per bin (square root)", (left + 6, height - 3), font, 0.4, (0, 0, 0), 1, cv2.LINE_AA
+    )
     return image

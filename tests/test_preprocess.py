@@ -1,0 +1,533 @@
+"""Preprocess stage (thesis 5.1): every step on inputs with known answers, then the whole stage on a
+synthetic tilted box room (issue 2, must-show 6)."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from tasks.cloud import Cloud, DegenerateInputError
+from tasks.preprocess import (
+    PreprocessConfig,
+    floor_and_ceiling,
+    height_histogram,
+    level_by_normals,
+    mls_smooth,
+    preprocess,
+    statistical_outliers,
+    voxel_grid,
+)
+
+# ------------------------------------------------------------------------------- synthetic room
+
+
+@dataclass(frozen=True)
+class RoomTruth:
+    """What the synthetic room generator knows."""
+
+    room_to_input: NDArray[np.float64]
+    """(4, 4) true room frame (floor z = 0, walls axis-aligned) -> the cloud's frame."""
+    boxes: NDArray[np.float64]
+    """(B, 2, 3) min/max corners of the room and the furniture, room frame: surfaces are their faces."""
+    height_m: float
+    outliers: NDArray[np.bool_]
+    """(N,) the injected outliers."""
+    far_outliers: NDArray[np.bool_]
+    """(N,) injected outliers more than FAR_M from every true surface."""
+
+
+FAR_M = 0.10
+
+
+def surface_distance(points: NDArray[np.float64], boxes: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Distance (N,) from each room-frame point to the nearest face of any box."""
+    best = np.full(len(points), np.inf)
+    for lo, hi in boxes:
+        outside = np.linalg.norm(np.maximum(np.maximum(lo - points, points - hi), 0), axis=1)
+        inside = np.minimum(points - lo, hi - points).min(axis=1)
+        best = np.minimum(best, np.where(inside > 0, inside, outside))
+    return best
+
+
+def tilted_box_room(
+    n_points: int = 400_000,
+    seed: int = 7,
+    *,
+    size: tuple[float, float, float] = (5.0, 4.0, 2.70),
+    tilt_deg: float = 3.0,
+    tilt_axis: tuple[float, float, float] = (0.8, 0.6, 0.0),
+    outlier_ratio: float = 0.02,
+    floor_fraction: float = 1.0,
+    ceiling_fraction: float = 1.0,
+    noise_scale: float = 1.0,
+    colors: bool = True,
+) -> tuple[Cloud, RoomTruth]:
+    """A furnished box room captured like a Kinect room cloud, in a tilted sensor-like frame.
+
+    Surfaces (room faces, a table, a tall cabinet, a sofa, a hanging lamp) are sampled evenly by area;
+    `floor_fraction`/`ceiling_fraction` keep only that share of floor/ceiling (a strip by a wall).
+    Noise is along the ray from a viewpoint in the middle of the room, σ = 2 mm + 1.5 mm per metre
+    (3-7 mm), times `noise_scale`. Outliers, `outlier_ratio` of all points: a third spread through the
+    room's volume grown by 0.5 m, a third flying pixels (surface points pushed 0.1-1 m along their ray),
+    a third far (5-20 m). The room frame is tilted `tilt_deg` about `tilt_axis` (not a coordinate axis),
+    turned 20° about z and shifted so the floor sits about 1.3 m below the origin, as in a capture whose
+    frame is the first camera's."""
+    rng = np.random.default_rng(seed)
+    sx, sy, sz = size
+    boxes = [
+        ((0, 0, 0), (sx, sy, sz)),  # the room, seen from inside
+        ((1.2, 1.0, 0.71), (2.8, 1.9, 0.75)),  # table top
+        *[((x, y, 0), (x + 0.05, y + 0.05, 0.71)) for x in (1.25, 2.7) for y in (1.05, 1.8)],  # legs
+        ((sx - 0.45, 0.5, 0), (sx, 1.5, 1.95)),  # tall cabinet against a wall: reaches into the slice
+        ((0.3, sy - 0.95, 0), (2.3, sy, 0.45)),  # sofa
+        ((2.3, 2.3, 2.45), (2.7, 2.7, 2.55)),  # lamp under the ceiling
+    ]
+    faces = []  # (origin, u edge, v edge, normal axis) of every visible face
+    for b, (lo, hi) in enumerate(boxes):
+        lo, hi = np.array(lo, float), np.array(hi, float)
+        for axis in range(3):
+            for side in (0, 1):
+                if b > 0 and axis == 2 and side == 0 and lo[2] == 0:
+                    continue  # furniture bottoms on the floor are hidden
+                u_ax, v_ax = [a for a in range(3) if a != axis]
+                origin = lo.copy()
+                origin[axis] = (lo, hi)[side][axis]
+                u = np.zeros(3)
+                v = np.zeros(3)
+                u[u_ax] = hi[u_ax] - lo[u_ax]
+                v[v_ax] = hi[v_ax] - lo[v_ax]
+                if b == 0 and axis == 2:  # partial floor or ceiling: a strip along the y = 0 wall
+                    v *= floor_fraction if side == 0 else ceiling_fraction
+                faces.append((origin, u, v))
+    areas = np.array([np.linalg.norm(np.cross(u, v)) for _, u, v in faces])
+    n_out = round(outlier_ratio * n_points)
+    n_surf = n_points - n_out
+    which = rng.choice(len(faces), n_surf, p=areas / areas.sum())
+    st = rng.random((n_surf, 2))
+    origins = np.array([f[0] for f in faces])[which]
+    us = np.array([f[1] for f in faces])[which]
+    vs = np.array([f[2] for f in faces])[which]
+    surface = origins + st[:, :1] * us + st[:, 1:] * vs
+
+    eye = np.array([sx / 2, sy / 2, 1.4])
+    ray = surface - eye
+    rng_m = np.linalg.norm(ray, axis=1, keepdims=True)
+    ray /= rng_m
+    surface = surface + ray * rng.normal(0, 1, (n_surf, 1)) * noise_scale * (0.002 + 0.0015 * rng_m)
+
+    thirds = [n_out // 3, n_out // 3, n_out - 2 * (n_out // 3)]
+    volume = rng.uniform((-0.5, -0.5, -0.5), (sx + 0.5, sy + 0.5, sz + 0.5), (thirds[0], 3))
+    src = surface[rng.choice(n_surf, thirds[1])]
+    src_ray = (src - eye) / np.linalg.norm(src - eye, axis=1, keepdims=True)
+    flying = src + src_ray * rng.uniform(0.1, 1.0, (thirds[1], 1)) * rng.choice([-1, 1], (thirds[1], 1))
+    direction = rng.normal(size=(thirds[2], 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    far = eye + direction * rng.uniform(5, 20, (thirds[2], 1))
+    points = np.concatenate([surface, volume, flying, far])
+    outliers = np.r_[np.zeros(n_surf, bool), np.ones(n_out, bool)]
+    boxes_arr = np.array(boxes, float)
+    far_outliers = outliers & (surface_distance(points, boxes_arr) > FAR_M)
+
+    order = rng.permutation(len(points))
+    points, outliers, far_outliers = points[order], outliers[order], far_outliers[order]
+    axis = np.asarray(tilt_axis, float) / np.linalg.norm(tilt_axis)
+    tilt = Rotation.from_rotvec(math.radians(tilt_deg) * axis)
+    yaw = Rotation.from_euler("z", 20, degrees=True)
+    transform = np.eye(4)
+    transform[:3, :3] = (yaw * tilt).as_matrix()
+    transform[:3, 3] = (-1.0, 0.5, -1.3)
+    cloud_pts = points @ transform[:3, :3].T + transform[:3, 3]
+    rgb = rng.integers(0, 256, (len(points), 3), dtype=np.uint8) if colors else None
+    truth = RoomTruth(transform, boxes_arr, sz, outliers, far_outliers)
+    return Cloud(cloud_pts, rgb), truth
+
+
+def residual_tilt_deg(levelling: NDArray[np.float64], truth: RoomTruth) -> float:
+    """Angle between the room's true up and z after levelling."""
+    up = levelling[:3, :3] @ truth.room_to_input[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    return math.degrees(math.acos(min(1.0, up[2])))
+
+
+def to_room_frame(
+    points: NDArray[np.float64], levelling: NDArray[np.float64], truth: RoomTruth
+) -> NDArray[np.float64]:
+    """Levelled-frame points (N, 3) back in the true room frame."""
+    full = levelling @ truth.room_to_input
+    return (points - full[:3, 3]) @ full[:3, :3]
+
+
+@pytest.fixture(scope="module")
+def room():
+    """The must-show room: 2.70 m high, tilted 3° about a non-axis direction, 2 % outliers, furnished."""
+    cloud, truth = tilted_box_room()
+    return cloud, truth, preprocess(cloud, PreprocessConfig())
+
+
+# ------------------------------------------------------------------------------- whole stage
+
+
+@pytest.mark.slow
+def test_tilted_room_height_within_2cm(room):
+    _, truth, result = room
+    assert abs(result.height_m - truth.height_m) < 0.02
+    assert result.height_m == pytest.approx(result.ceiling_z_m - result.floor_z_m)
+    assert result.metrics["warnings"] == []
+
+
+@pytest.mark.slow
+def test_tilted_room_residual_tilt_below_0_2_deg(room):
+    _, truth, result = room
+    assert residual_tilt_deg(result.levelling, truth) < 0.2
+    assert result.metrics["level_tilt_deg"] == pytest.approx(3.0, abs=0.2)
+    rotation = result.levelling[:3, :3]
+    np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
+
+
+@pytest.mark.slow
+def test_tilted_room_outliers_gone(room):
+    cloud, truth, result = room
+    injected_far = int(truth.far_outliers.sum())
+    assert injected_far > 0.01 * len(cloud)  # most of the 2 % are far from every surface
+    distance = surface_distance(to_room_frame(result.cloud.points, result.levelling, truth), truth.boxes)
+    assert int((distance > FAR_M).sum()) == 0
+    assert np.percentile(distance, 99) < 0.01  # and the rest sits on the surfaces
+
+
+@pytest.mark.slow
+def test_outlier_filter_removes_the_far_voxels(room):
+    """The filter itself, before MLS could pull anything onto a surface: far voxels in, none out."""
+    cloud, truth, _ = room
+    voxels, _ = voxel_grid(cloud, 0.02)
+    room_frame = (voxels.points - truth.room_to_input[:3, 3]) @ truth.room_to_input[:3, :3]
+    far = surface_distance(room_frame, truth.boxes) > FAR_M
+    keep, stats = statistical_outliers(voxels.points, 20, 1.0)
+    assert far.sum() > 5000
+    assert int((far & keep).sum()) == 0
+    assert stats["outlier_threshold_m"] == pytest.approx(
+        stats["outlier_knn_mean_m"] + stats["outlier_knn_std_m"]
+    )
+
+
+@pytest.mark.slow
+def test_tilted_room_frame_and_heights(room):
+    """Rotation about the cleaned cloud's centroid: that point stays, x-y stay near the input's, and the
+    floor keeps its input height (about -1.3 m here), not moved to z = 0."""
+    _, truth, result = room
+    pivot = np.array(result.metrics["levelling_pivot_m"])
+    np.testing.assert_allclose(result.levelling[:3, :3] @ pivot + result.levelling[:3, 3], pivot, atol=1e-9)
+    full = result.levelling @ truth.room_to_input
+    centre = np.array([2.5, 2.0, 0.0])  # middle of the floor, room frame
+    assert result.floor_z_m == pytest.approx((full[:3, :3] @ centre + full[:3, 3])[2], abs=0.01)
+    assert result.floor_z_m == pytest.approx(-1.3, abs=0.1)
+    assert result.ceiling_z_m == pytest.approx(result.floor_z_m + 2.70, abs=0.02)
+
+
+@pytest.mark.slow
+def test_tilted_room_slice_and_outputs(room):
+    cloud, truth, result = room
+    z = result.slice.points[:, 2]
+    assert z.min() >= result.floor_z_m + 1.5 - 1e-9
+    assert z.max() <= result.floor_z_m + 2.5 + 1e-9
+    room_frame = to_room_frame(result.slice.points, result.levelling, truth)
+    cabinet_top = (np.abs(room_frame[:, 2] - 1.95) < 0.02) & (room_frame[:, 0] > 4.6)
+    assert cabinet_top.sum() > 100  # a 1.95 m cabinet reaches into the slice; the table does not
+    assert not (np.abs(room_frame[:, 2] - 0.75) < 0.1).any()
+    assert result.cloud.colors is not None and result.cloud.colors.dtype == np.uint8
+    assert result.slice.colors.shape == result.slice.points.shape
+    edges, counts = result.histogram
+    assert len(edges) == len(counts) + 1 and np.allclose(np.diff(edges), 0.02)
+    assert counts.sum() == pytest.approx(len(result.cloud), rel=0.01)
+    picture = result.histogram_png
+    assert picture.dtype == np.uint8 and picture.ndim == 3 and picture.shape[2] == 3
+    for rgb in ((30, 80, 220), (220, 40, 40), (205, 235, 205)):  # floor, ceiling, slice marked
+        assert (picture == rgb).all(axis=2).sum() > 100
+    m = result.metrics
+    assert m["points_in"] == len(cloud) and m["points_out"] == len(result.cloud)
+    assert m["points_after_outliers"] == m["points_after_voxel"] - m["outliers_removed"]
+    assert set(m["timings_s"]) >= {"voxel", "outliers", "mls", "level", "histogram", "slice", "total"}
+    json.dumps(m)  # the manifest takes it as it is
+
+
+@pytest.mark.slow
+def test_room_without_ceiling_falls_back_with_a_warning():
+    cloud, truth = tilted_box_room(200_000, seed=3, floor_fraction=0.3, ceiling_fraction=0.0)
+    result = preprocess(cloud, PreprocessConfig())
+    assert residual_tilt_deg(result.levelling, truth) < 0.2
+    assert any("no ceiling" in w for w in result.metrics["warnings"])
+    assert abs(result.height_m - truth.height_m) < 0.03
+
+
+# ------------------------------------------------------------------------------- steps
+
+
+def test_voxel_grid_centroids_and_colours():
+    points = np.array(
+        [
+            [0.01, 0.02, 0.03],
+            [0.05, 0.06, 0.07],  # same 0.1 m voxel as the first
+            [0.101, 0.02, 0.03],  # next voxel in x: the grid is anchored at 0, not at the cloud
+            [-0.05, -0.05, -0.05],  # voxel (-1, -1, -1)
+        ]
+    )
+    colors = np.array([[10, 20, 30], [20, 40, 51], [7, 7, 7], [1, 2, 3]], np.uint8)
+    out, counts = voxel_grid(Cloud(points, colors), 0.1)
+    got = {
+        tuple(np.round(p, 9)): (tuple(c), n) for p, c, n in zip(out.points, out.colors, counts, strict=True)
+    }
+    assert got == {
+        (0.03, 0.04, 0.05): ((15, 30, 40), 2),  # 40.5 rounds to even
+        (0.101, 0.02, 0.03): ((7, 7, 7), 1),
+        (-0.05, -0.05, -0.05): ((1, 2, 3), 1),
+    }
+    assert voxel_grid(Cloud(points), 0.1)[0].colors is None
+
+
+def test_outlier_filter_is_eq_5_1(rng):
+    """Mean distance to the 20 nearest other points; removed above μ + 1σ (one-tailed), μ and σ those of
+    the mean distances after 3σ clipping: checked against a brute-force computation."""
+    points = rng.normal(size=(1500, 3))
+    keep, stats = statistical_outliers(points, 20, 1.0)
+    d = np.linalg.norm(points[:, None] - points[None], axis=2)
+    mean_knn = np.sort(d, axis=1)[:, 1:21].mean(axis=1)
+    assert stats["outlier_knn_mean_unclipped_m"] == pytest.approx(mean_knn.mean(), rel=1e-12)
+    inlier = np.ones(len(points), bool)
+    while True:
+        mu, sigma = mean_knn[inlier].mean(), mean_knn[inlier].std(ddof=1)
+        if np.array_equal(inlier, mean_knn <= mu + 3 * sigma):
+            break
+        inlier = mean_knn <= mu + 3 * sigma
+    assert inlier.sum() < len(points)  # the blob's sparse fringe is clipped
+    assert stats["outlier_threshold_m"] == pytest.approx(mu + sigma, rel=1e-12)
+    np.testing.assert_array_equal(keep, mean_knn <= mu + sigma)
+    keep2, stats2 = statistical_outliers(points, 20, 2.0)
+    assert stats2["outlier_threshold_m"] == pytest.approx(mu + 2 * sigma, rel=1e-12)
+    assert keep2.sum() > keep.sum()
+
+
+def test_outlier_filter_on_plane_with_scattered_points(rng):
+    """A dense plane (mean-distance statistic near Gaussian) plus 300 points scattered in a 4 m cube and
+    30 points 50-100 m away: every scattered point goes, and about the one-tailed 1σ share (15.9 %) of
+    the plane."""
+    plane = np.c_[rng.random((20000, 2)) * 2, rng.normal(0, 0.002, 20000)]
+    scattered = rng.uniform(-2, 2, (300, 3)) + np.array([1.0, 1.0, 0.0])
+    scattered = scattered[np.abs(scattered[:, 2]) > 0.2]
+    far = rng.normal(size=(30, 3))
+    far = far / np.linalg.norm(far, axis=1, keepdims=True) * rng.uniform(50, 100, (30, 1))
+    points = np.concatenate([plane, scattered, far])
+    keep, _ = statistical_outliers(points, 20, 1.0)
+    assert not keep[len(plane) :].any()
+    removed_share = 1 - keep[: len(plane)].mean()
+    assert 0.08 < removed_share < 0.22
+
+
+def _noisy_plane(rng, n=60_000, sigma=0.005, size=3.0):
+    normal = np.array([0.1, 0.2, 1.0]) / np.linalg.norm([0.1, 0.2, 1.0])
+    xy = rng.random((n, 2)) * size
+    z = 1.0 - (normal[0] * xy[:, 0] + normal[1] * xy[:, 1]) / normal[2]
+    points = np.c_[xy, z] + normal * rng.normal(0, sigma, (n, 1))
+    return points, normal
+
+
+def _plane_distance(points, normal):
+    return (points - [0, 0, 1.0]) @ normal
+
+
+def test_mls_reduces_noise_on_a_plane_and_keeps_it(rng):
+    points, normal = _noisy_plane(rng)
+    inner = np.all((points[:, :2] > 0.2) & (points[:, :2] < 2.8), axis=1)  # away from the free border
+    before = _plane_distance(points, normal)
+    for degree, factor in ((1, 5.0), (2, 4.0)):
+        result = mls_smooth(points, 0.10, degree)
+        after = _plane_distance(result.points, normal)
+        rms_before, rms_after = np.sqrt(np.mean(before[inner] ** 2)), np.sqrt(np.mean(after[inner] ** 2))
+        assert rms_before / rms_after > factor, (degree, rms_before, rms_after)
+        assert abs(after[inner].mean()) < 2e-4  # the plane does not move
+        # points move across the plane, hardly along it (only as far as the local normal is off)
+        step = result.points - points
+        across = step @ normal
+        along = np.linalg.norm(step - across[:, None] * normal, axis=1)
+        assert np.sqrt(np.mean(along**2)) < 0.05 * np.sqrt(np.mean(across**2))
+        off = np.degrees(np.arccos(np.minimum(np.abs(result.normals[inner] @ normal), 1)))
+        assert off.mean() < 1.0 and np.percentile(off, 99) < 2.5
+        assert np.nanmax(result.curvature[inner]) < 0.01
+
+
+def test_mls_support_grid_matches_the_full_neighbourhood_fit(rng):
+    """The support-cell shortcut against the textbook fit (every point within r, Gaussian weights)."""
+    points, normal = _noisy_plane(rng, n=30_000, sigma=0.005, size=2.0)
+    result = mls_smooth(points, 0.10, 1)
+    tree = cKDTree(points)
+    probe = rng.choice(np.flatnonzero(np.all((points[:, :2] > 0.3) & (points[:, :2] < 1.7), axis=1)), 300)
+    exact = []
+    for i in probe:
+        nb = points[tree.query_ball_point(points[i], 0.10)]
+        w = np.exp(-np.sum((nb - points[i]) ** 2, axis=1) / 0.10**2)
+        mean = (w[:, None] * nb).sum(0) / w.sum()
+        cov = ((nb - mean) * w[:, None]).T @ (nb - mean)
+        n = np.linalg.eigh(cov)[1][:, 0]
+        exact.append(points[i] - ((points[i] - mean) @ n) * n)
+    diff = np.linalg.norm(result.points[probe] - np.array(exact), axis=1)
+    noise_removed = np.abs(_plane_distance(points[probe], normal)).mean()
+    assert diff.mean() < 0.1 * noise_removed and diff.max() < 1e-3
+
+
+def test_mls_with_voxel_counts_sees_the_raw_surface(rng):
+    """Voxel centroids of a dense, noisy, tilted plane form terraces along the grid (a voxel holding a few
+    points of the noise's tail counts as much as a full one). Fitting with the voxel counts as weights
+    recovers the raw points' moments: the true orientation and a flat surface; without, the terraces stay."""
+    n, tilt = 400_000, math.radians(3.0)
+    normal = np.array([math.sin(tilt), 0.0, math.cos(tilt)])
+    xy = rng.random((n, 2)) * 1.5
+    points = np.c_[xy, -normal[0] * xy[:, 0] / normal[2]] + normal * rng.normal(0, 0.005, (n, 1))
+    voxels, counts = voxel_grid(Cloud(points), 0.02)
+    inner = np.all((voxels.points[:, :2] > 0.2) & (voxels.points[:, :2] < 1.3), axis=1)
+    found = {}
+    for name, weights in (("unweighted", None), ("counts", counts)):
+        fit = mls_smooth(voxels.points, 0.10, 1, 0.0, weights)
+        normals = fit.normals[inner] * np.sign(fit.normals[inner, 2:3])
+        mean = normals.mean(axis=0) / np.linalg.norm(normals.mean(axis=0))
+        rms = np.sqrt(np.mean((fit.points[inner] @ normal) ** 2))
+        found[name] = (math.degrees(math.acos(mean[2])), rms)
+    # measured: counts 2.992° and 0.08 mm RMS off the plane; unweighted 3.041° and 1.3 mm
+    assert found["counts"][0] == pytest.approx(3.0, abs=0.02)
+    assert found["counts"][1] < 0.0003
+    assert found["unweighted"][1] > 5 * found["counts"][1]
+
+
+def test_mls_quadratic_keeps_a_curved_surface(rng):
+    """On a 0.5 m sphere the plane fit flattens (moves points inwards); the quadratic does not."""
+    d = rng.normal(size=(40_000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    points = d * (0.5 + rng.normal(0, 0.002, (len(d), 1)))
+    bias = {}
+    for degree in (1, 2):
+        r = np.linalg.norm(mls_smooth(points, 0.10, degree).points, axis=1) - 0.5
+        bias[degree] = r.mean()
+        assert r.std() < 0.002
+    assert bias[1] < -0.002  # pulled towards the centre by about r²/(4R)
+    assert abs(bias[2]) < 0.2 * abs(bias[1])
+
+
+def _tilted_normals(rng, tilt: Rotation, horizontal=20000, walls=(15000, 10000), noise_deg=0.5):
+    """Unit normals of floor/ceiling (random sign) and of two walls at 90°, tilted."""
+    up = np.tile([0, 0, 1.0], (horizontal, 1)) * rng.choice([-1, 1], (horizontal, 1))
+    wall_a = np.tile([1.0, 0, 0], (walls[0], 1))
+    wall_b = np.tile([0, 1.0, 0], (walls[1], 1))
+    normals = np.concatenate([up, wall_a, wall_b]) + rng.normal(
+        0, math.radians(noise_deg), (sum(walls) + horizontal, 3)
+    )
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return tilt.apply(normals)
+
+
+@pytest.mark.parametrize("mode", ["horizontal", "vertical", "both"])
+@pytest.mark.parametrize("tilt_deg", [3.0, 30.0])
+def test_levelling_recovers_a_known_tilt(rng, mode, tilt_deg):
+    tilt = Rotation.from_rotvec(
+        math.radians(tilt_deg) * np.array([1.0, 2.0, 0.3]) / np.linalg.norm([1.0, 2.0, 0.3])
+    )
+    normals = _tilted_normals(rng, tilt)
+    cfg = PreprocessConfig(level_normals=mode)
+    rotation, stats = level_by_normals(normals, cfg)
+    true_up = tilt.apply([0, 0, 1.0])
+    up = rotation @ true_up
+    assert math.degrees(math.acos(min(1.0, up[2]))) < 0.02
+    true_tilt = math.degrees(math.acos(true_up[2]))  # a little under tilt_deg: the axis is not horizontal
+    assert stats["level_tilt_deg"] == pytest.approx(true_tilt, abs=0.02)
+    assert stats["level_converged"]
+    assert stats["level_tilt_per_iteration_deg"][0] == pytest.approx(true_tilt, abs=0.02)
+
+
+def test_levelling_of_a_single_wall_is_an_error(rng):
+    normals = _tilted_normals(rng, Rotation.identity(), horizontal=0, walls=(5000, 0))
+    with pytest.raises(DegenerateInputError, match="ill-determined"):
+        level_by_normals(normals, PreprocessConfig())
+
+
+def _heights(rng, floor=0.3071, ceiling=2.8437, floor_area=10.0, ceiling_area=1.0, bin_m=0.02):
+    """Heights of a voxelized room: a floor and a ceiling of given areas (one point per bin² of area),
+    walls (1000 points per bin between them), a 2 m² table top at floor + 0.75 m."""
+    per_m2 = 1 / bin_m**2
+    parts = [
+        floor + rng.normal(0, 0.002, int(floor_area * per_m2)),
+        ceiling + rng.normal(0, 0.002, int(ceiling_area * per_m2)),
+        rng.uniform(floor, ceiling, int(1000 * (ceiling - floor) / bin_m)),
+        floor + 0.75 + rng.normal(0, 0.002, int(2.0 * per_m2)),
+    ]
+    return np.concatenate(parts)
+
+
+def test_histogram_peaks_give_floor_and_ceiling(rng):
+    cfg = PreprocessConfig()
+    z = _heights(rng)
+    hist, sums = height_histogram(z, cfg.voxel_size_m)
+    assert np.allclose(np.diff(hist.edges_m), 0.02) and hist.counts.sum() <= len(z)
+    assert np.allclose(hist.edges_m / 0.02, np.round(hist.edges_m / 0.02))  # bins on multiples of the size
+    warnings: list[str] = []
+    floor, ceiling, stats = floor_and_ceiling(hist, sums, cfg, warnings)
+    assert floor == pytest.approx(0.3071, abs=0.002)  # sub-bin: the bin is 2 cm
+    assert ceiling == pytest.approx(2.8437, abs=0.002)  # 1 m² of ceiling is enough
+    assert warnings == []
+    assert len(stats["histogram_peaks_z_m"]) == 3  # floor, table, ceiling
+
+
+def test_histogram_without_ceiling_warns_and_falls_back(rng):
+    cfg = PreprocessConfig()
+    z = _heights(rng, ceiling_area=0.0)
+    hist, sums = height_histogram(z, cfg.voxel_size_m)
+    warnings: list[str] = []
+    floor, ceiling, _ = floor_and_ceiling(hist, sums, cfg, warnings)
+    assert floor == pytest.approx(0.3071, abs=0.002)
+    assert ceiling == pytest.approx(2.8437, abs=0.03)
+    assert len(warnings) == 1 and "no ceiling" in warnings[0]
+
+
+def test_histogram_without_floor_or_ceiling_is_an_error(rng):
+    cfg = PreprocessConfig()
+    z = _heights(rng, floor_area=0.0, ceiling_area=0.0)
+    z = z[(z > 0.5) & (z < 2.6) | (np.abs(z - 1.0571) < 0.01)]  # walls and the table top only
+    hist, sums = height_histogram(z, cfg.voxel_size_m)
+    with pytest.raises(DegenerateInputError, match="no floor or ceiling"):
+        floor_and_ceiling(hist, sums, cfg, [])
+
+
+# ------------------------------------------------------------------------------- bad input
+
+
+def _plane_cloud(rng, vertical: bool) -> Cloud:
+    uv = rng.random((20_000, 2)) * 3
+    noise = rng.normal(0, 0.003, 20_000)
+    pts = np.c_[uv[:, 0], noise, uv[:, 1]] if vertical else np.c_[uv, noise]
+    return Cloud(pts)
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda rng: Cloud(np.zeros((0, 3))), "0 points"),
+        (lambda rng: Cloud(np.r_[rng.random((1000, 3)), [[np.nan, 0, 0]]]), "NaN"),
+        (lambda rng: Cloud(rng.random((10, 3))), "10 points"),
+        (lambda rng: _plane_cloud(rng, vertical=False), "single plane"),
+        (lambda rng: _plane_cloud(rng, vertical=True), "ill-determined"),
+    ],
+    ids=["empty", "nan", "ten-points", "floor-only", "wall-only"],
+)
+def test_degenerate_input_gives_one_clear_line(rng, make, message):
+    with pytest.raises(DegenerateInputError, match=message) as info:
+        preprocess(make(rng), PreprocessConfig())
+    assert "\n" not in str(info.value)
+
+
+def test_config_rejects_impossible_values():
+    with pytest.raises(ValueError, match="mls_radius_m"):
+        PreprocessConfig(voxel_size_m=0.2, mls_radius_m=0.1)
+    with pytest.raises(ValueError, match="slice_min_m"):
+        PreprocessConfig(slice_min_m=2.6)
+    assert replace(PreprocessConfig(), voxel_size_m=0.03).voxel_size_m == 0.03
