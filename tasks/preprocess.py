@@ -335,8 +335,8 @@ def statistical_outliers(
     points: NDArray[np.float64], neighbours: int = 20, std_ratio: float = 1.0
 ) -> tuple[NDArray[np.bool_], dict[str, float]]:
     """Keep-mask of the statistical outlier filter (thesis 5.1.1, eq 5.1, as PCL): each point's mean
-    distance to its `neighbours` nearest other points; points above mean + std_ratio · std (over all points)
-    are outliers. Also returns the statistic's mean, std and threshold in metres."""
+    distance to its `neighbours` nearest other points; points above μ + std_ratio · σ are outliers, μ and
+    σ those of the mean distances after 3σ clipping. Also returns μ, σ and the threshold in metres."""
     if len(points) <= neighbours:
         raise DegenerateInputError(
             f"{len(points)} points are too few for a {neighbours}-neighbour outlier test"
