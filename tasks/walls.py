@@ -82,6 +82,9 @@ class WallsConfig:
     top_reach_m: float | None = 0.25
     """A wall cell must hold data within this distance below the top of the slice (walls reach the
     ceiling, furniture does not); None switches the test off."""
+    top_clear_m: float = 0.1
+    """The top-reach test looks for data from `top_reach_m` up to this distance below the top of the slice,
+    above which a ceiling's stray points may fall into any column."""
     min_column_height_m: float = 0.1
     """A wall cell's data must span at least this height (flat things: table tops, ceiling patches, stray
     points are not walls, however the counts compare)."""
@@ -215,8 +218,15 @@ def projection_image(
     extent = (vlev[last] - vlev[first]) * g
     wall_like[vcell[first][extent >= cfg.min_column_height_m]] = True
     if cfg.top_reach_m is not None:
+        # data between top_reach_m and top_clear_m below the top: a ceiling's stray points, which land in
+        # every column in the topmost centimetres, do not make a cabinet reach the top
         z_top = float(np.quantile(z, 0.999))
-        wall_like[vcell[last][vlev[last] < int((z_top - cfg.top_reach_m - z_lo) / g)]] = False
+        lo = math.floor((z_top - cfg.top_reach_m - z_lo) / g)
+        hi = max(lo, math.floor((z_top - cfg.top_clear_m - z_lo) / g))
+        in_band = (vlev >= lo) & (vlev <= hi)
+        reach = np.zeros_like(wall_like)
+        reach[vcell[in_band]] = True
+        wall_like &= reach
     return counts, wall_like.reshape(shape), grid, float(n_levels), cell
 
 

@@ -220,6 +220,21 @@ def test_tls_rooms_meet_the_accuracy_targets(kind, seed):
         _check_70_degrees(room, model)
 
 
+@pytest.mark.slow
+def test_a_ceiling_inside_the_slice_does_not_lift_the_cabinet():
+    """A 2.5 m room sliced up to 2.5 m: the ceiling's stray points fall on every column, the cabinet
+    included; the cabinet must still not become walls."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(7301)
+    room = replace(make_room("rectangle", rng), height_m=2.5)
+    pts = furniture_slice(sample_room(room, "kinect_v1", rng, floor_ceiling_density=3000.0))
+    assert (pts[:, 2] > 2.45).sum() > 1000  # the ceiling is in the slice
+    model = model_walls(pts, 0.0, 2.5, CFG)
+    ev = evaluate_walls(model.walls, truth_walls(room))
+    assert len(model.walls) == 4 and ev["correctness"] >= 0.95 and ev["corner_f1"] == 1.0, ev
+
+
 def _check_70_degrees(room, model):
     """The wall at 70° to its neighbour keeps that angle within 0.5°."""
     truth = truth_walls(room)
