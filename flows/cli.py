@@ -146,6 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--size", default="mini", choices=["mini", "full"], help="mini: 320x240, few frames; full: 640x480"
     )
+    p.add_argument("--overwrite", action="store_true", help="replace the survey files in an existing OUT")
 
     p = sub.add_parser(
         "calibrate",
@@ -306,7 +307,14 @@ def cmd_synth(args: argparse.Namespace) -> int:
     from tasks.synth.survey import generate_survey
 
     started = time.perf_counter()
-    out = generate_survey(args.out, seed=args.seed, rooms=args.rooms, profile=args.profile, size=args.size)
+    out = generate_survey(
+        args.out,
+        seed=args.seed,
+        rooms=args.rooms,
+        profile=args.profile,
+        size=args.size,
+        overwrite=args.overwrite,
+    )
     print(f"survey written to {out} in {time.perf_counter() - started:.1f} s")
     return 0
 

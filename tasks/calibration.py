@@ -23,11 +23,9 @@ from __future__ import annotations
 
 import functools
 import glob
-import json
 import logging
 import os
 import re
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -46,7 +44,7 @@ CODE_VERSION = "calibrate-1"
 PatternKind = Literal["chessboard", "circles"]
 DepthKind = Literal["disparity", "mm", "m", "tum5000"]
 DEPTH_KINDS: tuple[str, ...] = ("disparity", "mm", "m", "tum5000")
-RejectKind = Literal["no_target", "partial", "blurred", "high_residual", "unpaired", "unreadable"]
+RejectKind = Literal["no_target", "partial", "blurred", "high_residual"]
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -71,7 +69,8 @@ class CalibrateConfig:
     min_border_px: float = 4.0
     """A detection with a point closer than this to the image border is rejected as partial."""
     min_views: int = 6
-    """Fewest usable views per camera (and stereo pairs) for a calibration; fewer is an error."""
+    """Fewest usable views per camera for a calibration (and complete pairs for the "opencv" stereo solver);
+    fewer is an error naming the files."""
     max_view_rms_px: float = 2.0
     """A view whose reprojection RMS after the first adjustment exceeds this is rejected and the camera
     re-adjusted without it."""
@@ -368,7 +367,19 @@ class RigidPose:
 
     def apply(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
         """(N, 3) → (N, 3)."""
-        return np.asarray(points, dtype=np.float64) @ self.R.T + self.t_m
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        x, y, z = p[:, 0], p[:, 1], p[:, 2]
+        # written out rather than a BLAS matmul: a (N, 3) x (3, 3) product gains nothing from threads and
+        # suffers badly when the cores are busy
+        R, t = self.R, self.t_m
+        return np.stack(
+            [
+                R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0],
+                R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1],
+                R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2],
+            ],
+            axis=1,
+        )
 
     @property
     def matrix(self) -> NDArray[np.float64]:
@@ -1359,16 +1370,23 @@ def depth_to_points(
 
 
 def _bilinear(img: NDArray, u: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.uint8]:
-    """(N, C) bilinear samples of an (H, W, C) image at pixel coordinates inside [0, W-1] × [0, H-1]."""
-    h, w = img.shape[:2]
-    x0 = np.clip(np.floor(u).astype(np.intp), 0, w - 2)
-    y0 = np.clip(np.floor(v).astype(np.intp), 0, h - 2)
-    fx = (u - x0)[:, None]
-    fy = (v - y0)[:, None]
-    im = img.astype(np.float32, copy=False)
-    top = im[y0, x0] * (1 - fx) + im[y0, x0 + 1] * fx
-    bottom = im[y0 + 1, x0] * (1 - fx) + im[y0 + 1, x0 + 1] * fx
-    return np.clip(np.rint(top * (1 - fy) + bottom * fy), 0, 255).astype(np.uint8)
+    """(N, C) bilinear samples of an (H, W, C) uint8 image at pixel coordinates inside [0, W-1] × [0, H-1]
+    (cv2.remap over the points laid out in rows of 4096, under its 32767-pixel limit)."""
+    n = u.size
+    width = 4096
+    rows = max(1, -(-n // width))
+    mx = np.zeros(rows * width, np.float32)
+    my = np.zeros(rows * width, np.float32)
+    mx[:n] = u
+    my[:n] = v
+    out = cv2.remap(
+        np.ascontiguousarray(img),
+        mx.reshape(rows, width),
+        my.reshape(rows, width),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    )
+    return out.reshape(rows * width, -1)[:n]
 
 
 def colour_points(
@@ -1395,6 +1413,8 @@ def colour_points(
     if img.ndim != 3 or img.shape[2] < 3:
         raise ValueError(f"RGB image must be (H, W, 3), got shape {img.shape}")
     img = img[:, :, :3]
+    if img.dtype != np.uint8:
+        img = np.clip(img, 0, 255).astype(np.uint8)
     h, w = img.shape[:2]
     if (w, h) != calib.rgb.size:
         raise ValueError(
@@ -1616,6 +1636,10 @@ def calibrate_images(
     pairs = (
         pair_names([n for n, _ in ir_images], [n for n, _ in rgb_images]) if rgb_images is not None else []
     )
+    if flat_frames and known_distances is None:
+        raise ValueError(
+            f"flat-target frames need their known distances: {_names([n for n, _ in flat_frames])}"
+        )
     fits: dict[str, CameraFit] = {}
     rejects: list[Reject] = []
     for cam, images in cams:
@@ -1631,10 +1655,6 @@ def calibrate_images(
         fits[cam] = fit
         rejects += rej + list(fit.rejects)
     ir_fit = fits["ir"]
-    if flat_frames and known_distances is None:
-        raise ValueError(
-            f"flat-target frames need their known distances: {_names([n for n, _ in flat_frames])}"
-        )
     if rgb_images is None:
         views = tuple(
             ViewResidual(d.name, e) for d, e in zip(ir_fit.detections, ir_fit.view_rms_px, strict=True)
@@ -1643,12 +1663,22 @@ def calibrate_images(
     else:
         st = calibrate_stereo(ir_fit, fits["rgb"], pairs, pat, cfg)
         ir, rgb, pose, stereo_rms, views = st.ir, st.rgb, st.ir_to_rgb, st.stereo_rms_px, st.views
+    for label, cam in (("ir", ir), ("rgb", rgb)):
+        if cam is not None:
+            w, h = cam.size
+            border = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1], [w / 2, 0], [0, h / 2]], float)
+            if np.isnan(cam.undistort_pixels(border)).any():
+                log.warning(
+                    "%s distortion model folds back inside the image: its border pixels have no ray (the views "
+                    "do not reach the image corners); those pixels give no points",
+                    label.upper(),
+                )
     depth_model = None
-    if flat_frames:
+    if flat_frames and known_distances is not None:
         native = cfg.disparity_native_width_px / ir.size[0]
         depth_model = fit_disparity_model(
             [f for _, f in flat_frames],
-            known_distances or [],
+            known_distances,
             focal_px=ir.fx * native,
             names=[n for n, _ in flat_frames],
             cfg=cfg,
@@ -1748,30 +1778,14 @@ def _glob(pattern: str, what: str) -> list[str]:
     return files
 
 
-def write_json_atomic(path: Path, obj: Any) -> Path:
-    """JSON written to a temporary file beside `path`, then renamed over it: never half a file.
-    (Stand-in until tasks.artefacts.write_json exists.)"""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(obj, fh, indent=2, allow_nan=False)
-            fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
 def write_calibration(calib: Calibration, out_dir: Path) -> Path:
-    """DIR/calibration.json (the contract) and DIR/calibration_residuals.json (source, views, rejects)."""
+    """DIR/calibration.json (the contract) and DIR/calibration_residuals.json (source, views, coverage,
+    rejects), each written atomically; returns the path of calibration.json."""
+    from tasks.artefacts import write_json
+
     out_dir = Path(out_dir)
-    write_json_atomic(out_dir / "calibration_residuals.json", _json_safe(calib.residuals_json()))
-    return write_json_atomic(out_dir / "calibration.json", _json_safe(calib.to_json()))
+    write_json(out_dir / "calibration_residuals.json", _json_safe(calib.residuals_json()))
+    return write_json(out_dir / "calibration.json", _json_safe(calib.to_json()))
 
 
 def _json_safe(obj: Any) -> Any:
@@ -1844,5 +1858,4 @@ __all__ = [
     "run_calibrate",
     "thesis_kinect_v1",
     "write_calibration",
-    "write_json_atomic",
 ]

@@ -10,7 +10,7 @@ import hashlib
 import inspect
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -34,19 +34,24 @@ class StageContext:
     """Name -> path of raw survey files this stage reads (their content hashes are in the key)."""
     profile: dict[str, Any]
     progress: ProgressFn
+    extra_config: dict[str, Any] = field(default_factory=dict)
+    """Section name -> config of the stage's `extra_sections`."""
 
 
 @dataclass(frozen=True)
 class Stage:
     name: str
     section: str
-    """Config section the stage owns (its only config in the cache key)."""
+    """Config section the stage owns (its config in the cache key)."""
     module: str
     """The module holding the stage's computation (its source is part of the code version)."""
     run: Callable[[StageContext, Any, Path], dict[str, Any]]
     """(context, config section, output folder) -> metrics; writes its files into the folder."""
     uses_profile: bool = False
     """Whether the survey's sensor profile is an input (then its content is part of the cache key)."""
+    extra_sections: tuple[str, ...] = ()
+    """Further config sections the stage reads (a stage that runs several methods: register reads sfm
+    and scale); they enter its cache key too and reach `run` as `ctx.extra_config`."""
 
     def code_version(self) -> str:
         """Hash of the computation's module source and of this stage's shell, so editing either
@@ -62,7 +67,7 @@ class Stage:
 
 def run_calibrate(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
     """The survey's calibration from its target images, else the sensor profile's values (said so)."""
-    from tasks.calibration import calibrate_folder, profile_calibration
+    from tasks.calibration import calibrate_folder, profile_calibration, write_calibration
 
     folder = ctx.raw_inputs.get("calibration")
     if folder:
@@ -71,14 +76,9 @@ def run_calibrate(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
     else:
         ctx.progress(f"no calibration data: using the {ctx.profile.get('name')} profile's values")
         calib = profile_calibration(ctx.profile)
+    write_calibration(calib, out)
     data = calib.to_json()
-    art.write_json(out / "calibration.json", data)
-    return {
-        "metrics": {
-            "source": data.get("source", "targets" if folder else "profile"),
-            **_calibration_figures(data),
-        }
-    }
+    return {"metrics": {"source": calib.source, **_calibration_figures(data)}}
 
 
 def _calibration_figures(data: dict[str, Any]) -> dict[str, Any]:
@@ -96,22 +96,81 @@ def _calibration_figures(data: dict[str, Any]) -> dict[str, Any]:
 def run_ingest(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
     from tasks.ingest import ingest_capture
 
-    return ingest_capture(Path(ctx.raw_inputs["capture"]), out, ctx.profile, cfg, ctx.progress)
+    return {"metrics": ingest_capture(Path(ctx.raw_inputs["capture"]), out, ctx.profile, cfg, ctx.progress)}
 
 
-def room_cloud(ctx: StageContext) -> art.Cloud:
-    """The room's registered cloud: from register when the capture had frames, else from ingest."""
-    for stage in ("register", "ingest"):
+def read_track(path: Path) -> NDArray[np.float64]:
+    """(K, 3) t_ns, x, y of a foot-mounted IMU track CSV (header line allowed)."""
+    try:
+        data = np.loadtxt(path, delimiter=",", ndmin=2, skiprows=1 if not _starts_numeric(path) else 0)
+    except ValueError as exc:
+        raise art.ArtefactError(f"{path}: not a track CSV of t_ns,x,y ({exc})") from exc
+    if data.shape[1] < 3:
+        raise art.ArtefactError(f"{path}: a track needs three columns t_ns,x,y")
+    return data[:, :3]
+
+
+def _starts_numeric(path: Path) -> bool:
+    with open(path) as fh:
+        first = fh.readline().split(",")[0].strip()
+    try:
+        float(first)
+    except ValueError:
+        return False
+    return True
+
+
+def run_register(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
+    """SfM -> metric scale -> fused coloured cloud, or the track-based fallback (thesis 3.2)."""
+    import tempfile
+
+    from tasks.calibration import Calibration
+    from tasks.register import register_room
+
+    ingest = ctx.upstream["ingest"]
+    camera_info = art.read_json(ingest.file("camera_info.json"))
+    calibration = None
+    if "calibrate" in ctx.upstream:
+        calibration = Calibration.from_json(art.read_json(ctx.upstream["calibrate"].file("calibration.json")))
+    track = read_track(Path(ctx.raw_inputs["track"])) if "track" in ctx.raw_inputs else None
+    plan_walls = None
+    if "plan" in ctx.upstream:
+        plan_walls, _ = art.read_segments(ctx.upstream["plan"].file("plan_walls.parquet"))
+    with tempfile.TemporaryDirectory(prefix="sfm-") as workdir:
+        result = register_room(
+            ingest.file("frames.parquet"),
+            camera_info,
+            calibration,
+            cfg,
+            ctx.extra_config["sfm"],
+            Path(workdir),
+            track=track,
+            plan_walls=plan_walls,
+            progress=ctx.progress,
+            scale_cfg=ctx.extra_config["scale"],
+            profile=ctx.profile,
+        )
+    art.write_table(out / "poses.parquet", result.poses, art.POSES_SCHEMA)
+    art.write_ply_points(out / "cloud.ply", result.cloud.points, result.cloud.colors)
+    art.write_json(out / "scale.json", result.scale)
+    return {"metrics": {**result.metrics, "frame": result.frame}}
+
+
+def room_cloud(ctx: StageContext) -> tuple[art.Cloud, str]:
+    """The room's registered cloud and where it came from: "register" (frames placed by this pipeline,
+    in an arbitrary room frame) or "capture" (a cloud given in its own, meaningful frame)."""
+    for stage, source in (("register", "register"), ("ingest", "capture")):
         result = ctx.upstream.get(stage)
         if result is not None and result.has("cloud.ply"):
-            return art.read_cloud(result.file("cloud.ply"))
+            return art.read_cloud(result.file("cloud.ply")), source
     raise art.ArtefactError(f"room {ctx.room}: no registered cloud to preprocess (capture has frames only)")
 
 
 def run_preprocess(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
     from tasks.preprocess import preprocess
 
-    result = preprocess(room_cloud(ctx), cfg)
+    cloud, source = room_cloud(ctx)
+    result = preprocess(cloud, cfg)
     art.write_cloud(out / "levelled.ply", result.cloud)
     art.write_cloud(out / "slice.ply", result.slice)
     art.write_png(out / "height_histogram.png", result.histogram_png)
@@ -127,6 +186,7 @@ def run_preprocess(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
             "ceiling_z_m": result.ceiling_z_m,
             "height_m": result.height_m,
             "pivot_m": result.metrics.get("levelling_pivot_m"),
+            "source": source,
         },
     )
     return {"metrics": result.metrics}
@@ -182,7 +242,13 @@ def run_walls(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
     levelling = art.read_json(pre.file("levelling.json"))
     slice_cloud = art.read_cloud(pre.file("slice.ply"))
     model = model_walls(slice_cloud.points, levelling["floor_z_m"], levelling["ceiling_z_m"], cfg)
-    back, z = levelled_to_input(levelling)
+    # A given cloud's frame means something (a TLS survey's, the user's): walls go back into it. A frame
+    # made by registration is arbitrary and maybe tilted: walls stay in the levelled (z up) room frame.
+    if levelling.get("source") == "register":
+        back, z, frame = np.eye(4), 0.0, "levelled room frame (m)"
+    else:
+        back, z = levelled_to_input(levelling)
+        frame = "input cloud x-y (m)"
     walls = segments_to_input(model.walls, back, z)
     polygon = model.polygon
     if polygon is not None:
@@ -210,12 +276,15 @@ def run_walls(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
     art.write_geojson(
         out / "plan.geojson",
         wall_features(walls, model.origin, model.support, polygon, ctx.room),
-        "input cloud x-y (m)",
+        frame,
     )
     vertices = model.mesh_vertices @ back[:3, :3].T + back[:3, 3]
     art.write_ply_mesh(out / "model.ply", vertices, model.mesh_triangles)
     art.write_png(out / "preview.png", model.preview)
-    return {"metrics": {**model.metrics, "walls": len(walls), "closed": model.closed, "alpha": model.alpha}}
+    return {
+        "frame": frame,
+        "metrics": {**model.metrics, "walls": len(walls), "closed": model.closed, "alpha": model.alpha},
+    }
 
 
 ROOM_DELIVERABLES = {"walls": ("walls.parquet", "plan.geojson", "model.ply", "preview.png")}
@@ -227,6 +296,7 @@ STAGES: dict[str, Stage] = {
     for stage in (
         Stage("calibrate", "calibrate", "tasks.calibration", run_calibrate, uses_profile=True),
         Stage("ingest", "ingest", "tasks.ingest", run_ingest, uses_profile=True),
+        Stage("register", "register", "tasks.register", run_register, True, ("sfm", "scale")),
         Stage("preprocess", "preprocess", "tasks.preprocess", run_preprocess),
         Stage("walls", "walls", "tasks.walls", run_walls),
     )
