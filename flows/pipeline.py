@@ -61,6 +61,7 @@ class StageCall:
     profile: dict[str, Any]
     raw_inputs: dict[str, str] = field(default_factory=dict)
     force: bool = False
+    extra_config: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 _stores: dict[str, ArtefactStore] = {}
@@ -85,7 +86,8 @@ def cache_key(call: StageCall, upstream: dict[str, StageResult]) -> str:
     inputs.update({name: store.input_hash(Path(path)) for name, path in call.raw_inputs.items()})
     if stage.uses_profile:  # e.g. how to read a capture (topics, depth convention), fallback intrinsics
         inputs["sensor_profile"] = cfgmod.hash_profile(call.profile)
-    return store.cache_key(stage.name, stage.code_version(), call.config, inputs)
+    config = {stage.section: call.config, **call.extra_config} if call.extra_config else call.config
+    return store.cache_key(stage.name, stage.code_version(), config, inputs)
 
 
 def execute(call: StageCall, upstream: dict[str, StageResult]) -> StageResult:
@@ -100,13 +102,17 @@ def execute(call: StageCall, upstream: dict[str, StageResult]) -> StageResult:
         if hit is not None:
             _outcomes[(call.room, call.stage)] = ("stored", time.perf_counter() - started)
             return hit
-    section_cls = type(getattr(cfgmod.PipelineConfig(), stage.section))
-    cfg = cfgmod.build_section(section_cls, call.config)
+    defaults = cfgmod.PipelineConfig()
+    cfg = cfgmod.build_section(type(getattr(defaults, stage.section)), call.config)
+    extra = {
+        name: cfgmod.build_section(type(getattr(defaults, name)), call.extra_config[name])
+        for name in stage.extra_sections
+    }
 
     def progress(message: str) -> None:
         log.info("[%s] %s: %s", call.room, call.stage, message)
 
-    ctx = StageContext(call.room, upstream, call.raw_inputs, call.profile, progress)
+    ctx = StageContext(call.room, upstream, call.raw_inputs, call.profile, progress, extra)
     log.info("[%s] %s: computing", call.room, call.stage)
     manifest = {
         "inputs": {name: r.content_hash for name, r in upstream.items()},
@@ -114,16 +120,14 @@ def execute(call: StageCall, upstream: dict[str, StageResult]) -> StageResult:
             name: {"path": p, "sha256": store.input_hash(Path(p))} for name, p in call.raw_inputs.items()
         },
         "config": call.config,
+        "extra_config": call.extra_config,
         "code_version": stage.code_version(),
     }
 
     def write(out: Path) -> dict[str, Any]:
         t0 = time.perf_counter()
-        metrics = stage.run(ctx, cfg, out)
-        return {
-            "metrics": metrics.get("metrics", metrics),
-            "compute_seconds": round(time.perf_counter() - t0, 3),
-        }
+        report = stage.run(ctx, cfg, out)  # {"metrics": {...}, other manifest entries...}
+        return {**report, "compute_seconds": round(time.perf_counter() - t0, 3)}
 
     result = store.commit(call.room, call.stage, key, write, manifest)
     seconds = time.perf_counter() - started
@@ -228,6 +232,7 @@ def make_call(
         room=room.id if room is not None else BUILDING,
         work=str(Path(work).resolve()),
         config=cfgmod.section(cfg, STAGES[stage_name].section),
+        extra_config={name: cfgmod.section(cfg, name) for name in STAGES[stage_name].extra_sections},
         profile=profile,
         raw_inputs=survey_inputs(survey, room, stage_name),
         force=force,
@@ -277,13 +282,23 @@ def plan_survey(
     return planned
 
 
+def breadth_first(planned: list[PlannedStage]) -> list[PlannedStage]:
+    """Stage runs ordered by their depth in the dependency graph: a worker thread waiting for an upstream
+    result is a worker lost, so every room's first stage is submitted before any room's second."""
+    depth: dict[tuple[str, str], int] = {}
+    for item in planned:
+        refs = item.upstream.values()
+        depth[(item.call.room, item.call.stage)] = 1 + max((depth[ref] for ref in refs), default=-1)
+    return sorted(planned, key=lambda item: depth[(item.call.room, item.call.stage)])
+
+
 def _run(req: RunRequest) -> list[StageOutcome]:
     cfg = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets))
     survey = cfgmod.load_survey(Path(req.survey))
     profile = cfgmod.load_sensor_profile(survey.sensor)
     results = Path(req.work).resolve() / PREFECT_RESULTS
     futures: dict[tuple[str, str], PrefectFuture] = {}
-    for item in plan_survey(req, cfg, survey, profile):
+    for item in breadth_first(plan_survey(req, cfg, survey, profile)):
         call = item.call
         upstream = {name: futures[ref] for name, ref in item.upstream.items()}
         futures[(call.room, call.stage)] = stage_task.with_options(

@@ -21,6 +21,9 @@ from tasks.artefacts import check_room_id
 from tasks.calibration import CalibrateConfig
 from tasks.ingest import IngestConfig
 from tasks.preprocess import PreprocessConfig
+from tasks.register import RegisterConfig
+from tasks.scale import ScaleConfig
+from tasks.sfm import SfmConfig
 from tasks.walls import WallsConfig
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
@@ -47,6 +50,9 @@ class PipelineConfig:
     flow: FlowConfig = field(default_factory=FlowConfig)
     calibrate: CalibrateConfig = field(default_factory=CalibrateConfig)
     ingest: IngestConfig = field(default_factory=IngestConfig)
+    sfm: SfmConfig = field(default_factory=SfmConfig)
+    scale: ScaleConfig = field(default_factory=ScaleConfig)
+    register: RegisterConfig = field(default_factory=RegisterConfig)
     preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
     walls: WallsConfig = field(default_factory=WallsConfig)
 

@@ -1,0 +1,947 @@
+"""Register stage (thesis 3.1.3, 3.2): a room's frames placed in one metric room frame and fused into a
+coloured room cloud.
+
+- Placement by SfM (3.2.1): `tasks.sfm` orients the colour frames, `tasks.scale` makes them metric (eq 3.16).
+- Track-based fallback (3.2.2) when SfM registers under `fallback_min_registered_fraction` of the frames (a
+  texture-poor hallway): each frame is levelled by its floor normal (3.2.2.4), turned toward the next point
+  of the foot-mounted IMU track and put at the track position (eq 3.17, 3.18), and its heading corrected by
+  making its Hough lines parallel to the coarse plan's walls (3.2.2.6) when the plan walls are given.
+- Fusion: every frame's depth points (eq 3.13) are moved by their pose and streamed into a voxel grid that
+  keeps per-voxel sums, so memory depends on the room's size, not on the number of frames. Colours come from
+  `colour_points` (eq 3.14-3.15); a voxel no frame could colour is flagged, never given a made-up colour.
+
+Frames: SfM placements are in a room frame anchored at the first registered depth camera (x right, y
+forward, z up); track placements are in the track's (plan) frame with z up from the floor.
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from tasks.calibration import Calibration, CameraModel, RigidPose, colour_points, depth_to_points
+from tasks.cloud import Cloud, DegenerateInputError
+from tasks.scale import ScaleConfig, apply_scale, estimate_scale
+from tasks.sfm import SfmConfig, SfmResult, run_sfm
+
+log = logging.getLogger(__name__)
+
+CODE_VERSION = "register-1"
+"""Bumped when the stage's output for the same inputs and config would change."""
+
+METHODS = ("sfm", "track", "none")
+"""How a frame was placed."""
+
+
+@dataclass(frozen=True)
+class RegisterConfig:
+    """Settings of the register stage (section `register` of the config tree)."""
+
+    voxel_size_m: float = 0.02
+    """Edge of the fusion voxel grid; the room cloud has one point (the mean) per occupied voxel."""
+    min_depth_m: float = 0.4
+    """Depth readings nearer than this are not fused."""
+    max_depth_m: float = 4.0
+    """Depth readings farther than this are not fused (Kinect v1 noise grows with the square of range)."""
+    pixel_stride: int = 2
+    """Fuse every n-th depth pixel in each direction (1 = all); the voxel grid is coarser anyway."""
+    min_points_per_voxel: int = 1
+    """Voxels hit by fewer depth points (over all frames) are dropped (outliers are the preprocess stage's
+    job; more than 1 thins out far walls of low-resolution sensors)."""
+    icp_refine: bool = False
+    """Refine each frame against its predecessor with open3d point-to-plane ICP before fusing."""
+    icp_voxel_m: float = 0.05
+    """Downsampling of the frames for ICP."""
+    icp_max_distance_m: float = 0.10
+    """ICP correspondence distance."""
+    icp_max_correction_m: float = 0.10
+    """An ICP correction moving the frame more than this (or turning it more than 5 degrees) is rejected."""
+    fallback_min_registered_fraction: float = 0.5
+    """Below this share of frames registered by SfM, the track-based fallback places the frames."""
+    floor_angle_tol_deg: float = 45.0
+    """Levelling: first tolerance between a point's normal and the vertical for floor candidates (3.2.2.4);
+    it is halved on each of the refinement passes."""
+    floor_passes: int = 3
+    """Levelling: refinement passes (fit the floor plane, tighten the tolerance, drop outliers)."""
+    floor_min_points: int = 300
+    """Levelling: fewest floor points for a frame's own floor fit; else the other frames' median tilt."""
+    track_min_step_m: float = 0.2
+    """Eq 3.17: the heading points to the first later track position at least this far away."""
+    line_cell_m: float = 0.03
+    """Plan-line correction: cell of the orthographic projected image (3.2.2.6)."""
+    line_min_count: int = 3
+    """Plan-line correction: points per cell for a cell to count as wall (binarisation)."""
+    line_min_length_m: float = 0.5
+    """Plan-line correction: shortest Hough line used."""
+    line_max_angle_deg: float = 40.0
+    """Plan-line correction, first pass: a line matches a plan wall only within this orientation difference
+    (the later passes use a quarter of it). The track's heading (eq 3.17) is off by as much as the surveyor
+    turns the sensor away from the walking direction."""
+    line_max_distance_m: float = 1.2
+    """Plan-line correction, first pass: a line matches a plan wall only when its midpoint is this close to
+    the wall's face (the later passes use a quarter of it)."""
+    line_fix_offset: bool = True
+    """Plan-line correction: after the heading, also shift the frame across the matched walls (beyond the
+    thesis, which corrects the heading only); needs wall thickness in `plan_walls` to match wall faces."""
+    wall_band_m: tuple[float, float] = (0.3, 2.0)
+    """Height band above the floor whose points form the projected wall image."""
+
+
+# ------------------------------------------------------------------------------------ calibration
+
+
+def calibration_from_camera_info(
+    camera_info: dict[str, Any], profile: dict[str, Any] | None = None
+) -> Calibration:
+    """A Calibration from ingest's camera_info.json: the depth stream as the IR camera, the colour stream as
+    the RGB camera. The IR→RGB pose is camera_info's `ir_to_rgb` when given; else the sensor profile's
+    when the intrinsics came from a sensor (camera_info messages or the profile); else identity (e.g.
+    7-Scenes, whose folder gives one intrinsics file for both streams and no extrinsics)."""
+    if "depth" not in camera_info:
+        raise DegenerateInputError("camera_info has no depth camera intrinsics")
+
+    def cam(d: dict[str, Any]) -> CameraModel:
+        return CameraModel(
+            np.array(d["K"], dtype=np.float64), np.array(d.get("dist", [0.0] * 5)), tuple(d["size"])
+        )
+
+    ir = cam(camera_info["depth"])
+    rgb = cam(camera_info["rgb"]) if "rgb" in camera_info else None
+    pose = None
+    if rgb is not None:
+        given = camera_info.get("ir_to_rgb")
+        if given is not None:
+            pose = RigidPose(np.array(given["R"]), np.array(given["t_m"]))
+        elif profile is not None and {
+            camera_info["rgb"].get("source"),
+            camera_info["depth"].get("source"),
+        } <= {
+            "profile",
+            "camera_info",
+        }:
+            from tasks.calibration import profile_calibration
+
+            try:
+                pose = profile_calibration(profile).ir_to_rgb
+            except ValueError:
+                pose = None
+        if pose is None:
+            pose = RigidPose(np.eye(3), np.zeros(3))
+    return Calibration(ir, rgb, pose, source="profile")
+
+
+# ------------------------------------------------------------------------------------ voxel fusion
+
+
+@dataclass(frozen=True)
+class FusedCloud(Cloud):
+    """A fused room cloud: one point per voxel, with the voxel's support."""
+
+    coloured: NDArray[np.bool_] | None = None
+    """(N,) whether any frame coloured the voxel; uncoloured voxels carry colour (0, 0, 0) and False here."""
+    counts: NDArray[np.int64] | None = None
+    """(N,) depth points fused into each voxel."""
+
+
+class VoxelAccumulator:
+    """Per-voxel sums of points and colours, keyed by the packed voxel index: memory grows with the occupied
+    volume, not with the number of frames added."""
+
+    OFFSET = 1 << 20
+    """Voxel indices are offset into 21 bits per axis (±1 M voxels: ±20 km at 2 cm)."""
+
+    def __init__(self, voxel_size_m: float) -> None:
+        if voxel_size_m <= 0:
+            raise ValueError(f"voxel size must be positive, got {voxel_size_m}")
+        self.voxel = float(voxel_size_m)
+        self.keys = np.zeros(0, np.int64)
+        self.sums = np.zeros((0, 3))
+        self.counts = np.zeros(0, np.int64)
+        self.colour_sums = np.zeros((0, 3))
+        self.colour_counts = np.zeros(0, np.int64)
+
+    def _pack(self, points: NDArray[np.float64]) -> NDArray[np.int64]:
+        idx = np.floor(points / self.voxel).astype(np.int64) + self.OFFSET
+        if (idx < 0).any() or (idx >= 2 * self.OFFSET).any():
+            raise DegenerateInputError("points lie too far from the room origin for the voxel grid")
+        return (idx[:, 0] << 42) | (idx[:, 1] << 21) | idx[:, 2]
+
+    def add(
+        self,
+        points: NDArray[np.float64],
+        colors: NDArray[np.uint8] | None = None,
+        coloured: NDArray[np.bool_] | None = None,
+    ) -> None:
+        """Add (N, 3) points (metres) with optional (N, 3) colours and their (N,) valid flags."""
+        if len(points) == 0:
+            return
+        keys = np.concatenate([self.keys, self._pack(points)])
+        uniq, inv = np.unique(keys, return_inverse=True)
+        old, new = inv[: len(self.keys)], inv[len(self.keys) :]
+        m = len(uniq)
+        sums = np.zeros((m, 3))
+        np.add.at(sums, old, self.sums) if len(old) else None
+        counts = np.bincount(old, weights=self.counts, minlength=m).astype(np.int64)
+        for a in range(3):
+            sums[:, a] += np.bincount(new, weights=points[:, a], minlength=m)
+        counts += np.bincount(new, minlength=m)
+        csums = np.zeros((m, 3))
+        if len(old):
+            csums[old] = self.colour_sums
+        ccounts = np.zeros(m, np.int64)
+        if len(old):
+            ccounts[old] = self.colour_counts
+        if colors is not None:
+            ok = np.ones(len(points), bool) if coloured is None else np.asarray(coloured, bool)
+            for a in range(3):
+                csums[:, a] += np.bincount(new[ok], weights=colors[ok, a].astype(np.float64), minlength=m)
+            ccounts += np.bincount(new[ok], minlength=m)
+        self.keys, self.sums, self.counts = uniq, sums, counts
+        self.colour_sums, self.colour_counts = csums, ccounts
+
+    def cloud(self, min_points: int = 1) -> FusedCloud:
+        """The mean point (and mean colour) of every voxel with at least `min_points` points."""
+        keep = self.counts >= max(min_points, 1)
+        pts = self.sums[keep] / self.counts[keep, None]
+        cc = self.colour_counts[keep]
+        coloured = cc > 0
+        colors = np.zeros((int(keep.sum()), 3), np.uint8)
+        colors[coloured] = np.clip(
+            np.rint(self.colour_sums[keep][coloured] / cc[coloured, None]), 0, 255
+        ).astype(np.uint8)
+        return FusedCloud(np.ascontiguousarray(pts), colors, coloured, self.counts[keep].copy())
+
+
+FrameData = tuple[int, NDArray[np.floating], NDArray[np.uint8] | None]
+"""(frame_id, (H, W) depth in metres of the depth camera (0/NaN = none), (H, W, 3) RGB or None)."""
+
+
+def frame_points(
+    depth_m: NDArray[np.floating], calib: Calibration, cfg: RegisterConfig
+) -> NDArray[np.float64]:
+    """(N, 3) depth-camera points of one frame (eq 3.13) within the depth range, every `pixel_stride`-th
+    pixel."""
+    d = np.asarray(depth_m, dtype=np.float64)
+    s = max(int(cfg.pixel_stride), 1)
+    if s > 1:
+        mask = np.zeros(d.shape, bool)
+        mask[::s, ::s] = True
+        d = np.where(mask, d, np.nan)
+    d = np.where((d >= cfg.min_depth_m) & (d <= cfg.max_depth_m), d, np.nan)
+    pts, _ = depth_to_points(d, "m", calib.ir)
+    return pts
+
+
+def _transform(T: NDArray[np.float64], pts: NDArray[np.float64]) -> NDArray[np.float64]:
+    return pts @ T[:3, :3].T + T[:3, 3]
+
+
+def fuse_frames(
+    frames: Iterable[FrameData],
+    poses: dict[int, NDArray[np.float64]],
+    calibration: Calibration,
+    cfg: RegisterConfig,
+    refined: dict[int, NDArray[np.float64]] | None = None,
+) -> FusedCloud:
+    """Stream frames into the voxel grid (3.1.3): depth points (eq 3.13) moved by the frame's pose
+    (depth camera → room, (4, 4)), coloured with `colour_points` (eq 3.14-3.15) when the frame has a colour
+    image and the calibration an RGB camera. Frames without a pose are skipped. With `cfg.icp_refine` each
+    frame is first refined against the previous fused frame (point-to-plane ICP); the poses used are put in
+    `refined` when given. Raises DegenerateInputError when no point is fused."""
+    acc = VoxelAccumulator(cfg.voxel_size_m)
+    prev: NDArray[np.float64] | None = None
+    can_colour = calibration.rgb is not None and calibration.ir_to_rgb is not None
+    used = 0
+    for frame_id, depth, rgb in frames:
+        T = poses.get(int(frame_id))
+        if T is None or not np.isfinite(T).all():
+            continue
+        pts = frame_points(depth, calibration, cfg)
+        if len(pts) == 0:
+            continue
+        if cfg.icp_refine:
+            T, prev = _icp_step(pts, T, prev, cfg)
+        if refined is not None:
+            refined[int(frame_id)] = T
+        colors = coloured = None
+        if can_colour and rgb is not None and (rgb.shape[1], rgb.shape[0]) == calibration.rgb.size:
+            colors, coloured = colour_points(pts, rgb, calibration)
+        acc.add(_transform(T, pts), colors, coloured)
+        used += 1
+    cloud = acc.cloud(cfg.min_points_per_voxel)
+    if len(cloud) == 0:
+        raise DegenerateInputError(f"no depth point was fused ({used} placed frames had usable depth)")
+    return cloud
+
+
+def _icp_step(
+    pts: NDArray[np.float64], T: NDArray[np.float64], prev: NDArray[np.float64] | None, cfg: RegisterConfig
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Point-to-plane ICP of this frame (posed by T) onto the previous frame's room points; returns the
+    refined pose and this frame's downsampled room points for the next frame."""
+    import open3d as o3d
+
+    def cloud(p: NDArray[np.float64]) -> o3d.geometry.PointCloud:
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(p, dtype=np.float64)))
+        return pc.voxel_down_sample(cfg.icp_voxel_m)
+
+    src = cloud(_transform(T, pts))
+    if prev is not None and len(src.points) > 50 and len(prev) > 50:
+        tgt = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(prev))
+        tgt.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=3 * cfg.icp_voxel_m, max_nn=30))
+        res = o3d.pipelines.registration.registration_icp(
+            src,
+            tgt,
+            cfg.icp_max_distance_m,
+            np.eye(4),
+            o3d.pipelines.registration.TransformationEstimationPointToPlane(),
+            o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=30),
+        )
+        delta = np.asarray(res.transformation)
+        angle = np.degrees(np.linalg.norm(Rotation.from_matrix(delta[:3, :3]).as_rotvec()))
+        if res.fitness > 0.3 and np.linalg.norm(delta[:3, 3]) <= cfg.icp_max_correction_m and angle <= 5.0:
+            T = delta @ T
+            src.transform(delta)
+    return T, np.asarray(src.points)
+
+
+# ------------------------------------------------------------------------------------ track-based fallback
+
+
+def depth_normals(
+    depth_m: NDArray[np.floating], camera: CameraModel, step: int | None = None
+) -> tuple[NDArray, NDArray]:
+    """((N, 3) points, (N, 3) unit normals facing the camera) on a grid of every `step`-th depth pixel
+    (default: about 160 columns), the normals from the cross product of neighbouring points' differences."""
+    d = np.asarray(depth_m, dtype=np.float64)
+    step = step or max(1, round(d.shape[1] / 160))
+    rays = camera.pixel_rays()
+    z = np.where(np.isfinite(d) & (d > 0), d, np.nan)
+    P = np.concatenate([rays * z[..., None], z[..., None]], axis=2)[::step, ::step]
+    dx = P[1:-1, 2:] - P[1:-1, :-2]
+    dy = P[2:, 1:-1] - P[:-2, 1:-1]
+    n = np.cross(dx, dy)
+    c = P[1:-1, 1:-1]
+    norm = np.linalg.norm(n, axis=2)
+    ok = np.isfinite(norm) & (norm > 0) & np.isfinite(c).all(axis=2)
+    n = n[ok] / norm[ok][:, None]
+    c = c[ok]
+    flip = (n * c).sum(axis=1) > 0
+    n[flip] *= -1
+    return c, n
+
+
+def level_frame(
+    depth_m: NDArray[np.floating], camera: CameraModel, cfg: RegisterConfig
+) -> tuple[NDArray[np.float64], float, int] | None:
+    """The floor of one frame (3.2.2.4): points whose normal is within the tolerance of the vertical are
+    floor candidates, the lowest layer of them is fitted with a plane, and the fit is refined with a
+    halved tolerance on each pass. Returns ((3,) up direction in the camera frame, camera height above the
+    floor (m), floor points) or None when too few floor points are seen."""
+    pts, nrm = depth_normals(depth_m, camera)
+    if len(pts) < cfg.floor_min_points:
+        return None
+    up = np.array([0.0, -1.0, 0.0])  # a level camera's up is minus the image y
+    tol = np.radians(cfg.floor_angle_tol_deg)
+    floor = None
+    for _ in range(max(cfg.floor_passes, 1)):
+        cand = nrm @ up > np.cos(tol)
+        if cand.sum() < cfg.floor_min_points:
+            return None
+        h = -(pts[cand] @ up)  # height below the camera
+        # the floor is the lowest horizontal layer: tables and seats lie above it
+        low = h > np.percentile(h, 90) - 0.15
+        floor = pts[cand][low]
+        if len(floor) < cfg.floor_min_points:
+            return None
+        c = floor.mean(axis=0)
+        _, _, vt = np.linalg.svd(floor - c, full_matrices=False)
+        n = vt[2]
+        if n @ up < 0:
+            n = -n
+        res = np.abs((floor - c) @ n)
+        inl = res < max(3.0 * np.median(res), 0.01)
+        c = floor[inl].mean(axis=0)
+        _, _, vt = np.linalg.svd(floor[inl] - c, full_matrices=False)
+        n = vt[2] if vt[2] @ up > 0 else -vt[2]
+        up = n
+        tol = tol / 2
+    height = float(-(c @ up))
+    if height <= 0:
+        return None
+    return up, height, len(floor)
+
+
+def _interp_track(track: NDArray[np.float64], t_ns: int) -> NDArray[np.float64]:
+    t = track[:, 0].astype(np.float64)
+    return np.array([np.interp(float(t_ns), t, track[:, 1]), np.interp(float(t_ns), t, track[:, 2])])
+
+
+def track_heading(track: NDArray[np.float64], t_ns: int, min_step_m: float) -> float:
+    """eq 3.17: the direction from the track position at `t_ns` to the next track point at least
+    `min_step_m` away (the last heading before it at the end of the track), radians."""
+    here = _interp_track(track, t_ns)
+    later = track[track[:, 0] > t_ns, 1:3]
+    far = np.linalg.norm(later - here, axis=1) >= min_step_m
+    if far.any():
+        d = later[np.argmax(far)] - here
+    else:
+        earlier = track[track[:, 0] <= t_ns, 1:3]
+        far = np.linalg.norm(earlier - here, axis=1) >= min_step_m
+        if not far.any():
+            raise DegenerateInputError("the IMU track does not move: no heading for the fallback (eq 3.17)")
+        d = here - earlier[np.flatnonzero(far)[-1]]
+    return float(np.arctan2(d[1], d[0]))
+
+
+def track_pose(
+    up_cam: NDArray[np.float64], height_m: float, yaw_rad: float, xy: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Depth camera → plan (4, 4) from the levelling (up in the camera frame, camera height) and eq 3.17-3.18:
+    the camera's optical axis, levelled, points along `yaw_rad`; the camera stands at `xy`, `height_m` above
+    the floor (z = 0)."""
+    u = up_cam / np.linalg.norm(up_cam)
+    f = np.array([0.0, 0.0, 1.0]) - u[2] * u
+    f /= np.linalg.norm(f)
+    left = np.cross(u, f)
+    cam_basis = np.stack([f, left, u], axis=1)  # columns: forward, left, up in camera coordinates
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    world_basis = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # the same directions in the plan
+    T = np.eye(4)
+    T[:3, :3] = world_basis @ cam_basis.T
+    T[:3, 3] = [xy[0], xy[1], height_m]
+    return T
+
+
+def wall_lines(points_plan: NDArray[np.float64], cfg: RegisterConfig) -> NDArray[np.float64]:
+    """(L, 4) Hough lines x0 y0 x1 y1 (plan metres) of one placed frame (3.2.2.6): its wall-band points
+    projected onto the floor into a count image, binarised, closed, skeletonised, probabilistic Hough."""
+    import cv2
+    from skimage.morphology import skeletonize
+
+    lo, hi = cfg.wall_band_m
+    p = points_plan[(points_plan[:, 2] > lo) & (points_plan[:, 2] < hi)]
+    if len(p) < 50:
+        return np.zeros((0, 4))
+    cell = cfg.line_cell_m
+    origin = p[:, :2].min(axis=0) - 2 * cell
+    ij = np.floor((p[:, :2] - origin) / cell).astype(np.intp)
+    w, h = ij.max(axis=0) + 3
+    if w * h > 4e6:
+        return np.zeros((0, 4))
+    img = np.zeros((h, w), np.int32)
+    np.add.at(img, (ij[:, 1], ij[:, 0]), 1)
+    binary = (img >= cfg.line_min_count).astype(np.uint8)
+    binary = cv2.morphologyEx(binary, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    skel = skeletonize(binary > 0).astype(np.uint8) * 255
+    min_len = max(int(cfg.line_min_length_m / cell), 5)
+    lines = cv2.HoughLinesP(
+        skel, 1, np.pi / 360, threshold=max(min_len // 2, 5), minLineLength=min_len, maxLineGap=5
+    )
+    if lines is None:
+        return np.zeros((0, 4))
+    seg = (lines.reshape(-1, 4).astype(np.float64) + 0.5) * cell  # cell centres
+    seg[:, [0, 2]] += origin[0]
+    seg[:, [1, 3]] += origin[1]
+    return seg
+
+
+def _seg_angle(seg: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.mod(np.arctan2(seg[:, 3] - seg[:, 1], seg[:, 2] - seg[:, 0]), np.pi)
+
+
+def _angle_diff(a: NDArray | float, b: NDArray | float) -> NDArray:
+    return np.mod(np.asarray(a) - np.asarray(b) + np.pi / 2, np.pi) - np.pi / 2
+
+
+def _point_segment_distances(p: NDArray[np.float64], walls: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(L, M) distances of (L, 2) points to (M, 4) segments."""
+    a, b = walls[:, :2], walls[:, 2:4]
+    d = b - a
+    ln = np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+    u = d / ln[:, None]
+    rel = p[:, None, :] - a[None]
+    along = np.clip((rel * u[None]).sum(axis=2), 0, ln[None])
+    closest = a[None] + along[..., None] * u[None]
+    return np.linalg.norm(p[:, None, :] - closest, axis=2)
+
+
+def _weighted_median(values: NDArray[np.float64], weights: NDArray[np.float64]) -> float:
+    order = np.argsort(values)
+    cw = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cw, 0.5 * cw[-1])])
+
+
+def match_plan_lines(
+    lines: NDArray[np.float64], plan_walls: NDArray[np.float64], max_angle_rad: float, max_distance_m: float
+) -> tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.bool_]]:
+    """For each frame line the corresponding plan wall (3.2.2.6): among the walls of similar orientation
+    (within `max_angle_rad`) whose face lies within `max_distance_m` of the line's midpoint, the closest,
+    orientation breaking ties. Returns ((L,) wall index, (L,) signed orientation difference line - wall,
+    (L,) matched)."""
+    mids = 0.5 * (lines[:, :2] + lines[:, 2:4])
+    dist = _point_segment_distances(mids, plan_walls[:, :4])
+    face_dist = np.maximum(dist - 0.5 * _thickness(plan_walls)[None], 0.0)
+    dang = _angle_diff(_seg_angle(lines)[:, None], _seg_angle(plan_walls[:, :4])[None])
+    ok = (np.abs(dang) <= max_angle_rad) & (face_dist <= max_distance_m)
+    score = np.where(ok, face_dist + 0.5 * np.abs(dang), np.inf)
+    best = np.argmin(score, axis=1)
+    rows = np.arange(len(lines))
+    return best, dang[rows, best], np.isfinite(score[rows, best])
+
+
+def plan_line_correction(
+    lines: NDArray[np.float64],
+    plan_walls: NDArray[np.float64],
+    cfg: RegisterConfig,
+    tolerance: float = 1.0,
+    centre: NDArray[np.float64] | None = None,
+) -> tuple[float, NDArray[np.float64], int]:
+    """Heading correction (3.2.2.6): each frame line is matched to its plan wall (`match_plan_lines`); the
+    length-weighted median orientation difference is the correction (radians, to subtract; the thesis takes
+    the mean, the median ignores lines of furniture that match no wall). `tolerance` scales the matching
+    tolerances (`line_max_angle_deg`, `line_max_distance_m`): 1 for the first pass, smaller later. With
+    `line_fix_offset` and wall thickness given (column 4), the frame's shift across the matched wall faces is
+    also returned (after the heading fix about `centre`, the camera's xy; robust least squares over the
+    lines, (2,) metres to add).
+    Returns (angle, shift, matched lines)."""
+    if len(lines) == 0 or len(plan_walls) == 0:
+        return 0.0, np.zeros(2), 0
+    f = tolerance
+    best, dang, matched = match_plan_lines(
+        lines, plan_walls, np.radians(cfg.line_max_angle_deg) * f, cfg.line_max_distance_m * f
+    )
+    if not matched.any():
+        return 0.0, np.zeros(2), 0
+    w = np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1])[matched]
+    angle = _weighted_median(dang[matched], w)
+    shift = np.zeros(2)
+    if cfg.line_fix_offset and tolerance < 1.0 and plan_walls.shape[1] >= 5:
+        c0 = np.zeros(2) if centre is None else np.asarray(centre, dtype=np.float64)[:2]
+        ca, sa = np.cos(-angle), np.sin(-angle)
+        rot = np.array([[ca, -sa], [sa, ca]])
+        mids = (0.5 * (lines[:, :2] + lines[:, 2:4]) - c0) @ rot.T + c0
+        A, rhs, ww = [], [], []
+        for k in np.flatnonzero(matched):
+            wall = plan_walls[best[k]]
+            d = wall[2:4] - wall[:2]
+            u = d / max(np.linalg.norm(d), 1e-9)
+            nrm = np.array([-u[1], u[0]])
+            off = float((mids[k] - wall[:2]) @ nrm)
+            # the camera sees the face on its own side of the wall
+            face = np.sign(float((c0 - wall[:2]) @ nrm)) * 0.5 * wall[4]
+            A.append(nrm)
+            rhs.append(face - off)
+            ww.append(np.hypot(*(lines[k, 2:4] - lines[k, :2])))
+        A_arr, r_arr, w_arr = np.array(A), np.array(rhs), np.array(ww)
+        for _ in range(5):  # iteratively reweighted: lines of furniture near a wall must not pull the frame
+            sw = np.sqrt(w_arr)
+            shift, *_ = np.linalg.lstsq(A_arr * sw[:, None], r_arr * sw, rcond=None)
+            res = np.abs(A_arr @ shift - r_arr)
+            w_arr = np.array(ww) / np.maximum(res / 0.03, 1.0)
+    return angle, shift, int(matched.sum())
+
+
+def _thickness(plan_walls: NDArray[np.float64]) -> NDArray[np.float64]:
+    return plan_walls[:, 4] if plan_walls.shape[1] >= 5 else np.zeros(len(plan_walls))
+
+
+def place_by_track(
+    frames: Iterable[tuple[int, int, NDArray[np.floating]]],
+    track: NDArray[np.float64],
+    calibration: Calibration,
+    cfg: RegisterConfig,
+    plan_walls: NDArray[np.float64] | None = None,
+) -> tuple[dict[int, NDArray[np.float64]], dict[str, Any]]:
+    """The track-based fallback (3.2.2): frames (frame_id, t_ns, (H, W) depth m) are levelled by their floor
+    (3.2.2.4), placed by the track (eq 3.17 heading toward the next track point, eq 3.18 translation) and,
+    with plan walls ((M, 4) x0 y0 x1 y1 or (M, 5) with thickness, plan frame), their heading corrected by
+    line parallelism (3.2.2.6). Returns (frame_id -> (4, 4) depth camera → plan, metrics)."""
+    track = np.asarray(track, dtype=np.float64)
+    if track.ndim != 2 or track.shape[1] != 3 or len(track) < 2:
+        raise DegenerateInputError(f"the IMU track must be (K>=2, 3) t_ns x y, got shape {track.shape}")
+    track = track[np.argsort(track[:, 0])]
+    levels: dict[int, tuple[NDArray, float] | None] = {}
+    times: dict[int, int] = {}
+    # wall-line work needs each frame's points (thinned) once more after all frames are levelled
+    line_cfg = RegisterConfig(**{**cfg.__dict__, "pixel_stride": max(cfg.pixel_stride, 3)})
+    cam_points: dict[int, NDArray[np.float64]] = {}
+    use_plan = plan_walls is not None and len(plan_walls) > 0
+    for frame_id, t_ns, depth in frames:
+        fid = int(frame_id)
+        lv = level_frame(depth, calibration.ir, cfg)
+        levels[fid] = None if lv is None else (lv[0], lv[1])
+        times[fid] = int(t_ns)
+        if use_plan:
+            cam_points[fid] = frame_points(depth, calibration, line_cfg).astype(np.float32)
+    fits = [v for v in levels.values() if v is not None]
+    if not fits:
+        raise DegenerateInputError(
+            f"no floor found in any of {len(levels)} frames: cannot level them for the fallback"
+        )
+    default_up = np.median(np.array([f[0] for f in fits]), axis=0)
+    default_up /= np.linalg.norm(default_up)
+    default_h = float(np.median([f[1] for f in fits]))
+    t_lo, t_hi = track[0, 0], track[-1, 0]
+    inside = [f for f in times if t_lo <= times[f] <= t_hi]
+
+    def initial(fid: int, offset: NDArray[np.float64]) -> NDArray[np.float64]:
+        up, h = levels[fid] or (default_up, default_h)
+        yaw = track_heading(track, times[fid], cfg.track_min_step_m)
+        return track_pose(up, h, yaw, _interp_track(track, times[fid]) + offset)
+
+    poses = {fid: initial(fid, np.zeros(2)) for fid in inside}
+    angles: dict[int, float] = {}
+    restarted = 0
+    if use_plan:
+        walls = np.asarray(plan_walls, dtype=np.float64)
+        scores = {}
+        for fid in inside:
+            poses[fid], angles[fid], scores[fid] = fit_to_plan(poses[fid], cam_points[fid], walls, cfg)
+        # a frame whose wall lines lay too far from the plan for its position to be fixed starts again from
+        # the track drift its neighbours in time measured (the drift changes slowly); the placement whose
+        # lines agree better with the plan is kept
+        order = sorted(inside, key=lambda f: times[f])
+        for _sweep in range(2):
+            drift = {f: poses[f][:2, 3] - _interp_track(track, times[f]) for f in order}
+            for k, fid in enumerate(order):
+                for j in (k - 1, k + 1, k - 2, k + 2):
+                    if not 0 <= j < len(order):
+                        continue
+                    offset = drift[order[j]]
+                    if np.linalg.norm(offset - drift[fid]) < 2 * cfg.voxel_size_m:
+                        continue
+                    T, angle, score = fit_to_plan(initial(fid, offset), cam_points[fid], walls, cfg)
+                    if score > scores[fid] + cfg.line_min_length_m:
+                        poses[fid], angles[fid], scores[fid] = T, angle, score
+                        drift[fid] = poses[fid][:2, 3] - _interp_track(track, times[fid])
+                        restarted += 1
+    metrics = {
+        "track_frames": len(poses),
+        "frames_outside_track": len(times) - len(inside),
+        "frames_levelled_by_own_floor": len(fits),
+        "frames_restarted_from_neighbours": restarted,
+        "camera_height_m": default_h,
+        "heading_corrections_deg": [round(float(np.degrees(angles.get(f, 0.0))), 2) for f in inside],
+    }
+    return poses, metrics
+
+
+def fit_to_plan(
+    T: NDArray[np.float64], points_cam: NDArray, plan_walls: NDArray[np.float64], cfg: RegisterConfig
+) -> tuple[NDArray[np.float64], float, float]:
+    """Passes of `plan_line_correction` with shrinking tolerances on one frame placed at T (depth camera →
+    plan): the heading turned about the camera and, when thickness is given, the frame shifted onto the
+    wall faces. Returns (corrected T, total heading correction (rad), agreement: the length (m) of the
+    frame's lines lying on a plan wall face within 5 cm and 2 degrees afterwards)."""
+    pts = _transform(T, np.asarray(points_cam, dtype=np.float64))
+    total = 0.0
+    for tolerance in (1.0, 0.5, 0.25, 0.25):
+        angle, shift, n = plan_line_correction(wall_lines(pts, cfg), plan_walls, cfg, tolerance, T[:2, 3])
+        if n == 0:
+            continue
+        c, s = np.cos(-angle), np.sin(-angle)
+        Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        centre = T[:3, 3].copy()
+        D = np.eye(4)
+        D[:3, :3] = Rz
+        D[:3, 3] = centre - Rz @ centre
+        D[:2, 3] += shift
+        T = D @ T
+        pts = _transform(D, pts)
+        total -= angle
+    lines = wall_lines(pts, cfg)
+    score = 0.0
+    if len(lines):
+        _best, _dang, ok = match_plan_lines(lines, plan_walls, np.radians(2.0), 0.05)
+        score = float(np.hypot(lines[ok, 2] - lines[ok, 0], lines[ok, 3] - lines[ok, 1]).sum())
+    return T, total, score
+
+
+# ------------------------------------------------------------------------------------ the stage
+
+
+@dataclass
+class RegisterResult:
+    """A registered room."""
+
+    poses: dict[str, NDArray]
+    """poses.parquet columns: frame_id, t_ns, qw qx qy qz tx ty tz (depth camera → room, metres; NaN when
+    unplaced), method (sfm / track / none)."""
+    cloud: FusedCloud
+    scale: dict[str, Any]
+    """scale.json: scale (metres per SfM unit; 1.0 for track placements), spread, frames used."""
+    metrics: dict[str, Any] = field(default_factory=dict)
+    frame: str = "room"
+    """"room" (anchored at the first SfM frame) or "plan" (the track's frame)."""
+
+
+def _decode_depth(row: dict[str, Any], units_override: float | None) -> NDArray[np.float32]:
+    import cv2
+
+    if row["depth_kind"] == "disparity":
+        raise DegenerateInputError("raw disparity frames need the calibration's disparity model")
+    raw = cv2.imdecode(np.frombuffer(row["depth"], np.uint8), cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise DegenerateInputError(f"frame {row.get('frame_id')}: depth is not a readable PNG")
+    units = float(units_override or row["depth_units_per_m"])
+    depth = raw.astype(np.float32) / np.float32(units)
+    if row["depth_kind"] == "mm":
+        depth[raw >= 65535] = 0
+    return depth
+
+
+def _pose_columns(
+    frame_ids: list[int], t_ns: list[int], poses: dict[int, NDArray[np.float64]], methods: dict[int, str]
+) -> dict[str, NDArray]:
+    n = len(frame_ids)
+    q = np.full((n, 4), np.nan)
+    t = np.full((n, 3), np.nan)
+    for k, fid in enumerate(frame_ids):
+        T = poses.get(fid)
+        if T is None:
+            continue
+        xyzw = Rotation.from_matrix(T[:3, :3]).as_quat()
+        if xyzw[3] < 0:
+            xyzw = -xyzw
+        q[k] = [xyzw[3], xyzw[0], xyzw[1], xyzw[2]]
+        t[k] = T[:3, 3]
+    return {
+        "frame_id": np.asarray(frame_ids, dtype=np.int32),
+        "t_ns": np.asarray(t_ns, dtype=np.int64),
+        "qw": q[:, 0],
+        "qx": q[:, 1],
+        "qy": q[:, 2],
+        "qz": q[:, 3],
+        "tx": t[:, 0],
+        "ty": t[:, 1],
+        "tz": t[:, 2],
+        "method": np.array([methods.get(f, "none") for f in frame_ids], dtype=object),
+    }
+
+
+def register_room(
+    frames_path: Path,
+    camera_info: dict[str, Any],
+    calibration: Calibration | None,
+    cfg: RegisterConfig,
+    sfm_cfg: SfmConfig,
+    workdir: Path,
+    track: NDArray[np.float64] | None = None,
+    plan_walls: NDArray[np.float64] | None = None,
+    progress: Callable[[str], None] | None = None,
+    scale_cfg: ScaleConfig | None = None,
+    profile: dict[str, Any] | None = None,
+    depth_units_per_m: float | None = None,
+) -> RegisterResult:
+    """The register stage on one room: sfm → scale → fuse, or the track-based fallback when SfM registers
+    under `cfg.fallback_min_registered_fraction` of the frames (or fails outright) and a track is given.
+
+    frames_path: ingest's frames.parquet (read row group by row group); camera_info: its camera_info.json;
+    calibration: the survey's (None: from camera_info, with the sensor `profile`'s IR→RGB pose);
+    workdir: scratch folder for pycolmap; track: (K, 3) t_ns x y foot-mounted IMU positions (plan frame);
+    plan_walls: (M, 4) or (M, 5 with thickness) coarse plan walls for the fallback's heading correction.
+    Raises DegenerateInputError (one line) when neither SfM nor the fallback can place the frames."""
+    from tasks.ingest import iter_frames
+
+    started = time.perf_counter()
+    say = progress or (lambda _msg: None)
+    scale_cfg = scale_cfg or ScaleConfig()
+    calib = calibration or calibration_from_camera_info(camera_info, profile)
+    frames_path = Path(frames_path)
+    meta = list(iter_frames(frames_path, ["frame_id", "t_ns", "rgb_format"]))
+    frame_ids = [int(r["frame_id"]) for r in meta]
+    t_of = {int(r["frame_id"]): int(r["t_ns"]) for r in meta}
+    if not frame_ids:
+        raise DegenerateInputError(f"{frames_path.name}: no frames")
+
+    def name_of(fid: int) -> str:
+        return f"{fid:06d}.png"
+
+    def depth_stream() -> Iterator[dict[str, Any]]:
+        yield from iter_frames(frames_path, ["frame_id", "t_ns", "depth", "depth_kind", "depth_units_per_m"])
+
+    metrics: dict[str, Any] = {"frames": len(frame_ids)}
+    sfm: SfmResult | None = None
+    sfm_error = ""
+    images = []
+    for row in iter_frames(frames_path, ["frame_id", "rgb"]):
+        if row["rgb"]:
+            from tasks.ingest import decode_rgb
+
+            img = decode_rgb(row)
+            if img is not None:
+                images.append((name_of(int(row["frame_id"])), img))
+    say(f"sfm on {len(images)} colour frames")
+    try:
+        if len(images) < sfm_cfg.min_frames:
+            raise DegenerateInputError(
+                f"SfM needs at least {sfm_cfg.min_frames} colour frames, got {len(images)}"
+            )
+        sfm = run_sfm(images, calib.rgb, sfm_cfg, Path(workdir))
+    except DegenerateInputError as exc:
+        sfm_error = str(exc)
+    del images
+    registered = 0 if sfm is None else int(sfm.registered.sum())
+    fraction = registered / len(frame_ids)
+    metrics.update(sfm_registered=registered, sfm_registered_fraction=round(fraction, 4))
+    if sfm is not None:
+        metrics["sfm"] = sfm.metrics
+    poses: dict[int, NDArray[np.float64]] = {}
+    methods: dict[int, str] = {}
+    scale_json: dict[str, Any]
+    frame = "room"
+    if sfm is not None and fraction >= cfg.fallback_min_registered_fraction:
+        say(f"scale from depth ({registered} registered frames)")
+        t0 = time.perf_counter()
+        report = estimate_scale(
+            sfm,
+            ((name_of(int(r["frame_id"])), _decode_depth(r, depth_units_per_m)) for r in depth_stream()),
+            calib,
+            scale_cfg,
+        )
+        metrics["scale_s"] = round(time.perf_counter() - t0, 3)
+        by_name = apply_scale(sfm, report.scale, calib)
+        for fid in frame_ids:
+            if name_of(fid) in by_name:
+                poses[fid] = by_name[name_of(fid)]
+                methods[fid] = "sfm"
+        scale_json = {"method": "sfm", **report.to_json()}
+    elif track is not None:
+        why = sfm_error or f"SfM registered {registered} of {len(frame_ids)} frames"
+        say(f"track-based fallback ({why})")
+        poses, fb_metrics = place_by_track(
+            (
+                (int(r["frame_id"]), int(r["t_ns"]), _decode_depth(r, depth_units_per_m))
+                for r in depth_stream()
+            ),
+            track,
+            calib,
+            cfg,
+            plan_walls,
+        )
+        methods = {fid: "track" for fid in poses}
+        metrics["fallback"] = fb_metrics
+        metrics["fallback_reason"] = why
+        scale_json = {
+            "method": "track",
+            "scale": 1.0,
+            "spread_mad": None,
+            "spread_iqr": None,
+            "frames_used": 0,
+            "note": f"frames placed by the IMU track: {why}",
+        }
+        frame = "plan"
+    else:
+        why = sfm_error or (
+            f"SfM registered {registered} of {len(frame_ids)} frames "
+            f"(< {cfg.fallback_min_registered_fraction:.0%})"
+        )
+        raise DegenerateInputError(
+            f"cannot register the room: {why} and no IMU track was given for the fallback"
+        )
+
+    say(f"fusing {len(poses)} placed frames")
+    t0 = time.perf_counter()
+    used_poses: dict[int, NDArray[np.float64]] = {}
+
+    def fuse_stream() -> Iterator[FrameData]:
+        from tasks.ingest import decode_rgb
+
+        for r in iter_frames(frames_path, ["frame_id", "depth", "depth_kind", "depth_units_per_m", "rgb"]):
+            fid = int(r["frame_id"])
+            if fid not in poses:
+                continue
+            yield fid, _decode_depth(r, depth_units_per_m), decode_rgb(r)
+
+    cloud = fuse_frames(fuse_stream(), poses, calib, cfg, used_poses)
+    poses.update(used_poses)
+    metrics["fuse_s"] = round(time.perf_counter() - t0, 3)
+    metrics.update(
+        placed=len(poses),
+        methods={m: sum(1 for f in frame_ids if methods.get(f, "none") == m) for m in METHODS},
+        cloud_points=len(cloud),
+        coloured_fraction=round(
+            float(cloud.coloured.mean()) if cloud.coloured is not None and len(cloud) else 0.0, 4
+        ),
+        seconds=round(time.perf_counter() - started, 3),
+    )
+    columns = _pose_columns(frame_ids, [t_of[f] for f in frame_ids], poses, methods)
+    return RegisterResult(columns, cloud, scale_json, metrics, frame)
+
+
+def run_register_room(
+    capture: Path,
+    out_dir: Path,
+    intrinsics: tuple[float, float, float, float] | str | None = None,
+    depth_units_per_m: float | None = None,
+    calibration_path: Path | None = None,
+    profile_name: str = "kinect_v1",
+    track: NDArray[np.float64] | None = None,
+    plan_walls: NDArray[np.float64] | None = None,
+    cfg: RegisterConfig | None = None,
+    sfm_cfg: SfmConfig | None = None,
+) -> dict[str, Any]:
+    """`indoor-survey register-room CAPTURE --out DIR [--intrinsics fx,fy,cx,cy] [--depth-scale U]
+    [--calibration FILE]`: ingest → sfm → scale → register on one room; writes DIR/poses.parquet,
+    DIR/cloud.ply and DIR/scale.json and returns the metrics. `intrinsics` override both streams' pinhole
+    intrinsics (no distortion); `depth_units_per_m` overrides the depth PNG units."""
+    import json
+
+    from tasks.artefacts import POSES_SCHEMA, write_json, write_ply_points, write_table
+    from tasks.config import load_sensor_profile
+    from tasks.ingest import IngestConfig, ingest_capture
+
+    profile = load_sensor_profile(profile_name)
+    out_dir = Path(out_dir)
+    calibration = None
+    if calibration_path is not None:
+        calibration = Calibration.from_json(json.loads(Path(calibration_path).read_text()))
+    with tempfile.TemporaryDirectory(prefix="register-") as tmp:
+        stage = Path(tmp) / "ingest"
+        stage.mkdir()
+        icfg = IngestConfig(tum_depth_units_per_m=depth_units_per_m) if depth_units_per_m else IngestConfig()
+        ingest_metrics = ingest_capture(Path(capture), stage, profile, icfg)
+        if not (stage / "frames.parquet").exists():
+            raise DegenerateInputError(f"{capture}: a registered cloud needs no registration")
+        camera_info = json.loads((stage / "camera_info.json").read_text())
+        if intrinsics is not None:
+            vals = [float(v) for v in (intrinsics.split(",") if isinstance(intrinsics, str) else intrinsics)]
+            if len(vals) != 4:
+                raise ValueError(f"--intrinsics needs fx,fy,cx,cy, got {intrinsics!r}")
+            fx, fy, cx, cy = vals
+            for stream in ("depth", "rgb"):
+                if stream in camera_info:
+                    camera_info[stream] = {
+                        **camera_info[stream],
+                        "K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]],
+                        "dist": [0.0] * 5,
+                        "source": "cli",
+                    }
+        work = Path(tmp) / "sfm"
+        work.mkdir()
+        result = register_room(
+            stage / "frames.parquet",
+            camera_info,
+            calibration,
+            cfg or RegisterConfig(),
+            sfm_cfg or SfmConfig(),
+            work,
+            track=track,
+            plan_walls=plan_walls,
+            profile=profile,
+            depth_units_per_m=depth_units_per_m,
+        )
+    write_table(out_dir / "poses.parquet", result.poses, POSES_SCHEMA)
+    write_ply_points(out_dir / "cloud.ply", result.cloud.points, result.cloud.colors)
+    write_json(out_dir / "scale.json", result.scale)
+    return {"ingest": ingest_metrics, **result.metrics, "frame": result.frame}

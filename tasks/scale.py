@@ -1,0 +1,391 @@
+"""Scale stage (thesis 3.2.1, eq 3.16, appendix A.1): metric poses from SfM and depth.
+
+SfM orients the colour frames up to an unknown scale. Every registered frame observes some of the sparse
+SfM points; the depth image of the same frame measures those points in metres. For each frame the
+7-parameter similarity (Helmert, eq 3.16) X_object = λ · R · X_local + T between the SfM points (local) and
+their depth points in the RGB camera frame (object) is solved in closed form with Horn's unit quaternion
+method (appendix A.1, eq A.10-A.13) inside RANSAC, then the per-frame scales are combined robustly (median,
+with the MAD and IQR as spread). `apply_scale` turns the SfM poses into metric depth-camera-to-room poses.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from tasks.calibration import Calibration, CameraModel, depth_to_points
+from tasks.cloud import DegenerateInputError
+from tasks.sfm import SfmResult
+
+CODE_VERSION = "scale-1"
+"""Bumped when the stage's output for the same inputs and config would change."""
+
+ROOM_FROM_CAMERA_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+"""Room axes from the first camera's: x right, y forward (the optical axis), z up (minus the image y)."""
+
+
+@dataclass(frozen=True)
+class ScaleConfig:
+    """Settings of the scale stage (section `scale` of the config tree)."""
+
+    ransac_iterations: int = 200
+    """RANSAC draws of 3 correspondences per frame."""
+    inlier_threshold_m: float = 0.03
+    """A correspondence is an inlier when its residual after the similarity is below this plus
+    `inlier_threshold_rel` times its depth."""
+    inlier_threshold_rel: float = 0.02
+    """Depth-proportional part of the inlier threshold (Kinect range noise grows with distance)."""
+    min_points_per_frame: int = 8
+    """Fewest SfM points with a depth measurement for a frame to estimate a scale."""
+    min_inlier_fraction: float = 0.5
+    """A frame whose best similarity explains fewer of its correspondences is not used."""
+    depth_window_px: int = 1
+    """Half size of the window around an observation in which the depth (projected into RGB) is read."""
+    depth_stride: int = 0
+    """Back-project every n-th depth pixel in each direction (0 = about 320 columns: 2 at 640x480); the
+    window above still catches a projected point at the RGB pixels."""
+    max_depth_step_m: float = 0.05
+    """Observations whose depth window spans more than this (a depth edge) are skipped."""
+    min_depth_m: float = 0.3
+    """Nearer depth readings are ignored."""
+    max_depth_m: float = 6.0
+    """Farther depth readings are ignored."""
+    scale_from: Literal["range", "helmert"] = "range"
+    """A frame's scale: "helmert" = λ of its eq 3.16 fit; "range" = the median ratio, over the correspondences
+    that fit agrees with, of the depth measured along the ray to the SfM depth of the point in that frame.
+    The similarity's λ also follows the lateral extent of the points, which inherits any error of the
+    colour intrinsics and of the depth/colour registration (on 7-Scenes, whose colour intrinsics are only
+    nominal, "helmert" was 1.9 % off the given poses and "range" 0.2 %)."""
+    scale_formula: Literal["asymmetric", "symmetric"] = "asymmetric"
+    """Horn's scale formula (see `horn_similarity`): asymmetric = errors in the depth points."""
+    combine: Literal["median", "trimmed_mean"] = "median"
+    """How the per-frame scales are combined."""
+    trim_fraction: float = 0.2
+    """Share cut from each end for `combine="trimmed_mean"`."""
+    min_frames: int = 1
+    """Fewest frames with a scale; fewer is an error."""
+    random_seed: int = 0
+    """Seed of the RANSAC draws."""
+
+
+@dataclass
+class FrameScale:
+    """The similarity of one frame (eq 3.16): X_rgb = scale · R · X_sfm + t."""
+
+    name: str
+    scale: float
+    R: NDArray[np.float64]
+    t: NDArray[np.float64]
+    correspondences: int
+    inliers: int
+    rms_m: float
+    """RMS residual of the inliers (m)."""
+
+
+@dataclass
+class ScaleReport:
+    """The combined scale (metres per SfM unit) and how well the frames agree."""
+
+    scale: float
+    mad: float
+    """Median absolute deviation of the per-frame scales times 1.4826 (a robust standard deviation)."""
+    iqr: float
+    """Inter-quartile range of the per-frame scales."""
+    relative_spread: float
+    """mad / scale."""
+    frames_used: list[str]
+    frames: list[FrameScale] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "scale": self.scale,
+            "spread_mad": self.mad,
+            "spread_iqr": self.iqr,
+            "relative_spread": self.relative_spread,
+            "frames_used": len(self.frames_used),
+            "frame_names": self.frames_used,
+            "per_frame": {
+                f.name: {"scale": f.scale, "inliers": f.inliers, "rms_m": f.rms_m} for f in self.frames
+            },
+        }
+
+
+# ------------------------------------------------------------------------------------ closed-form similarity
+
+
+def horn_similarity(
+    local: NDArray[np.float64], obj: NDArray[np.float64], scale_formula: str = "asymmetric"
+) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+    """Least-squares similarity obj ≈ λ · R · local + T (eq 3.16) in closed form with Horn's unit
+    quaternions (appendix A.1): centroids (A.11), the cross-covariance M (A.12), the symmetric 4×4 N whose
+    eigenvector of the largest eigenvalue is the rotation quaternion (A.13, A.7).
+
+    Horn gives two scales: "asymmetric" λ = Σ obj'·R local' / Σ|local'|², the least-squares scale when the
+    errors are in the object coordinates, and "symmetric" λ = sqrt(Σ|obj'|² / Σ|local'|²) for errors on
+    both sides alike. Depth noise (and the RGB/depth sampling offset) dwarfs the error of triangulated SfM
+    points, so the asymmetric one is the default (on 7-Scenes it moved the scale 0.15 % toward the given
+    poses).
+
+    local, obj: (N, 3), N >= 3 not collinear. Returns (λ, (3, 3) R, (3,) T)."""
+    s = np.asarray(local, dtype=np.float64)
+    d = np.asarray(obj, dtype=np.float64)
+    if s.shape != d.shape or s.ndim != 2 or s.shape[1] != 3 or len(s) < 3:
+        raise DegenerateInputError(f"similarity needs two (N>=3, 3) point sets, got {s.shape} and {d.shape}")
+    sc, dc = s.mean(axis=0), d.mean(axis=0)
+    s1, d1 = s - sc, d - dc
+    ss = float((s1**2).sum())
+    if ss <= 1e-18:
+        raise DegenerateInputError("similarity points coincide")
+    M = s1.T @ d1  # S_ab = Σ s'_a d'_b
+    (Sxx, Sxy, Sxz), (Syx, Syy, Syz), (Szx, Szy, Szz) = M
+    N = np.array(
+        [
+            [Sxx + Syy + Szz, Syz - Szy, Szx - Sxz, Sxy - Syx],
+            [Syz - Szy, Sxx - Syy - Szz, Sxy + Syx, Szx + Sxz],
+            [Szx - Sxz, Sxy + Syx, -Sxx + Syy - Szz, Syz + Szy],
+            [Sxy - Syx, Szx + Sxz, Syz + Szy, -Sxx - Syy + Szz],
+        ]
+    )
+    _w, v = np.linalg.eigh(N)
+    q0, qx, qy, qz = v[:, -1]
+    R = np.array(
+        [
+            [q0 * q0 + qx * qx - qy * qy - qz * qz, 2 * (qx * qy - q0 * qz), 2 * (qx * qz + q0 * qy)],
+            [2 * (qy * qx + q0 * qz), q0 * q0 - qx * qx + qy * qy - qz * qz, 2 * (qy * qz - q0 * qx)],
+            [2 * (qz * qx - q0 * qy), 2 * (qz * qy + q0 * qx), q0 * q0 - qx * qx - qy * qy + qz * qz],
+        ]
+    )
+    if scale_formula == "symmetric":
+        lam = float(np.sqrt((d1**2).sum() / ss))
+    elif scale_formula == "asymmetric":
+        lam = float(np.einsum("ij,ij->", d1, s1 @ R.T) / ss)
+    else:
+        raise ValueError(f"unknown scale formula {scale_formula!r}: asymmetric or symmetric")
+    T = dc - lam * R @ sc
+    return lam, R, T
+
+
+def ransac_similarity(
+    local: NDArray[np.float64],
+    obj: NDArray[np.float64],
+    cfg: ScaleConfig,
+    rng: np.random.Generator,
+) -> tuple[float, NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]] | None:
+    """eq 3.16 inside RANSAC (appendix B): minimal samples of 3, inliers by the metric residual against a
+    depth-dependent threshold, the final similarity refitted on all inliers. None when no sample works."""
+    n = len(local)
+    if n < 3:
+        return None
+    thr = cfg.inlier_threshold_m + cfg.inlier_threshold_rel * np.linalg.norm(obj, axis=1)
+    best: NDArray[np.bool_] | None = None
+    best_count = 2
+    for _ in range(cfg.ransac_iterations):
+        idx = rng.choice(n, 3, replace=False)
+        a, b, c = obj[idx]
+        if np.linalg.norm(np.cross(b - a, c - a)) < 1e-4:
+            continue
+        try:
+            lam, R, T = horn_similarity(local[idx], obj[idx], cfg.scale_formula)
+        except DegenerateInputError:
+            continue
+        res = np.linalg.norm(obj - (lam * local @ R.T + T), axis=1)
+        inl = res < thr
+        count = int(inl.sum())
+        if count > best_count:
+            best, best_count = inl, count
+            if count == n:
+                break
+    if best is None:
+        return None
+    inl = best
+    for _ in range(2):  # refit on the inliers, re-select once
+        lam, R, T = horn_similarity(local[inl], obj[inl], cfg.scale_formula)
+        res = np.linalg.norm(obj - (lam * local @ R.T + T), axis=1)
+        new = res < thr
+        if new.sum() < 3:
+            break
+        inl = new
+    lam, R, T = horn_similarity(local[inl], obj[inl], cfg.scale_formula)
+    return lam, R, T, inl
+
+
+# ------------------------------------------------------------------------------------ depth at SfM observations
+
+
+def depth_in_rgb(
+    depth_m: NDArray[np.floating],
+    calib: Calibration,
+    rgb_camera: CameraModel,
+    cfg: ScaleConfig,
+) -> NDArray[np.float32]:
+    """The depth image moved into the RGB camera (eq 3.13 back-projection, eq 3.14 IR→RGB): (H, W) z in the
+    RGB frame at each RGB pixel of `rgb_camera` (the camera the SfM observations refer to), NaN where no
+    depth point lands; the nearest point wins."""
+    d = np.asarray(depth_m, dtype=np.float64)
+    stride = cfg.depth_stride or max(1, round(d.shape[1] / 320))
+    if stride > 1:
+        thinned = np.zeros_like(d)
+        thinned[::stride, ::stride] = d[::stride, ::stride]
+        d = thinned
+    pts, _ = depth_to_points(d, "m", calib.ir)
+    keep = (pts[:, 2] >= cfg.min_depth_m) & (pts[:, 2] <= cfg.max_depth_m)
+    pts = pts[keep]
+    pose = calib.ir_to_rgb
+    p_rgb = pts if pose is None else pose.apply(pts)
+    uv, z = rgb_camera.project(p_rgb)
+    w, h = rgb_camera.size
+    ok = np.isfinite(uv).all(axis=1) & (z > 0)
+    ui = np.rint(uv[ok, 0]).astype(np.intp)
+    vi = np.rint(uv[ok, 1]).astype(np.intp)
+    zz = z[ok]
+    inside = (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+    zbuf = np.full((h, w), np.inf, np.float32)
+    np.minimum.at(zbuf, (vi[inside], ui[inside]), zz[inside].astype(np.float32))
+    zbuf[~np.isfinite(zbuf)] = np.nan
+    return zbuf
+
+
+def observation_points(
+    uv: NDArray[np.float64], zbuf: NDArray[np.float32], rgb_camera: CameraModel, cfg: ScaleConfig
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """(M, 2) observation pixels → ((M, 3) metric points in the RGB frame, (M,) valid). The depth is the
+    median of the window around the pixel; windows over a depth edge are skipped."""
+    h, w = zbuf.shape
+    r = cfg.depth_window_px
+    ui = np.rint(uv[:, 0]).astype(np.intp)
+    vi = np.rint(uv[:, 1]).astype(np.intp)
+    offs = np.arange(-r, r + 1)
+    du, dv = np.meshgrid(offs, offs)
+    uu = np.clip(ui[:, None] + du.ravel()[None], 0, w - 1)
+    vv = np.clip(vi[:, None] + dv.ravel()[None], 0, h - 1)
+    win = zbuf[vv, uu].astype(np.float64)
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            z = np.nanmedian(win, axis=1)
+            step = np.nanmax(win, axis=1) - np.nanmin(win, axis=1)
+    valid = np.isfinite(z) & (step <= cfg.max_depth_step_m) & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+    rays = rgb_camera.undistort_pixels(uv)
+    valid &= np.isfinite(rays).all(axis=1)
+    pts = np.column_stack([rays * z[:, None], z])
+    return pts, valid
+
+
+# ------------------------------------------------------------------------------------ the stage
+
+
+def frame_scale(
+    name: str,
+    depth_m: NDArray[np.floating],
+    sfm: SfmResult,
+    calib: Calibration,
+    cfg: ScaleConfig,
+    rng: np.random.Generator,
+) -> FrameScale | None:
+    """eq 3.16 for one registered frame: its SfM points against their depth points; None when the frame
+    has too few usable correspondences or its similarity explains too few of them."""
+    if name not in sfm.observations or sfm.camera is None:
+        return None
+    rows, uv = sfm.observations[name]
+    if len(rows) < cfg.min_points_per_frame:
+        return None
+    zbuf = depth_in_rgb(depth_m, calib, sfm.camera, cfg)
+    obj, valid = observation_points(uv, zbuf, sfm.camera, cfg)
+    if valid.sum() < cfg.min_points_per_frame:
+        return None
+    local = sfm.points[rows[valid]]
+    obj = obj[valid]
+    fit = ransac_similarity(local, obj, cfg, rng)
+    if fit is None:
+        return None
+    lam, R, T, inl = fit
+    if inl.sum() < max(cfg.min_points_per_frame, cfg.min_inlier_fraction * len(local)):
+        return None
+    res = np.linalg.norm(obj[inl] - (lam * local[inl] @ R.T + T), axis=1)
+    scale = lam
+    if cfg.scale_from == "range":
+        pose = sfm.cam_from_world[name]
+        z_sfm = local[inl] @ pose[2, :3] + pose[2, 3]
+        ok = z_sfm > 0
+        if ok.sum() < cfg.min_points_per_frame:
+            return None
+        scale = float(np.median(obj[inl][ok, 2] / z_sfm[ok]))
+    return FrameScale(name, scale, R, T, len(local), int(inl.sum()), float(np.sqrt((res**2).mean())))
+
+
+def combine_scales(frames: list[FrameScale], cfg: ScaleConfig) -> ScaleReport:
+    """Robust combination of the per-frame scales (the thesis averages over frames; the median and a
+    trimmed mean resist frames with a bad depth/colour pairing) with the MAD and IQR as spread."""
+    if len(frames) < max(cfg.min_frames, 1):
+        raise DegenerateInputError(
+            f"metric scale needs at least {max(cfg.min_frames, 1)} frames with depth-matched SfM points, "
+            f"got {len(frames)}"
+        )
+    s = np.array([f.scale for f in frames])
+    med = float(np.median(s))
+    if cfg.combine == "trimmed_mean":
+        k = int(len(s) * cfg.trim_fraction)
+        srt = np.sort(s)
+        value = float(srt[k : len(s) - k].mean()) if len(s) - 2 * k > 0 else med
+    else:
+        value = med
+    mad = float(1.4826 * np.median(np.abs(s - med)))
+    q1, q3 = np.percentile(s, [25, 75])
+    return ScaleReport(
+        value, mad, float(q3 - q1), mad / value if value else float("inf"), [f.name for f in frames], frames
+    )
+
+
+def estimate_scale(
+    sfm: SfmResult,
+    depth_frames: Iterable[tuple[str, NDArray[np.floating]]],
+    calib: Calibration,
+    cfg: ScaleConfig,
+) -> ScaleReport:
+    """The scale stage (eq 3.16, App. A): per-frame Helmert fits of SfM points to depth, combined robustly.
+
+    depth_frames: (frame name as in `sfm`, (H, W) depth in metres of the depth camera, 0/NaN = none),
+    streamed; frames that SfM did not register are skipped. Raises DegenerateInputError when no frame
+    yields a scale."""
+    rng = np.random.default_rng(cfg.random_seed)
+    frames = []
+    for name, depth in depth_frames:
+        if name not in sfm.cam_from_world:
+            continue
+        fs = frame_scale(name, depth, sfm, calib, cfg, rng)
+        if fs is not None:
+            frames.append(fs)
+    return combine_scales(frames, cfg)
+
+
+def apply_scale(
+    sfm: SfmResult, scale: float, calib: Calibration, anchor: str | None = None
+) -> dict[str, NDArray[np.float64]]:
+    """Metric depth-camera-to-room poses: name -> (4, 4) T with X_room = T · X_depth (metres).
+
+    The SfM frame is scaled to metres (X_metric = scale · X_sfm); the RGB pose becomes the depth camera's
+    through the fixed IR→RGB pose (eq 3.14). The room frame is anchored at the depth camera of `anchor`
+    (default: the first registered frame in input order) with x right, y forward, z up (ROOM_FROM_CAMERA_AXES),
+    so a level sensor gives a level room."""
+    if not sfm.cam_from_world:
+        raise DegenerateInputError("no registered frame to place")
+    if not np.isfinite(scale) or scale <= 0:
+        raise DegenerateInputError(f"metric scale must be a positive number, got {scale}")
+    rgb_from_ir = np.eye(4) if calib.ir_to_rgb is None else calib.ir_to_rgb.matrix
+    world_from_ir = {}
+    for name, T in sfm.cam_from_world.items():
+        cam_from_world = T.copy()
+        cam_from_world[:3, 3] *= scale
+        world_from_ir[name] = np.linalg.inv(cam_from_world) @ rgb_from_ir
+    if anchor is None:
+        anchor = next(n for n in sfm.names if n in world_from_ir)
+    room_from_world = np.eye(4)
+    room_from_world[:3, :3] = ROOM_FROM_CAMERA_AXES
+    room_from_world = room_from_world @ np.linalg.inv(world_from_ir[anchor])
+    return {n: room_from_world @ T for n, T in world_from_ir.items()}

@@ -1,0 +1,366 @@
+"""SfM stage (thesis 3.2.1): orient a room's colour frames with pycolmap, up to scale.
+
+The thesis oriented Kinect colour images with VisualSFM; here COLMAP's incremental mapper does the same job:
+SIFT features, sequential matching for video-like captures (with sparse key-frame pairs as loop closures;
+exhaustive for small sets), incremental mapping with bundle adjustment. When the RGB camera is calibrated
+its intrinsics are held fixed: frames are undistorted with the calibration first and mapped as PINHOLE
+views, so every observation comes back as an ideal (distortion-free) pixel.
+
+Conventions
+- Poses are COLMAP's cam_from_world (X_cam = R · X_world + t) in SfM's arbitrary frame and unit.
+- Observation pixels are OpenCV pixels (pixel centres at integers; COLMAP's own are at +0.5), in the
+  undistorted image when a calibrated camera was given.
+- Results are keyed by image NAME: pycolmap's image ids do not follow the order of the input list.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from tasks.calibration import CameraModel
+from tasks.cloud import DegenerateInputError
+
+log = logging.getLogger(__name__)
+
+CODE_VERSION = "sfm-1"
+"""Bumped when the stage's output for the same inputs and config would change."""
+
+
+@dataclass(frozen=True)
+class SfmConfig:
+    """Settings of the sfm stage (section `sfm` of the config tree)."""
+
+    matching: Literal["auto", "sequential", "exhaustive"] = "auto"
+    """Pairing: sequential (video-like captures), exhaustive, or auto = exhaustive up to
+    `exhaustive_max_frames` frames, sequential beyond."""
+    exhaustive_max_frames: int = 40
+    """Largest frame count matched exhaustively by `matching="auto"`."""
+    sequential_overlap: int = 10
+    """Sequential matching: each frame is matched with this many following frames."""
+    loop_keyframe_stride: int = 5
+    """Loop closures (sequential matching): every n-th frame is also matched with every other n-th frame
+    farther apart than the overlap (0 = off). Stands in for vocabulary-tree loop detection, whose tree
+    would have to be downloaded."""
+    loop_max_keyframes: int = 30
+    """At most this many loop key frames (the stride grows for long captures: pairs grow with its square)."""
+    max_image_size_px: int = 1024
+    """Frames larger than this (longest side) are downscaled for feature extraction."""
+    max_num_features: int = 4096
+    """SIFT features per frame."""
+    min_num_matches: int = 15
+    """Fewest verified matches for an image pair to count in mapping."""
+    fix_intrinsics: bool = True
+    """Hold the given RGB intrinsics fixed in bundle adjustment; False starts from them and refines focal
+    length and principal point (for intrinsics that are only nominal)."""
+    uncalibrated_camera_model: str = "SIMPLE_RADIAL"
+    """COLMAP camera model estimated when no calibrated camera is given."""
+    num_threads: int = 2
+    """Threads for extraction, matching and mapping (1 = fully repeatable runs)."""
+    random_seed: int = 0
+    """Seed of COLMAP's RANSAC and mapper."""
+    min_registered_fraction: float = 0.5
+    """Below this share of registered frames the reconstruction counts as failed (`SfmResult.ok`)."""
+    min_frames: int = 3
+    """Fewer frames than this is an error: no reconstruction can be made."""
+
+
+@dataclass
+class SfmResult:
+    """An SfM reconstruction, keyed by frame name. Unregistered frames are listed but have no pose."""
+
+    names: list[str]
+    """Every input frame name, in input order."""
+    registered: NDArray[np.bool_]
+    """(F,) per input frame: has a pose in the kept (largest) model."""
+    cam_from_world: dict[str, NDArray[np.float64]]
+    """name -> (4, 4) X_cam = T · X_world (SfM frame and unit), registered frames only."""
+    reprojection_error_px: dict[str, float]
+    """name -> mean reprojection error of the frame's observations (px)."""
+    points: NDArray[np.float64]
+    """(P, 3) sparse 3D points (SfM frame and unit)."""
+    point_ids: NDArray[np.int64]
+    """(P,) COLMAP point3D ids of `points`."""
+    observations: dict[str, tuple[NDArray[np.intp], NDArray[np.float64]]]
+    """name -> ((M,) row indices into `points`, (M, 2) OpenCV pixel u v of the observation)."""
+    camera: CameraModel | None
+    """Intrinsics the observations refer to: the undistorted calibrated camera (pinhole), or the mapper's
+    estimate (with its radial terms) when none was given or `fix_intrinsics` is off."""
+    models: int = 1
+    """Number of models the mapper produced (the largest is kept)."""
+    metrics: dict[str, float] = field(default_factory=dict)
+    """Timings and counts."""
+
+    @property
+    def registered_fraction(self) -> float:
+        return float(self.registered.mean()) if len(self.registered) else 0.0
+
+    def ok(self, cfg: SfmConfig) -> bool:
+        """Whether enough frames were registered for the reconstruction to be used."""
+        return self.registered_fraction >= cfg.min_registered_fraction
+
+    def camera_centres(self) -> dict[str, NDArray[np.float64]]:
+        """name -> (3,) camera centre in the SfM frame."""
+        return {n: -T[:3, :3].T @ T[:3, 3] for n, T in self.cam_from_world.items()}
+
+
+def _undistort(image: NDArray[np.uint8], camera: CameraModel) -> NDArray[np.uint8]:
+    import cv2
+
+    if not np.any(camera.dist):
+        return image
+    return cv2.undistort(image, camera.K, camera.dist, None, camera.K)
+
+
+def _check_images(images: Sequence[tuple[str, NDArray]], cfg: SfmConfig) -> None:
+    if len(images) < cfg.min_frames:
+        raise DegenerateInputError(f"SfM needs at least {cfg.min_frames} frames, got {len(images)}")
+    names = [n for n, _ in images]
+    if len(set(names)) != len(names):
+        raise DegenerateInputError("SfM frame names are not unique")
+    usable = 0
+    for _, img in images:
+        arr = np.asarray(img)
+        if arr.ndim not in (2, 3):
+            raise DegenerateInputError(f"SfM frames must be (H, W) or (H, W, 3), got shape {arr.shape}")
+        usable += float(arr.std()) > 2.0
+    if usable < cfg.min_frames:
+        raise DegenerateInputError(
+            f"only {usable} of {len(images)} frames have any image content (blank or all-black frames)"
+        )
+
+
+def _loop_pairs(names: list[str], cfg: SfmConfig) -> list[tuple[str, str]]:
+    stride = cfg.loop_keyframe_stride
+    if stride <= 0:
+        return []
+    stride = max(stride, -(-len(names) // max(cfg.loop_max_keyframes, 2)))
+    keys = list(range(0, len(names), stride))
+    return [
+        (names[i], names[j])
+        for n, i in enumerate(keys)
+        for j in keys[n + 1 :]
+        if j - i > cfg.sequential_overlap
+    ]
+
+
+def run_sfm(
+    images: Sequence[tuple[str, NDArray[np.uint8]]],
+    camera: CameraModel | None,
+    cfg: SfmConfig,
+    workdir: Path,
+) -> SfmResult:
+    """Incremental SfM of a room's colour frames (thesis 3.2.1).
+
+    images: (name, (H, W, 3) RGB uint8) in capture order; names must be unique and are used as file names.
+    camera: the calibrated RGB camera (intrinsics held fixed) or None (COLMAP estimates one shared camera).
+    workdir: an empty scratch folder for pycolmap's database, images and models (the only file I/O).
+    Raises DegenerateInputError for too few or blank frames; a mapping that registers nothing returns a
+    result with no registered frame (check `ok`)."""
+    import cv2
+    import pycolmap
+
+    _check_images(images, cfg)
+    pycolmap.logging.minloglevel = 2
+    workdir = Path(workdir)
+    img_dir = workdir / "images"
+    img_dir.mkdir(parents=True, exist_ok=True)
+    names = [str(n) for n, _ in images]
+    timings: dict[str, float] = {}
+    started = time.perf_counter()
+    for name, img in images:
+        arr = np.asarray(img)
+        if arr.ndim == 2:
+            arr = np.repeat(arr[:, :, None], 3, axis=2)
+        if camera is not None:
+            if (arr.shape[1], arr.shape[0]) != camera.size:
+                raise DegenerateInputError(
+                    f"frame {name} is {arr.shape[1]}x{arr.shape[0]} but the RGB camera is "
+                    f"{camera.size[0]}x{camera.size[1]}"
+                )
+            arr = _undistort(arr, camera)
+        # PNG keeps the (already lossy) colour as it is; the file name is the frame's name
+        cv2.imwrite(str(img_dir / name), cv2.cvtColor(arr[:, :, :3], cv2.COLOR_RGB2BGR))
+    timings["write_s"] = time.perf_counter() - started
+
+    db = workdir / "database.db"
+    if db.exists():
+        db.unlink()
+    if camera is not None:
+        K = camera.K
+        # COLMAP puts pixel centres at +0.5, OpenCV at integers
+        params = f"{K[0, 0]},{K[1, 1]},{K[0, 2] + 0.5},{K[1, 2] + 0.5}"
+        reader = pycolmap.ImageReaderOptions(camera_model="PINHOLE", camera_params=params)
+    else:
+        reader = pycolmap.ImageReaderOptions(camera_model=cfg.uncalibrated_camera_model)
+    extraction = pycolmap.FeatureExtractionOptions(
+        num_threads=cfg.num_threads, max_image_size=cfg.max_image_size_px
+    )
+    extraction.sift.max_num_features = cfg.max_num_features
+    t0 = time.perf_counter()
+    pycolmap.extract_features(
+        db,
+        img_dir,
+        image_names=names,
+        camera_mode=pycolmap.CameraMode.SINGLE,
+        reader_options=reader,
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
+    timings["extract_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    matching = pycolmap.FeatureMatchingOptions(num_threads=cfg.num_threads)
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = cfg.random_seed
+    mode = cfg.matching
+    if mode == "auto":
+        mode = "exhaustive" if len(images) <= cfg.exhaustive_max_frames else "sequential"
+    if mode == "exhaustive":
+        pycolmap.match_exhaustive(
+            db, matching_options=matching, verification_options=verification, device=pycolmap.Device.cpu
+        )
+    else:
+        pycolmap.match_sequential(
+            db,
+            matching_options=matching,
+            pairing_options=pycolmap.SequentialPairingOptions(
+                overlap=cfg.sequential_overlap, quadratic_overlap=False, num_threads=cfg.num_threads
+            ),
+            verification_options=verification,
+            device=pycolmap.Device.cpu,
+        )
+        loops = _loop_pairs(names, cfg)
+        if loops:
+            pairs_file = workdir / "loop_pairs.txt"
+            pairs_file.write_text("".join(f"{a} {b}\n" for a, b in loops))
+            pycolmap.match_image_pairs(
+                db,
+                matching_options=matching,
+                pairing_options=pycolmap.ImportedPairingOptions(match_list_path=pairs_file),
+                verification_options=verification,
+                device=pycolmap.Device.cpu,
+            )
+    timings["match_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    opts = pycolmap.IncrementalPipelineOptions(
+        num_threads=cfg.num_threads,
+        random_seed=cfg.random_seed,
+        # with a single model, mapping on real Kinect frames stopped after a spurious 3-image first model
+        multiple_models=True,
+        min_num_matches=cfg.min_num_matches,
+        extract_colors=False,
+    )
+    if camera is not None and cfg.fix_intrinsics:
+        opts.ba_refine_focal_length = False
+        opts.ba_refine_principal_point = False
+        opts.ba_refine_extra_params = False
+        opts.mapper.abs_pose_refine_focal_length = False
+        opts.mapper.abs_pose_refine_extra_params = False
+    out_dir = workdir / "models"
+    out_dir.mkdir(exist_ok=True)
+    recs = pycolmap.incremental_mapping(db, img_dir, out_dir, options=opts)
+    timings["map_s"] = time.perf_counter() - t0
+    timings["total_s"] = time.perf_counter() - started
+    # the frames were undistorted: their camera is the pinhole part of the calibrated one, unless the
+    # mapper refined it (then the refined one is read back from the model)
+    pinhole = None
+    if camera is not None and cfg.fix_intrinsics:
+        pinhole = CameraModel(camera.K, np.zeros(5), camera.size)
+    result = _result_from_models(names, recs, pinhole)
+    result.metrics.update({k: round(v, 3) for k, v in timings.items()})
+    result.metrics.update(
+        frames=len(names),
+        registered=int(result.registered.sum()),
+        points=len(result.points),
+        models=result.models,
+        matching=mode,
+    )
+    log.info(
+        "sfm: %d of %d frames registered, %d points, %.1f s",
+        result.registered.sum(),
+        len(names),
+        len(result.points),
+        timings["total_s"],
+    )
+    return result
+
+
+def _result_from_models(names: list[str], recs: dict, camera: CameraModel | None) -> SfmResult:
+    if not recs:
+        return SfmResult(
+            names,
+            np.zeros(len(names), bool),
+            {},
+            {},
+            np.zeros((0, 3)),
+            np.zeros(0, np.int64),
+            {},
+            camera,
+            models=0,
+        )
+    rec = max(recs.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
+    point_ids = np.array(sorted(rec.point3D_ids()), dtype=np.int64)
+    points = np.array([rec.points3D[int(i)].xyz for i in point_ids], dtype=np.float64).reshape(-1, 3)
+    row_of = {int(pid): k for k, pid in enumerate(point_ids)}
+    poses, errors, obs = {}, {}, {}
+    for image in rec.images.values():
+        if not image.has_pose:
+            continue
+        T = np.eye(4)
+        pose = image.cam_from_world()
+        T[:3, :3] = pose.rotation.matrix()
+        T[:3, 3] = pose.translation
+        poses[image.name] = T
+        rows, uv = [], []
+        for p2d in image.points2D:
+            if p2d.has_point3D():
+                rows.append(row_of[int(p2d.point3D_id)])
+                uv.append(np.asarray(p2d.xy) - 0.5)
+        rows_a = np.asarray(rows, dtype=np.intp)
+        uv_a = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        obs[image.name] = (rows_a, uv_a)
+        if len(rows_a):
+            proj = _project(points[rows_a], T, rec.cameras[image.camera_id])
+            errors[image.name] = float(np.mean(np.linalg.norm(proj - uv_a, axis=1)))
+        else:
+            errors[image.name] = float("nan")
+    if camera is None:
+        cam = rec.cameras[next(iter(rec.cameras))]
+        camera = _pinhole_of(cam)
+    registered = np.array([n in poses for n in names])
+    return SfmResult(names, registered, poses, errors, points, point_ids, obs, camera, models=len(recs))
+
+
+def _pinhole_of(cam) -> CameraModel:
+    """A COLMAP camera as an OpenCV-convention CameraModel (radial terms k1 (k2) kept)."""
+    p = np.asarray(cam.params, dtype=np.float64)
+    model = str(cam.model.name) if hasattr(cam.model, "name") else str(cam.model)
+    if model.startswith("SIMPLE"):
+        f, cx, cy = p[0], p[1], p[2]
+        fx = fy = f
+        extra = p[3:]
+    else:
+        fx, fy, cx, cy = p[:4]
+        extra = p[4:]
+    dist = np.zeros(5)
+    if model in ("SIMPLE_RADIAL", "RADIAL"):
+        dist[: len(extra)] = extra[:2]
+    elif model in ("OPENCV", "FULL_OPENCV"):
+        dist[:4] = extra[:4]
+    K = np.array([[fx, 0, cx - 0.5], [0, fy, cy - 0.5], [0, 0, 1]])
+    return CameraModel(K, dist, (int(cam.width), int(cam.height)))
+
+
+def _project(points: NDArray[np.float64], cam_from_world: NDArray[np.float64], cam) -> NDArray[np.float64]:
+    pc = points @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
+    uv = np.asarray(cam.img_from_cam(pc), dtype=np.float64)
+    return uv.reshape(-1, 2) - 0.5
