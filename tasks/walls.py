@@ -184,12 +184,25 @@ class _Grid:
         return (np.asarray(xy, dtype=np.float64) - self.origin) / self.size - 0.5
 
 
-def projection_image(
-    points: NDArray, cfg: WallsConfig
-) -> tuple[NDArray[np.float64], NDArray[np.bool_], _Grid, float, NDArray[np.int64]]:
-    """Occupied-voxel count above each cell (eq 5.3's N); the wall-like cells (data spanning at least
-    `min_column_height_m` and reaching within `top_reach_m` of the slice top); the grid; the number of
-    voxel layers in the slice (the largest possible count); every point's flat cell index."""
+@dataclass(frozen=True)
+class Projection:
+    """The projection image (eq 5.3's N) and what the later steps need from the voxels."""
+
+    counts: NDArray[np.float64]
+    """(H, W) occupied voxels above each cell (row 0 = smallest y)."""
+    wall_like: NDArray[np.bool_]
+    """(H, W) cells whose data spans at least `min_column_height_m` and reaches the slice top."""
+    low: NDArray[np.bool_]
+    """(H, W) cells with data within `top_reach_m` of the slice bottom."""
+    grid: _Grid
+    n_levels: int
+    """Voxel layers in the slice (the largest possible count)."""
+    cell: NDArray[np.int64]
+    """(N,) every point's flat cell index."""
+
+
+def projection_image(points: NDArray, cfg: WallsConfig) -> Projection:
+    """Count the occupied voxels above each cell (eq 5.3) and mark the wall-like cells."""
     g = cfg.grid_size_m
     lo = points[:, :2].min(axis=0) - 2 * g
     hi = points[:, :2].max(axis=0) + 2 * g
@@ -217,17 +230,20 @@ def projection_image(
     wall_like = np.zeros(shape[0] * shape[1], dtype=bool)
     extent = (vlev[last] - vlev[first]) * g
     wall_like[vcell[first][extent >= cfg.min_column_height_m]] = True
+    reach = cfg.top_reach_m if cfg.top_reach_m is not None else 0.25
+    low = np.zeros_like(wall_like)
+    low[vcell[first][vlev[first] <= math.floor(reach / g)]] = True
     if cfg.top_reach_m is not None:
         # data between top_reach_m and top_clear_m below the top: a ceiling's stray points, which land in
         # every column in the topmost centimetres, do not make a cabinet reach the top
         z_top = float(np.quantile(z, 0.999))
-        lo = math.floor((z_top - cfg.top_reach_m - z_lo) / g)
-        hi = max(lo, math.floor((z_top - cfg.top_clear_m - z_lo) / g))
-        in_band = (vlev >= lo) & (vlev <= hi)
-        reach = np.zeros_like(wall_like)
-        reach[vcell[in_band]] = True
-        wall_like &= reach
-    return counts, wall_like.reshape(shape), grid, float(n_levels), cell
+        lo_lev = math.floor((z_top - cfg.top_reach_m - z_lo) / g)
+        hi_lev = max(lo_lev, math.floor((z_top - cfg.top_clear_m - z_lo) / g))
+        in_band = (vlev >= lo_lev) & (vlev <= hi_lev)
+        top = np.zeros_like(wall_like)
+        top[vcell[in_band]] = True
+        wall_like &= top
+    return Projection(counts, wall_like.reshape(shape), low.reshape(shape), grid, n_levels, cell)
 
 
 def binarize(counts: NDArray, wall_like: NDArray, cfg: WallsConfig, alpha: float | None) -> NDArray[np.bool_]:
@@ -353,16 +369,17 @@ class _Candidate:
 
 
 def _model_for(
-    counts: NDArray, wall_like: NDArray, grid: _Grid, cfg: WallsConfig, alpha: float | None, points=None
+    proj: Projection, cfg: WallsConfig, alpha: float | None, xy: NDArray | None = None
 ) -> _Candidate:
-    """Steps 2-7 for one α. `points` = (xy (N, 2), flat pixel index (N,)) refines the wall offsets."""
-    binary = binarize(counts, wall_like, cfg, alpha)
+    """Steps 2-7 for one α; the slice points `xy` (N, 2), when given, refine the wall offsets."""
+    grid = proj.grid
+    binary = binarize(proj.counts, proj.wall_like, cfg, alpha)
     skel = skeleton(binary, cfg)
     hough = hough_segments(skel, grid, cfg)
     lcfg = cfg.lines
     merged = merge_segments(hough, lcfg)
     reg, rotation = regularize(merged.segments, lcfg)
-    refined = reg if points is None else refine_offsets(reg, *points, grid, cfg.refine_band_m)
+    refined = reg if xy is None else refine_offsets(reg, xy, proj.cell, grid, cfg.refine_band_m)
     share = _support_sampler(binary, grid, cfg.support_tol_m)
     centres = 0.5 * (refined[:, :2] + refined[:, 2:])
 
@@ -380,7 +397,11 @@ def _model_for(
     outside = int((~inside).sum())
     # walls outside the room (seen through doors and windows) are not the room's inner faces
     walls, origin = walls[inside], origin[inside]
-    closed = polygon is not None and is_closed(wall_graph(walls, tol=1e-6))
+    hung = _hung_from_ceiling(walls, polygon, _support_sampler(proj.low, grid, cfg.support_tol_m))
+    if hung.any():
+        walls, origin = walls[~hung], origin[~hung]
+        polygon, _ = _room_polygon(walls, grid.size)
+    closed = polygon is not None  # the walls enclose the room (a partition stub may still dangle in it)
     stats = {
         "binary_px": int(binary.sum()),
         "skeleton_px": int(skel.sum()),
@@ -389,9 +410,38 @@ def _model_for(
         "merged_lines": len(merged.segments),
         "removed_extensions": len(conn.removed),
         "walls_outside_room": outside,
+        "walls_hung_from_ceiling": int(hung.sum()),
         "walls": len(walls),
     }
     return _Candidate(alpha, walls, origin, closed, stats, binary, polygon)
+
+
+def _hung_from_ceiling(walls: NDArray, polygon: Any, low_share) -> NDArray[np.bool_]:
+    """Walls of free-standing groups (not touching the room's outline) whose data stays clear of the
+    slice bottom on most of their length: lamps and shades hanging from the ceiling. A column goes down
+    to the floor; furniture standing on it was removed by the top-reach test."""
+    hung = np.zeros(len(walls), dtype=bool)
+    if polygon is None or len(walls) == 0:
+        return hung
+    import shapely
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(walls)
+    ends = np.concatenate([walls[:, :2], walls[:, 2:]])
+    touch = point_segment_distances(ends, walls) <= 1e-6
+    i, j = np.nonzero(touch)
+    adj = coo_matrix((np.ones(len(i)), (i % n, j)), shape=(n, n))
+    _, comp = connected_components(adj, directed=False)
+    mid = 0.5 * (walls[:, :2] + walls[:, 2:])
+    on_outline = shapely.distance(polygon.exterior, shapely.points(mid)) <= 1e-6
+    share = low_share(walls)
+    L = lengths(walls)
+    for c in np.unique(comp):
+        m = comp == c
+        if not on_outline[m].any() and (share[m] * L[m]).sum() < 0.5 * L[m].sum():
+            hung[m] = True
+    return hung
 
 
 def _drop_short_stubs(walls: NDArray, origin: NDArray, min_length_m: float) -> tuple[NDArray, NDArray]:
@@ -597,8 +647,9 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     pts = _check_input(slice_points, floor_z_m, ceiling_z_m, cfg)
-    counts, wall_like, grid, n_levels, pix = projection_image(pts, cfg)
-    points = (np.ascontiguousarray(pts[:, :2]), pix)
+    proj = projection_image(pts, cfg)
+    grid, counts = proj.grid, proj.counts
+    xy = np.ascontiguousarray(pts[:, :2])
     timings["projection_s"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -609,14 +660,14 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
     else:
         alphas = sorted(float(a) for a in cfg.alpha_candidates)
     if len(alphas) == 1:
-        cands = [_model_for(counts, wall_like, grid, cfg, alphas[0], points)]
+        cands = [_model_for(proj, cfg, alphas[0], xy)]
         chosen, reason = 0, ("eq 5.4 (mean - 1.65 sigma)" if alphas[0] is None else "alpha fixed in config")
         best = cands[0]
     else:
         # candidates are compared on the pixel-accurate model; the chosen one is refined on the points
-        cands = [_model_for(counts, wall_like, grid, cfg, a) for a in alphas]
+        cands = [_model_for(proj, cfg, a) for a in alphas]
         chosen, reason = choose_alpha(cands, cfg.stable_tol_m)
-        best = _model_for(counts, wall_like, grid, cfg, alphas[chosen], points)
+        best = _model_for(proj, cfg, alphas[chosen], xy)
     timings["walls_s"] = time.perf_counter() - t1
 
     t2 = time.perf_counter()
@@ -635,19 +686,19 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
         warnings.append("no wall found in the slice")
     elif polygon is None:
         warnings.append("the walls do not enclose a room (open wall graph)")
-    elif not best.closed:
+    elif not is_closed(wall_graph(walls)):
         warnings.append("the walls enclose a room but some walls have free ends")
     metrics: dict[str, Any] = {
         "points": len(pts),
         "image_shape": list(counts.shape),
-        "slice_voxel_layers": int(n_levels),
+        "slice_voxel_layers": proj.n_levels,
         "alpha": best.alpha,
         "alpha_reason": reason,
         "alpha_candidates": [{"alpha": c.alpha, "closed": c.closed, **c.counts} for c in cands],
         **best.counts,
         "walls_observed": int((origin == OBSERVED).sum()),
         "walls_extended": int((origin != OBSERVED).sum()),
-        "closed": polygon is not None and best.closed,
+        "closed": polygon is not None,
         "room_area_m2": float(polygon.area) if polygon is not None else None,
         "orientations_deg": sorted({round(float(a), 2) for a in np.degrees(angles(walls))})
         if len(walls)

@@ -54,7 +54,8 @@ def box_slice(rng, w=4.0, h=3.0, noise=0.0):
 def test_projection_counts_occupied_voxels_not_points(rng):
     wall = wall_points((0, 0), (1, 0), 1.5, 2.5, rng)
     doubled = np.concatenate([wall, wall + 1e-4])  # two overlapping frames: same voxels
-    counts, top, _, levels, _ = projection_image(doubled, CFG)
+    proj = projection_image(doubled, CFG)
+    counts, top, levels = proj.counts, proj.wall_like, proj.n_levels
     assert levels == pytest.approx(100, abs=1)
     assert counts.max() == pytest.approx(levels, abs=1)
     assert counts.sum() == pytest.approx(100 * 100, rel=0.02)  # 100 columns of 100 voxels
@@ -64,12 +65,14 @@ def test_projection_counts_occupied_voxels_not_points(rng):
 def test_alpha_removes_clutter_shorter_than_alpha_of_the_slice(rng):
     wall = wall_points((0, 0), (2, 0), 1.5, 2.5, rng)
     low = wall_points((0, 1), (2, 1), 1.5, 1.7, rng)  # 20 % of the slice: a cabinet top edge
-    counts, top, _, _, _ = projection_image(np.concatenate([wall, low]), WallsConfig(top_reach_m=None))
+    proj = projection_image(np.concatenate([wall, low]), WallsConfig(top_reach_m=None))
+    counts, top = proj.counts, proj.wall_like
     rows_with_data = lambda b: np.unique(np.nonzero(b)[0])  # noqa: E731
     assert len(rows_with_data(binarize(counts, top, CFG, 0.1))) == 2
     assert len(rows_with_data(binarize(counts, top, CFG, 0.3))) == 1
     # the top-reach test removes it at any alpha: it stops 0.8 m below the slice top
-    counts, top, _, _, _ = projection_image(np.concatenate([wall, low]), CFG)
+    proj = projection_image(np.concatenate([wall, low]), CFG)
+    counts, top = proj.counts, proj.wall_like
     assert len(rows_with_data(binarize(counts, top, CFG, 0.05))) == 1
 
 
@@ -98,7 +101,8 @@ def test_hough_parameters_are_metres(rng):
 
 def test_refine_offsets_moves_a_wall_to_the_median_of_its_points(rng):
     pts = wall_points((0, 0.0123), (3, 0.0123), 1.5, 2.5, rng, noise=0.005)
-    _, _, grid, _, pix = projection_image(pts, CFG)
+    proj = projection_image(pts, CFG)
+    grid, pix = proj.grid, proj.cell
     wall = np.array([[0.0, 0.0, 3.0, 0.0]])
     out = refine_offsets(wall, pts[:, :2], pix, grid, 0.06)
     assert out[0, 1] == pytest.approx(0.0123, abs=0.0005) and out[0, 3] == pytest.approx(0.0123, abs=0.0005)
@@ -132,6 +136,28 @@ def test_box_gives_four_walls_at_the_faces(rng):
     assert moved.polygon.area == pytest.approx(model.polygon.area)
     assert ev["room_iou"] > 0.99
     del truth
+
+
+def test_a_lamp_hanging_from_the_ceiling_is_not_a_column(rng):
+    """Both are small closed loops inside the room that reach the slice top; only the column reaches the
+    slice bottom too."""
+    room = box_slice(rng, noise=0.003)
+    sq = lambda x, y, s, z0: np.concatenate(  # noqa: E731
+        [
+            wall_points(a, b, z0, 2.5, rng, noise=0.003)
+            for a, b in [
+                ((x, y), (x + s, y)),
+                ((x + s, y), (x + s, y + s)),
+                ((x + s, y + s), (x, y + s)),
+                ((x, y + s), (x, y)),
+            ]
+        ]
+    )
+    column, lamp = sq(1.0, 1.0, 0.4, 1.5), sq(2.6, 1.2, 0.5, 2.1)
+    model = model_walls(np.concatenate([room, column, lamp]), 0.0, 2.7, CFG)
+    assert len(model.walls) == 8, model.walls
+    assert model.metrics["walls_hung_from_ceiling"] == 4
+    assert model.polygon.area == pytest.approx(12.0 - 0.16, abs=0.05)
 
 
 def test_every_alpha_setting_works(rng):
