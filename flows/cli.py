@@ -195,7 +195,7 @@ def _setup_logging(quiet: bool) -> None:
 
 
 def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
-    from flows import pipeline
+    from flows import planning
     from tasks import config as cfgmod
 
     cfg = cfgmod.load_config(args.config, args.set)
@@ -210,16 +210,16 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
             )
     force: list[tuple[str, str]] = []
     if force_stage:
-        if force_stage not in pipeline.STAGES:
-            raise CliError(f"unknown stage {force_stage!r} (stages: {', '.join(pipeline.STAGES)})")
-        if force_stage in pipeline.BUILDING_STAGES:
-            force = [(pipeline.BUILDING, force_stage)]
+        if force_stage not in planning.STAGES:
+            raise CliError(f"unknown stage {force_stage!r} (stages: {', '.join(planning.STAGES)})")
+        if force_stage in planning.BUILDING_STAGES:
+            force = [(planning.BUILDING, force_stage)]
         else:
             force = [(r, force_stage) for r in (rooms or survey.room_ids)]
     work = args.work.resolve()
     argv = ["indoor-survey", *sys.argv[1:]]
-    saved = pipeline.save_resolved_config(work, cfg, argv)
-    req = pipeline.RunRequest(
+    saved = planning.save_resolved_config(work, cfg, argv)
+    req = planning.RunRequest(
         survey=str(survey.root),
         work=str(work),
         config_files=tuple(str(p) for p in args.config),
@@ -228,7 +228,13 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
         force=tuple(force),
     )
     started = time.perf_counter()
-    rows = pipeline.run_survey(req)
+    rows = planning.all_current(req)
+    if rows is None:
+        from flows import pipeline  # starts Prefect only when there is work
+
+        rows = pipeline.run_survey(req)
+    else:
+        print("every stage is current: nothing to compute (Prefect not started)", file=sys.stderr)
     elapsed = time.perf_counter() - started
     print(f"{'room':<12} {'stage':<12} {'state':<9} {'seconds':>8}")
     for row in rows:
@@ -248,10 +254,11 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
 def cmd_status(args: argparse.Namespace) -> int:
     from flows import status
 
-    cfg_rows = status.survey_status(args.survey, args.work, args.config, args.set)
+    states = status.survey_status(args.survey, args.work, args.config, args.set)
     print(f"{'room':<12} {'stage':<12} {'status':<8} detail")
-    for row in cfg_rows:
-        print(f"{row.room:<12} {row.stage:<12} {row.status:<8} {row.detail}")
+    for state in states:
+        call = state.planned.call
+        print(f"{call.room:<12} {call.stage:<12} {state.status:<8} {state.detail}")
     return 0
 
 
@@ -265,14 +272,14 @@ def cmd_config(args: argparse.Namespace) -> int:
 def cmd_model_room(args: argparse.Namespace) -> int:
     import json
 
-    from flows import pipeline
+    from flows import planning
     from tasks import config as cfgmod
 
     cfg = cfgmod.load_config(args.config, args.set)
     if not args.cloud.is_file():
         raise CliError(f"{args.cloud}: no such file")
     work = args.work or args.out / ".cache"
-    metrics = pipeline.model_room(args.cloud, args.out, cfg, work)
+    metrics = planning.model_room(args.cloud, args.out, cfg, work)
     walls = metrics["walls"]
     pre = metrics["preprocess"]
     print(

@@ -12,10 +12,6 @@ from __future__ import annotations
 
 import logging
 import os
-import threading
-import time
-from collections.abc import Iterable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +23,8 @@ for _name, _value in {
     # Stage failures are reported by the run summary in one line each; Prefect's own copy of them is a
     # traceback. PREFECT_LOGGING_LEVEL=ERROR in the environment brings those back for debugging.
     "PREFECT_LOGGING_LEVEL": "CRITICAL",
+    # The embedded server is stopped when a run ends; its event writer's cancellation is not an error.
+    "PREFECT_SERVER_LOGGING_LEVEL": "CRITICAL",
     "PREFECT_LOGGING_TO_API_ENABLED": "false",
     "PREFECT_RESULTS_PERSIST_BY_DEFAULT": "true",
 }.items():
@@ -36,11 +34,20 @@ from prefect import flow, task  # noqa: E402
 from prefect.futures import PrefectFuture, wait  # noqa: E402
 from prefect.task_runners import ThreadPoolTaskRunner  # noqa: E402
 
+from flows.planning import (  # noqa: E402
+    RunRequest,
+    StageCall,
+    StageOutcome,
+    _outcomes,
+    breadth_first,
+    cache_key,
+    execute,
+    plan_survey,
+    publish_deliverables,
+    store_for,
+)
 from tasks import config as cfgmod  # noqa: E402
-from tasks.artefacts import BUILDING, ArtefactStore, StageResult, atomic_path, sha256_file  # noqa: E402
-from tasks.cloud import DegenerateInputError  # noqa: E402
-from tasks.ingest import capture_kind  # noqa: E402
-from tasks.stages import ROOM_DELIVERABLES, STAGES, StageContext  # noqa: E402
+from tasks.artefacts import StageResult  # noqa: E402
 
 log = logging.getLogger("indoor_survey")
 
@@ -48,92 +55,6 @@ PREFECT_RESULTS = "prefect-results"
 
 
 # ----------------------------------------------------------------------------------------- stage calls
-
-
-@dataclass(frozen=True)
-class StageCall:
-    """Everything one stage run needs, as plain data (it crosses Prefect's task boundary)."""
-
-    stage: str
-    room: str
-    work: str
-    config: dict[str, Any]
-    profile: dict[str, Any]
-    raw_inputs: dict[str, str] = field(default_factory=dict)
-    force: bool = False
-    extra_config: dict[str, dict[str, Any]] = field(default_factory=dict)
-
-
-_stores: dict[str, ArtefactStore] = {}
-_stores_lock = threading.Lock()
-_outcomes: dict[tuple[str, str], tuple[str, float]] = {}
-"""(room, stage) -> ("computed" | "stored", seconds) for the runs whose task body executed."""
-
-
-def store_for(work: str | Path) -> ArtefactStore:
-    """One store per work dir per process, so the input-hash memo is shared by all tasks."""
-    key = str(Path(work).resolve())
-    with _stores_lock:
-        if key not in _stores:
-            _stores[key] = ArtefactStore(Path(key))
-        return _stores[key]
-
-
-def cache_key(call: StageCall, upstream: dict[str, StageResult]) -> str:
-    store = store_for(call.work)
-    stage = STAGES[call.stage]
-    inputs = {name: result.content_hash for name, result in upstream.items()}
-    inputs.update({name: store.input_hash(Path(path)) for name, path in call.raw_inputs.items()})
-    if stage.uses_profile:  # e.g. how to read a capture (topics, depth convention), fallback intrinsics
-        inputs["sensor_profile"] = cfgmod.hash_profile(call.profile)
-    config = {stage.section: call.config, **call.extra_config} if call.extra_config else call.config
-    return store.cache_key(stage.name, stage.code_version(), config, inputs)
-
-
-def execute(call: StageCall, upstream: dict[str, StageResult]) -> StageResult:
-    """Load-or-compute one stage: a verified store hit returns at once; otherwise the stage runs into a
-    private folder that the store renames into place."""
-    store = store_for(call.work)
-    stage = STAGES[call.stage]
-    key = cache_key(call, upstream)
-    started = time.perf_counter()
-    if not call.force:
-        hit = store.lookup(call.room, call.stage, key)
-        if hit is not None:
-            _outcomes[(call.room, call.stage)] = ("stored", time.perf_counter() - started)
-            return hit
-    defaults = cfgmod.PipelineConfig()
-    cfg = cfgmod.build_section(type(getattr(defaults, stage.section)), call.config)
-    extra = {
-        name: cfgmod.build_section(type(getattr(defaults, name)), call.extra_config[name])
-        for name in stage.extra_sections
-    }
-
-    def progress(message: str) -> None:
-        log.info("[%s] %s: %s", call.room, call.stage, message)
-
-    ctx = StageContext(call.room, upstream, call.raw_inputs, call.profile, progress, extra)
-    log.info("[%s] %s: computing", call.room, call.stage)
-    manifest = {
-        "inputs": {name: r.content_hash for name, r in upstream.items()},
-        "raw_inputs": {
-            name: {"path": p, "sha256": store.input_hash(Path(p))} for name, p in call.raw_inputs.items()
-        },
-        "config": call.config,
-        "extra_config": call.extra_config,
-        "code_version": stage.code_version(),
-    }
-
-    def write(out: Path) -> dict[str, Any]:
-        t0 = time.perf_counter()
-        report = stage.run(ctx, cfg, out)  # {"metrics": {...}, other manifest entries...}
-        return {**report, "compute_seconds": round(time.perf_counter() - t0, 3)}
-
-    result = store.commit(call.room, call.stage, key, write, manifest)
-    seconds = time.perf_counter() - started
-    _outcomes[(call.room, call.stage)] = ("computed", seconds)
-    log.info("[%s] %s: done in %.1f s", call.room, call.stage, seconds)
-    return result
 
 
 def _prefect_cache_key(context: Any, parameters: dict[str, Any]) -> str | None:
@@ -163,135 +84,6 @@ def stage_task(call: StageCall, upstream: dict[str, StageResult]) -> StageResult
 # -------------------------------------------------------------------------------------------- routing
 
 
-def room_stages(capture: Path) -> list[str]:
-    """The stages that apply to a room, given what its capture is."""
-    if capture_kind(capture) == "cloud":
-        stages = ["ingest", "preprocess"]
-    elif "register" in STAGES:
-        stages = ["ingest", "register", "preprocess"]
-    else:  # frames, but no registration stage: nothing beyond ingest
-        stages = ["ingest"]
-    if "preprocess" in stages and "walls" in STAGES:
-        stages.append("walls")
-    return stages
-
-
-UPSTREAM: dict[str, tuple[str, ...]] = {
-    "register": ("ingest", "calibrate", "plan"),
-    "preprocess": ("register", "ingest"),
-    "walls": ("preprocess",),
-}
-"""Stage -> the stages whose results it reads (those that apply to the room, or the building's)."""
-
-BUILDING_STAGES = ("calibrate", "plan")
-
-
-@dataclass(frozen=True)
-class RunRequest:
-    """What to run: resolved before Prefect starts, so bad input fails fast with one line."""
-
-    survey: str
-    work: str
-    config_files: tuple[str, ...] = ()
-    sets: tuple[str, ...] = ()
-    rooms: tuple[str, ...] = ()
-    force: tuple[tuple[str, str], ...] = ()
-    """(room, stage) pairs to recompute whatever the cache says."""
-
-
-def survey_inputs(
-    survey: cfgmod.Survey | None, room: cfgmod.RoomSpec | None, stage_name: str
-) -> dict[str, str]:
-    """The raw survey files a stage reads (their content hashes enter its cache key)."""
-    if stage_name == "ingest" and room is not None:
-        return {"capture": str(room.capture)}
-    if survey is None:
-        return {}
-    if stage_name == "calibrate" and survey.calibration is not None and survey.calibration.is_dir():
-        return {"calibration": str(survey.calibration)}
-    if stage_name == "plan" and survey.plan is not None:
-        return {"plan": str(survey.plan.image)}
-    if stage_name == "register" and survey.track is not None and survey.track.is_file():
-        return {"track": str(survey.track)}
-    return {}
-
-
-def make_call(
-    work: str | Path,
-    cfg: cfgmod.PipelineConfig,
-    profile: dict[str, Any],
-    room: cfgmod.RoomSpec | None,
-    stage_name: str,
-    force: bool = False,
-    survey: cfgmod.Survey | None = None,
-) -> StageCall:
-    """The call for one stage of one room (room None: of the building): its config section and the raw
-    survey files it reads."""
-    return StageCall(
-        stage=stage_name,
-        room=room.id if room is not None else BUILDING,
-        work=str(Path(work).resolve()),
-        config=cfgmod.section(cfg, STAGES[stage_name].section),
-        extra_config={name: cfgmod.section(cfg, name) for name in STAGES[stage_name].extra_sections},
-        profile=profile,
-        raw_inputs=survey_inputs(survey, room, stage_name),
-        force=force,
-    )
-
-
-@dataclass(frozen=True)
-class PlannedStage:
-    call: StageCall
-    upstream: dict[str, tuple[str, str]]
-    """Input name -> (room, stage) of the run that provides it."""
-
-
-def plan_survey(
-    req: RunRequest, cfg: cfgmod.PipelineConfig, survey: cfgmod.Survey, profile: dict[str, Any]
-) -> list[PlannedStage]:
-    """Every stage run a request implies, in dependency order: the building's stages the rooms need,
-    then each room's chain. Forcing a stage forces what follows it in that room."""
-    rooms = [survey.room(r) for r in (req.rooms or survey.room_ids)]
-    chains = {room.id: room_stages(room.capture) for room in rooms}
-    needed = {up for chain in chains.values() for s in chain for up in UPSTREAM.get(s, ())}
-    planned: list[PlannedStage] = []
-    available: set[str] = set()
-    for stage_name in BUILDING_STAGES:
-        if (
-            stage_name in STAGES
-            and stage_name in needed
-            and (stage_name != "plan" or survey.plan is not None)
-        ):
-            force = (BUILDING, stage_name) in req.force
-            planned.append(
-                PlannedStage(make_call(req.work, cfg, profile, None, stage_name, force, survey), {})
-            )
-            available.add(stage_name)
-    for room in rooms:
-        forced = False
-        for stage_name in chains[room.id]:
-            forced = forced or (room.id, stage_name) in req.force
-            upstream = {}
-            for name in UPSTREAM.get(stage_name, ()):
-                if name in chains[room.id][: chains[room.id].index(stage_name)]:
-                    upstream[name] = (room.id, name)
-                elif name in available:
-                    upstream[name] = (BUILDING, name)
-            call = make_call(req.work, cfg, profile, room, stage_name, forced, survey)
-            planned.append(PlannedStage(call, upstream))
-    return planned
-
-
-def breadth_first(planned: list[PlannedStage]) -> list[PlannedStage]:
-    """Stage runs ordered by their depth in the dependency graph: a worker thread waiting for an upstream
-    result is a worker lost, so every room's first stage is submitted before any room's second."""
-    depth: dict[tuple[str, str], int] = {}
-    for item in planned:
-        refs = item.upstream.values()
-        depth[(item.call.room, item.call.stage)] = 1 + max((depth[ref] for ref in refs), default=-1)
-    return sorted(planned, key=lambda item: depth[(item.call.room, item.call.stage)])
-
-
 def _run(req: RunRequest) -> list[StageOutcome]:
     cfg = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets))
     survey = cfgmod.load_survey(Path(req.survey))
@@ -312,18 +104,6 @@ def _run(req: RunRequest) -> list[StageOutcome]:
     return rows
 
 
-def publish_deliverables(store: ArtefactStore, rows: list[StageOutcome]) -> None:
-    """Copy each room's finished deliverables to outputs/rooms/<id>/ (only what changed)."""
-    for row in rows:
-        if row.result is None or row.stage not in ROOM_DELIVERABLES:
-            continue
-        for name in ROOM_DELIVERABLES[row.stage]:
-            dest = store.outputs / "rooms" / row.room / name
-            digest = row.result.files.get(name)
-            if digest and not (dest.is_file() and sha256_file(dest) == digest):
-                store.publish(row.result.file(name), "rooms", row.room, name)
-
-
 @flow(name="room", log_prints=False, validate_parameters=False, persist_result=False)
 def room_flow(req: RunRequest) -> list[StageOutcome]:
     """Every stage that applies to the one room in `req.rooms`."""
@@ -342,17 +122,6 @@ def building_flow(req: RunRequest) -> list[StageOutcome]:
 
 
 # ---------------------------------------------------------------------------------------------- outcome
-
-
-@dataclass(frozen=True)
-class StageOutcome:
-    room: str
-    stage: str
-    state: str
-    """"computed", "cached" (Prefect cache hit), "stored" (store hit, Prefect record new), "failed", "skipped"."""
-    seconds: float
-    error: str = ""
-    result: StageResult | None = None
 
 
 def outcomes(futures: dict[tuple[str, str], PrefectFuture]) -> list[StageOutcome]:
@@ -384,41 +153,3 @@ def run_survey(req: RunRequest) -> list[StageOutcome]:
     store_for(req.work).sweep_temporaries()
     _outcomes.clear()
     return runner.with_options(task_runner=ThreadPoolTaskRunner(max_workers=max(1, workers)))(req)
-
-
-def save_resolved_config(work: Path, cfg: cfgmod.PipelineConfig, argv: Iterable[str]) -> Path:
-    """The resolved config of this run, beside the run's log, for the record."""
-    stamp = time.strftime("%Y%m%dT%H%M%S")
-    path = Path(work) / "runs" / stamp / "config.yaml"
-    with atomic_path(path) as tmp:
-        tmp.write_text(f"# indoor-survey {' '.join(argv)}\n" + cfgmod.to_yaml(cfg))
-    return path
-
-
-def model_room(cloud: Path, out_dir: Path, cfg: cfgmod.PipelineConfig, work: Path) -> dict[str, Any]:
-    """ingest -> preprocess -> walls on one registered cloud, without Prefect (a one-off tool), through
-    the same cached stages; the room's deliverables and its levelling transform are copied to `out_dir`."""
-    room = cfgmod.RoomSpec("room", Path(cloud).resolve())
-    profile = cfgmod.load_sensor_profile("tls")
-    results: dict[str, StageResult] = {}
-    for stage_name in room_stages(room.capture):
-        call = make_call(work, cfg, profile, room, stage_name)
-        upstream = {n: results[n] for n in UPSTREAM.get(stage_name, ()) if n in results}
-        try:
-            results[stage_name] = execute(call, upstream)
-        except ValueError as exc:  # bad input (DegenerateInputError, IngestError...): name the file
-            message = " ".join(str(exc).split())
-            raise DegenerateInputError(message if str(cloud) in message else f"{cloud}: {message}") from exc
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    store = store_for(work)
-    for name in ROOM_DELIVERABLES["walls"]:
-        with atomic_path(out_dir / name) as tmp:
-            tmp.write_bytes(results["walls"].file(name).read_bytes())
-    with atomic_path(out_dir / "levelling.json") as tmp:
-        tmp.write_bytes(results["preprocess"].file("levelling.json").read_bytes())
-    store.save_memo()
-    return {
-        "preprocess": results["preprocess"].manifest.get("metrics", {}),
-        "walls": results["walls"].manifest.get("metrics", {}),
-    }

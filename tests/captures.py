@@ -157,14 +157,16 @@ def write_survey(root: Path, rooms: dict[str, str], sensor: str = "kinect_v1", *
     return root
 
 
-def tiny_survey(root: Path, rng: np.random.Generator) -> Path:
-    """Two box-room clouds and one RGB-D recording."""
+def tiny_survey(root: Path, rng: np.random.Generator, frames_room: bool = False) -> Path:
+    """Two box-room clouds, and with `frames_room` an RGB-D recording of a flat wall (room "c": it ingests,
+    but registering it must fail: one wall, no texture)."""
+    rooms = {"a": "rooms/a/cloud.ply", "b": "rooms/b/cloud.ply"}
     (root / "rooms" / "a").mkdir(parents=True)
     (root / "rooms" / "b").mkdir(parents=True)
-    (root / "rooms" / "c").mkdir(parents=True)
     write_box_room_ply(root / "rooms" / "a" / "cloud.ply", rng)
     write_box_room_ply(root / "rooms" / "b" / "cloud.ply", rng, size_m=(3.0, 3.0, 2.5))
-    write_rgbd_mcap(root / "rooms" / "c" / "capture.mcap")
-    return write_survey(
-        root, {"a": "rooms/a/cloud.ply", "b": "rooms/b/cloud.ply", "c": "rooms/c/capture.mcap"}
-    )
+    if frames_room:
+        (root / "rooms" / "c").mkdir(parents=True)
+        write_rgbd_mcap(root / "rooms" / "c" / "capture.mcap")
+        rooms["c"] = "rooms/c/capture.mcap"
+    return write_survey(root, rooms)

@@ -32,7 +32,7 @@ def run(capsys, *argv):
     states = {}
     for line in out.out.splitlines()[1:]:
         parts = line.split()
-        if len(parts) >= 3 and parts[1] in {"ingest", "preprocess", "register", "walls"}:
+        if len(parts) >= 3 and parts[1] in {"calibrate", "ingest", "register", "preprocess", "walls"}:
             states[(parts[0], parts[1])] = parts[2]
     return code, states, out
 
@@ -45,12 +45,14 @@ def test_cache_rerun_and_targeted_recompute(tmp_path, capsys, prefect_home):
     assert set(states.values()) == {"computed"}
     assert states[("a", "preprocess")] == "computed"
 
-    code, states, _ = run(capsys, "run", str(survey), "--work", work)
+    code, states, out = run(capsys, "run", str(survey), "--work", work)
     assert code == 0
-    assert set(states.values()) == {"cached"}, states  # Prefect's own cache hits
+    assert set(states.values()) == {"cached"}, states
+    assert "nothing to compute (Prefect not started)" in out.err  # a no-op rerun skips the orchestrator
 
     code, states, _ = run(capsys, "run", str(survey), "--work", work, "--set", "preprocess.voxel_size_m=0.03")
     assert code == 0
+    assert states[("a", "ingest")] == "cached"  # a Prefect cache hit (the run needed Prefect)
     assert {k: v for k, v in states.items() if v != "cached"} == {
         ("a", "preprocess"): "computed",
         ("a", "walls"): "computed",
@@ -72,24 +74,26 @@ def test_cache_rerun_and_targeted_recompute(tmp_path, capsys, prefect_home):
 
 
 def test_bad_capture_fails_that_room_only_and_keeps_earlier_artefacts(tmp_path, capsys, prefect_home):
-    survey = tiny_survey(tmp_path / "s", np.random.default_rng(2))
+    survey = tiny_survey(tmp_path / "s", np.random.default_rng(2), frames_room=True)
     work = tmp_path / "w"
-    assert run(capsys, "run", str(survey), "--work", str(work))[0] == 0
+    code, states, out = run(capsys, "run", str(survey), "--work", str(work))
+    # the flat-wall recording ingests, but cannot be registered: a clear error, not a garbage cloud
+    assert code == 1
+    assert states[("c", "ingest")] == "computed" and states[("c", "register")] == "failed"
+    assert states[("c", "preprocess")] == "skipped"
+    assert any("room c, stage register: cannot register" in line for line in out.err.splitlines())
     store = ArtefactStore(work)
-    before = store.latest("c", "ingest")
-    assert before is not None
+    before = {room: store.latest(room, "ingest") for room in ("b", "c")}
 
     capture = survey / "rooms" / "c" / "capture.mcap"
     capture.write_bytes(capture.read_bytes()[:5000])  # truncated
     nan_cloud = survey / "rooms" / "b" / "cloud.ply"
-    write_box_room_ply(nan_cloud, np.random.default_rng(3))
     text = nan_cloud.read_bytes()
     # NaN coordinates written into a valid PLY: the stage must refuse the cloud, not crash later.
-    pts = np.frombuffer(
-        text[text.index(b"end_header\n") + 11 :], dtype=[("p", "<f8", 3), ("c", "u1", 3)]
-    ).copy()
+    head = text.index(b"end_header\n") + 11
+    pts = np.frombuffer(text[head:], dtype=[("p", "<f8", 3), ("c", "u1", 3)]).copy()
     pts["p"][::50] = np.nan
-    nan_cloud.write_bytes(text[: text.index(b"end_header\n") + 11] + pts.tobytes())
+    nan_cloud.write_bytes(text[:head] + pts.tobytes())
 
     code, states, out = run(capsys, "run", str(survey), "--work", str(work))
     assert code == 1
@@ -99,7 +103,8 @@ def test_bad_capture_fails_that_room_only_and_keeps_earlier_artefacts(tmp_path, 
     assert any("capture.mcap: truncated or corrupt MCAP" in line for line in errors)
     assert any("cloud.ply" in line and "NaN" in line for line in errors)
     # what an earlier run computed for the failed rooms is still there, verified
-    assert store.lookup("c", "ingest", before.key) == before
+    for room, result in before.items():
+        assert store.lookup(room, "ingest", result.key) == result
 
 
 @pytest.mark.parametrize(
