@@ -245,6 +245,19 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     }
     summary = ", ".join(f"{n} {s}" for s, n in counts.items() if n)
     print(f"{len(rows)} stage runs: {summary}; {elapsed:.1f} s; config saved to {saved}")
+    metrics = planning.write_truth_metrics(req, rows)
+    if metrics is not None:
+        summary = planning.read_json(metrics)["summary"]
+        print(
+            "against truth/: completeness {mean_completeness:.3f}, correctness {mean_correctness:.3f}, "
+            "mean accuracy {acc}, corner F1 {mean_corner_f1:.2f} ({metrics})".format(
+                acc=f"{1000 * summary['mean_accuracy_mean_m']:.1f} mm"
+                if summary["mean_accuracy_mean_m"]
+                else "n/a",
+                metrics=metrics,
+                **{k: v or 0.0 for k, v in summary.items() if k != "mean_accuracy_mean_m"},
+            )
+        )
     failed = [r for r in rows if r.state == "failed"]
     for row in failed:
         print(f"error: room {row.room}, stage {row.stage}: {row.error}", file=sys.stderr)

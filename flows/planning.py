@@ -15,7 +15,14 @@ from pathlib import Path
 from typing import Any
 
 from tasks import config as cfgmod
-from tasks.artefacts import BUILDING, ArtefactStore, StageResult, atomic_path, sha256_file
+from tasks.artefacts import (
+    BUILDING,
+    ArtefactStore,
+    StageResult,
+    atomic_path,
+    sha256_file,
+    write_json,
+)
 from tasks.cloud import DegenerateInputError
 from tasks.ingest import capture_kind
 from tasks.stages import ROOM_DELIVERABLES, STAGES, StageContext
@@ -355,3 +362,32 @@ def all_current(req: RunRequest) -> list[StageOutcome] | None:
     ]
     publish_deliverables(store_for(req.work), rows)
     return rows
+
+
+def write_truth_metrics(req: RunRequest, rows: list[StageOutcome]) -> Path | None:
+    """outputs/metrics.json: each room model against the survey's truth/, when it has one."""
+    from tasks.benchmark import RoomRun, evaluate_runs
+
+    survey = cfgmod.load_survey(Path(req.survey))
+    if survey.truth is None or not (survey.truth / "walls.parquet").is_file():
+        return None
+    results = {(r.room, r.stage): r.result for r in rows if r.result is not None}
+    runs = []
+    for room in survey.room_ids:
+        walls = results.get((room, "walls"))
+        if walls is None:
+            continue
+        registered = (room, "register") in results
+        pre = results.get((room, "preprocess"))
+        runs.append(
+            RoomRun(
+                room=room,
+                walls=walls.file("walls.parquet"),
+                levelling=pre.file("levelling.json") if registered and pre else None,
+                poses=results[(room, "register")].file("poses.parquet") if registered else None,
+            )
+        )
+    if not runs:
+        return None
+    metrics = evaluate_runs(runs, survey.truth)
+    return write_json(store_for(req.work).outputs / "metrics.json", metrics)
