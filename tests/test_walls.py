@@ -3,6 +3,7 @@ Kinect v1-like and TLS-like noise (seeds never used while tuning), degenerate in
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -128,6 +129,7 @@ def test_box_gives_four_walls_at_the_faces(rng):
     assert m["walls"] == 4 and m["closed"] and "alpha" in m["alpha_reason"] and m["alpha"] == model.alpha
     assert {"projection_s", "walls_s", "total_s"} <= set(m["timings"])
     assert not m["warnings"]
+    json.dumps(m)  # the manifest takes it as it is
     # the model moves rigidly
     moved = model.transformed(math.pi / 2, [1.0, 2.0])
     np.testing.assert_allclose(
