@@ -247,7 +247,9 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     print(f"{len(rows)} stage runs: {summary}; {elapsed:.1f} s; config saved to {saved}")
     metrics = planning.write_truth_metrics(req, rows)
     if metrics is not None:
-        summary = planning.read_json(metrics)["summary"]
+        from tasks.artefacts import read_json
+
+        summary = read_json(metrics)["summary"]
         print(
             "against truth/: completeness {mean_completeness:.3f}, correctness {mean_correctness:.3f}, "
             "mean accuracy {acc}, corner F1 {mean_corner_f1:.2f} ({metrics})".format(

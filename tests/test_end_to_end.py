@@ -1,0 +1,62 @@
+"""The miniature survey in data/ end to end, as the README's first command runs it, with accuracy
+thresholds against its truth/ (a synthetic survey: every answer is known)."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+
+from flows.cli import main
+
+pytestmark = pytest.mark.slow
+
+MINI = Path(__file__).resolve().parents[1] / "data" / "mini"
+
+
+@pytest.fixture(scope="module")
+def mini_run(tmp_path_factory):
+    from prefect.testing.utilities import prefect_test_harness
+
+    work = tmp_path_factory.mktemp("mini-work")
+    with prefect_test_harness(server_startup_timeout=120):
+        code = main(["-q", "run", str(MINI), "--work", str(work)])
+    return code, work
+
+
+def test_every_stage_of_every_room_completes(mini_run):
+    code, work = mini_run
+    assert code == 0
+    for room in ("r1", "r2", "r3", "r4", "r5", "hall"):
+        for name in ("walls.parquet", "plan.geojson", "model.ply", "preview.png"):
+            assert (work / "outputs" / "rooms" / room / name).is_file(), (room, name)
+        walls = pq.read_table(work / "outputs" / "rooms" / room / "walls.parquet")
+        assert walls.num_rows >= 2
+
+
+def test_room_models_against_truth(mini_run):
+    _, work = mini_run
+    metrics = json.loads((work / "outputs" / "metrics.json").read_text())
+    rooms = {r["room"]: r for r in metrics["rooms"]}
+    # the TLS-like room: millimetre data, the thesis got 7 mm on TLS
+    assert rooms["r5"]["accuracy_mean_m"] < 0.005
+    assert rooms["r5"]["correctness"] > 0.95
+    for room in ("r1", "r2", "r3", "r4"):  # Kinect v1 rooms registered by SfM + scale from depth
+        assert rooms[room]["ate_2d_rmse_m"] < 0.10, room
+        assert abs(rooms[room]["scale_error_pct"]) < 2.0, room
+        assert rooms[room]["correctness"] > 0.9, room
+        assert rooms[room]["accuracy_mean_m"] < 0.030, room  # the thesis: 30 mm on Kinect data
+    assert metrics["summary"]["mean_completeness"] > 0.5
+
+
+def test_rerun_recomputes_nothing(mini_run, capsys):
+    _, work = mini_run
+    capsys.readouterr()
+    assert main(["run", str(MINI), "--work", str(work)]) == 0
+    out = capsys.readouterr()
+    assert "24 stage runs: 24 cached" in out.out
+    assert "nothing to compute" in out.err
+    shutil.rmtree(work / "outputs" / "rooms" / "r1")  # a deleted deliverable comes back from the cache
+    assert main(["-q", "run", str(MINI), "--work", str(work)]) == 0
+    assert (work / "outputs" / "rooms" / "r1" / "walls.parquet").is_file()
