@@ -168,6 +168,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="output folder")
 
     p = sub.add_parser(
+        "parse-plan",
+        help="coarse floor-plan raster -> metric wall centrelines with thickness, rooms, doors",
+        description="Writes OUT/plan_walls.parquet (x0 y0 x1 y1 thickness_m), OUT/rooms.geojson and "
+        "OUT/plan_preview.png, in metres with x right and y up: pixel (u, v) -> (u*s, -v*s).",
+    )
+    p.add_argument(
+        "image", type=Path, help="plan raster (PNG or JPG): an evacuation plan photo or a CAD drawing"
+    )
+    p.add_argument("--out", type=Path, required=True)
+    scale = p.add_mutually_exclusive_group(required=True)
+    scale.add_argument("--m-per-px", type=float, help="metres per pixel")
+    scale.add_argument(
+        "--known-distance", metavar="X0,Y0,X1,Y1,METRES", help="two pixels and their distance in metres"
+    )
+    scale.add_argument("--outline-length", type=float, metavar="METRES", help="building outline perimeter")
+
+    p = sub.add_parser(
         "register-room",
         help="ingest -> SfM -> metric scale -> fused coloured cloud for one RGB-D capture",
         description="Writes OUT/poses.parquet (frame_id t_ns qw qx qy qz tx ty tz method), OUT/cloud.ply and "
@@ -357,6 +374,28 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_parse_plan(args: argparse.Namespace) -> int:
+    import json
+
+    from tasks.plan import PlanScale, run_parse_plan
+
+    known = None
+    if args.known_distance:
+        try:
+            known = tuple(float(v) for v in args.known_distance.split(","))
+        except ValueError as exc:
+            raise CliError(f"--known-distance {args.known_distance!r}: expected x0,y0,x1,y1,metres") from exc
+        if len(known) != 5:
+            raise CliError(
+                f"--known-distance {args.known_distance!r}: expected five numbers x0,y0,x1,y1,metres"
+            )
+    scale = PlanScale(m_per_px=args.m_per_px, known_distance=known, outline_length_m=args.outline_length)
+    report = run_parse_plan(args.image, args.out, scale)
+    keep = {k: v for k, v in report.items() if isinstance(v, int | float | str)}
+    print(json.dumps(keep, indent=2))
+    return 0
+
+
 def cmd_register_room(args: argparse.Namespace) -> int:
     import json
 
@@ -380,6 +419,7 @@ COMMANDS = {
     "synth": cmd_synth,
     "calibrate": cmd_calibrate,
     "register-room": cmd_register_room,
+    "parse-plan": cmd_parse_plan,
 }
 
 

@@ -20,12 +20,13 @@ from tasks.artefacts import (
     ArtefactStore,
     StageResult,
     atomic_path,
+    hash_json,
     sha256_file,
     write_json,
 )
 from tasks.cloud import DegenerateInputError
 from tasks.ingest import capture_kind
-from tasks.stages import ROOM_DELIVERABLES, STAGES, StageContext
+from tasks.stages import BUILDING_DELIVERABLES, ROOM_DELIVERABLES, STAGES, StageContext
 
 log = logging.getLogger("indoor_survey")
 
@@ -40,6 +41,8 @@ class StageCall:
     config: dict[str, Any]
     profile: dict[str, Any]
     raw_inputs: dict[str, str] = field(default_factory=dict)
+    params: dict[str, Any] = field(default_factory=dict)
+    """Survey-given values a stage needs besides files and config (the plan's scale); in the key."""
     force: bool = False
     extra_config: dict[str, dict[str, Any]] = field(default_factory=dict)
 
@@ -64,6 +67,8 @@ def cache_key(call: StageCall, upstream: dict[str, StageResult]) -> str:
     stage = STAGES[call.stage]
     inputs = {name: result.content_hash for name, result in upstream.items()}
     inputs.update({name: store.input_hash(Path(path)) for name, path in call.raw_inputs.items()})
+    if call.params:
+        inputs["params"] = hash_json(call.params)
     if stage.uses_profile:  # e.g. how to read a capture (topics, depth convention), fallback intrinsics
         inputs["sensor_profile"] = cfgmod.hash_profile(call.profile)
     config = {stage.section: call.config, **call.extra_config} if call.extra_config else call.config
@@ -92,7 +97,7 @@ def execute(call: StageCall, upstream: dict[str, StageResult]) -> StageResult:
     def progress(message: str) -> None:
         log.info("[%s] %s: %s", call.room, call.stage, message)
 
-    ctx = StageContext(call.room, upstream, call.raw_inputs, call.profile, progress, extra)
+    ctx = StageContext(call.room, upstream, call.raw_inputs, call.profile, progress, extra, call.params)
     log.info("[%s] %s: computing", call.room, call.stage)
     manifest = {
         "inputs": {name: r.content_hash for name, r in upstream.items()},
@@ -169,6 +174,18 @@ def survey_inputs(
     return {}
 
 
+def survey_params(survey: cfgmod.Survey | None, stage_name: str) -> dict[str, Any]:
+    """Values from survey.yaml a stage needs (the plan's scale)."""
+    if stage_name == "plan" and survey is not None and survey.plan is not None:
+        plan = survey.plan
+        return {
+            "m_per_px": plan.m_per_px,
+            "known_distance": list(plan.known_distance) if plan.known_distance else None,
+            "outline_length_m": plan.outline_length_m,
+        }
+    return {}
+
+
 def make_call(
     work: str | Path,
     cfg: cfgmod.PipelineConfig,
@@ -188,6 +205,7 @@ def make_call(
         extra_config={name: cfgmod.section(cfg, name) for name in STAGES[stage_name].extra_sections},
         profile=profile,
         raw_inputs=survey_inputs(survey, room, stage_name),
+        params=survey_params(survey, stage_name),
         force=force,
     )
 
@@ -257,15 +275,19 @@ class StageOutcome:
 
 
 def publish_deliverables(store: ArtefactStore, rows: list[StageOutcome]) -> None:
-    """Copy each room's finished deliverables to outputs/rooms/<id>/ (only what changed)."""
+    """Copy finished deliverables to outputs/ (rooms' to outputs/rooms/<id>/), only what changed."""
     for row in rows:
-        if row.result is None or row.stage not in ROOM_DELIVERABLES:
+        if row.result is None:
             continue
-        for name in ROOM_DELIVERABLES[row.stage]:
-            dest = store.outputs / "rooms" / row.room / name
+        if row.room == BUILDING:
+            names, folder = BUILDING_DELIVERABLES.get(row.stage, ()), ()
+        else:
+            names, folder = ROOM_DELIVERABLES.get(row.stage, ()), ("rooms", row.room)
+        for name in names:
+            dest = store.outputs.joinpath(*folder, name)
             digest = row.result.files.get(name)
             if digest and not (dest.is_file() and sha256_file(dest) == digest):
-                store.publish(row.result.file(name), "rooms", row.room, name)
+                store.publish(row.result.file(name), *folder, name)
 
 
 def save_resolved_config(work: Path, cfg: cfgmod.PipelineConfig, argv: Iterable[str]) -> Path:

@@ -20,6 +20,7 @@ import yaml
 from tasks.artefacts import check_room_id
 from tasks.calibration import CalibrateConfig
 from tasks.ingest import IngestConfig
+from tasks.plan import PlanConfig
 from tasks.preprocess import PreprocessConfig
 from tasks.register import RegisterConfig
 from tasks.scale import ScaleConfig
@@ -49,6 +50,7 @@ class PipelineConfig:
 
     flow: FlowConfig = field(default_factory=FlowConfig)
     calibrate: CalibrateConfig = field(default_factory=CalibrateConfig)
+    plan: PlanConfig = field(default_factory=PlanConfig)
     ingest: IngestConfig = field(default_factory=IngestConfig)
     sfm: SfmConfig = field(default_factory=SfmConfig)
     scale: ScaleConfig = field(default_factory=ScaleConfig)

@@ -36,6 +36,8 @@ class StageContext:
     progress: ProgressFn
     extra_config: dict[str, Any] = field(default_factory=dict)
     """Section name -> config of the stage's `extra_sections`."""
+    params: dict[str, Any] = field(default_factory=dict)
+    """Survey-given values (the plan's scale)."""
 
 
 @dataclass(frozen=True)
@@ -91,6 +93,21 @@ def _calibration_figures(data: dict[str, Any]) -> dict[str, Any]:
         figures["baseline_mm"] = 1000.0 * float(np.linalg.norm(data["ir_to_rgb"]["t_m"]))
     figures["stereo_rms_px"] = data.get("stereo_rms_px")
     return figures
+
+
+def run_plan(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
+    """The coarse plan raster as metric walls (centrelines + thickness) and rooms (thesis 4.2.3)."""
+    from tasks.plan import PlanScale, run_parse_plan
+
+    known = ctx.params.get("known_distance")
+    scale = PlanScale(
+        m_per_px=ctx.params.get("m_per_px"),
+        known_distance=tuple(known) if known else None,
+        outline_length_m=ctx.params.get("outline_length_m"),
+    )
+    metrics = run_parse_plan(Path(ctx.raw_inputs["plan"]), out, scale, cfg)
+    metrics.pop("outputs", None)
+    return {"metrics": metrics}
 
 
 def run_ingest(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
@@ -290,11 +307,15 @@ def run_walls(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
 ROOM_DELIVERABLES = {"walls": ("walls.parquet", "plan.geojson", "model.ply", "preview.png")}
 """Stage -> files published to outputs/rooms/<id>/ (PIPELINE.md "Deliverables")."""
 
+BUILDING_DELIVERABLES = {"plan": ("plan_walls.parquet", "rooms.geojson", "plan_preview.png")}
+"""Stage -> files published to outputs/ (PIPELINE.md "Deliverables")."""
+
 
 STAGES: dict[str, Stage] = {
     stage.name: stage
     for stage in (
         Stage("calibrate", "calibrate", "tasks.calibration", run_calibrate, uses_profile=True),
+        Stage("plan", "plan", "tasks.plan", run_plan),
         Stage("ingest", "ingest", "tasks.ingest", run_ingest, uses_profile=True),
         Stage("register", "register", "tasks.register", run_register, True, ("sfm", "scale")),
         Stage("preprocess", "preprocess", "tasks.preprocess", run_preprocess),

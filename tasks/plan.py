@@ -1,0 +1,682 @@
+"""Coarse floor-plan raster -> metric wall centrelines, thicknesses, rooms and doors (thesis 4.2.3).
+
+The thesis (after Peter et al. 2010, 2013b) turns a photographed evacuation plan into a floor model:
+white balance and Wallis filtering, perspective rectification from the building outline, removal of
+symbols by colour segmentation, binarization, skeleton vectorization, bridging of the lines occluded by
+symbols by prolonging free ends, and room polygons. The same steps serve CAD renderings (thin outline
+walls are filled first). Straight walls come from the line code shared with the walls stage
+(`tasks.lines`: clustering, regularization, extension/trimming), never from a copy of it.
+
+Frames: the plan frame maps pixel (u, v) of the input image (after rectification, when four corners are
+given) to metres (u * s, -v * s): x to the right, y up.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import shapely
+from numpy.typing import NDArray
+from shapely.geometry import Polygon
+from skimage.morphology import skeletonize
+
+from tasks import lines
+
+
+@dataclass(frozen=True)
+class PlanConfig:
+    """Parameters of plan parsing. Lengths in metres are converted to pixels with the plan scale."""
+
+    max_side_px: int = 5000
+    """Images with a longer side are reduced by an integer factor with min-pooling (keeps 1 px lines)."""
+    white_balance_percentile: float = 95.0
+    """White-patch balance: this percentile of every channel is mapped to white (paper colour)."""
+    clahe_clip: float = 2.0
+    """CLAHE clip limit on the lightness channel (local contrast, the role of the Wallis filter)."""
+    clahe_tile_m: float = 4.0
+    """CLAHE tile size in metres of plan."""
+    ink_threshold_bounds: tuple[int, int] = (60, 200)
+    """Otsu threshold on darkness (255 - min(R, G, B)) is clamped to this range."""
+    symbol_min_saturation: int = 90
+    """HSV saturation (0-255) above which a pixel can be a coloured symbol."""
+    symbol_min_value: int = 70
+    """HSV value (0-255) above which a pixel can be a coloured symbol (darker is black ink)."""
+    green_hue_deg: tuple[float, float] = (70.0, 170.0)
+    """Hue range (degrees, 0-360) of green symbols (escape routes, exits)."""
+    red_hue_deg: tuple[float, float] = (330.0, 25.0)
+    """Hue range (degrees, wrapping) of red symbols (fire equipment)."""
+    blue_hue_deg: tuple[float, float] = (200.0, 260.0)
+    """Hue range (degrees) of blue symbols (mandatory / information signs). Cyan (180°) is not a symbol."""
+    symbol_grow_m: float = 0.03
+    """Symbol masks are grown by this to swallow their anti-aliased rims."""
+    symbol_hole_m: float = 0.12
+    """White details narrower than this inside a symbol (pictograms) are part of the symbol."""
+    max_outline_width_m: float = 0.5
+    """Ink lines closer than this are the two faces of an outline-drawn wall and the space between them is
+    filled (a closing); also the largest wall thickness measured."""
+    min_wall_thickness_m: float = 0.08
+    """Ink thinner than this (text strokes, hatching, furniture, dimension lines) is removed by opening."""
+    text_max_size_m: float = 0.35
+    """Connected components whose bounding box is smaller than this (letters, dots) are text."""
+    drop_outside_shell: bool = True
+    """Drop wall-like strokes outside the bounding box of the largest wall component (legend, title)."""
+    bridge_max_m: float = 2.0
+    """Longest wall stretch hidden under a symbol that is bridged (only across symbol pixels)."""
+    hough_min_length_m: float = 0.15
+    """Minimum skeleton segment length for the probabilistic Hough transform."""
+    hough_max_gap_m: float = 0.05
+    """Gap closed along a skeleton line by the Hough transform."""
+    lines: lines.LinesConfig = field(
+        default_factory=lambda: lines.LinesConfig(
+            angle_tol_deg=3.0, offset_tol_m=0.06, max_gap_m=0.3, extend_m=0.4, min_overlap=0.5
+        )
+    )
+    """Shared line clustering / regularization / connection settings (metres; scaled to pixels)."""
+    min_wall_length_ratio: float = 1.2
+    """Walls shorter than this times their thickness are skeleton spurs at wall ends and corners."""
+    door_min_m: float = 0.5
+    """Smallest wall gap taken for a door."""
+    door_max_m: float = 2.2
+    """Largest wall gap taken for a door."""
+    min_room_area_m2: float = 1.0
+    """Free-space regions smaller than this are not rooms (shafts, wall interiors)."""
+    min_extent_m: float = 2.0
+    """Smallest plausible plan extent; a smaller one means the scale is wrong."""
+    max_extent_m: float = 400.0
+    """Largest plausible plan extent; a larger one means the scale is wrong."""
+    min_walls: int = 3
+    """Fewer walls than this means the image holds no floor plan."""
+    min_wall_coverage: float = 0.6
+    """Share of the cleaned wall raster that the vector walls must explain, else it is no plan."""
+
+
+@dataclass(frozen=True)
+class PlanScale:
+    """How pixels become metres: exactly one of `m_per_px`, `known_distance`, `outline_length_m`."""
+
+    m_per_px: float | None = None
+    """Metres per pixel of the (rectified) image."""
+    known_distance: tuple[float, float, float, float, float] | None = None
+    """x0, y0, x1, y1 (pixels) and the distance between them in metres."""
+    outline_length_m: float | None = None
+    """Perimeter of the building outline in metres."""
+    outline_size_m: tuple[float, float] | None = None
+    """Width and height (metres) of the outline rectangle whose corners are `corners_px`: fixes the
+    rectified aspect ratio (four corners alone cannot) and the scale."""
+    corners_px: tuple[tuple[float, float], ...] | None = None
+    """Four outline corners (pixels, clockwise from top-left) for perspective rectification; the
+    rectified image keeps the mean side lengths, so the other scale inputs refer to it."""
+
+    def __post_init__(self) -> None:
+        given = [
+            v is not None for v in (self.m_per_px, self.known_distance, self.outline_length_m, self.outline_size_m)
+        ]
+        if sum(given) != 1:
+            raise ValueError(
+                "PlanScale needs exactly one of m_per_px, known_distance, outline_length_m, outline_size_m"
+            )
+        if self.outline_size_m is not None and (self.corners_px is None or min(self.outline_size_m) <= 0):
+            raise ValueError("outline_size_m needs corners_px and two positive lengths")
+        if self.m_per_px is not None and not (math.isfinite(self.m_per_px) and self.m_per_px > 0):
+            raise ValueError(f"m_per_px must be a positive number, got {self.m_per_px}")
+        if self.known_distance is not None:
+            x0, y0, x1, y1, d = self.known_distance
+            if not (d > 0 and math.hypot(x1 - x0, y1 - y0) > 0):
+                raise ValueError(f"known_distance needs two distinct points and a positive distance, got {self.known_distance}")
+        if self.outline_length_m is not None and not self.outline_length_m > 0:
+            raise ValueError(f"outline_length_m must be positive, got {self.outline_length_m}")
+        if self.corners_px is not None and np.asarray(self.corners_px).shape != (4, 2):
+            raise ValueError("corners_px must be four (x, y) pixel pairs")
+
+
+@dataclass(frozen=True)
+class ParsedPlan:
+    """Result of `parse_plan`, in metres in the plan frame."""
+
+    walls: NDArray[np.float64]
+    """(M, 4) wall centrelines x0 y0 x1 y1."""
+    thickness_m: NDArray[np.float64]
+    """(M,) wall thickness measured across the raster."""
+    rooms: list[tuple[Polygon, str | None]]
+    """Enclosed free-space polygons with their label (None when unlabelled), largest first."""
+    doors: NDArray[np.float64]
+    """(D, 4) door gaps as segments between the two wall ends (or wall end and wall)."""
+    preview: NDArray[np.uint8]
+    """(h, w, 3) RGB picture at working resolution: cleaned plan, walls, rooms, doors."""
+    metrics: dict[str, Any]
+    """Timings (s), counts, removed symbol pixels, scale used."""
+    m_per_px: float = 0.0
+    """Scale of the input (rectified) image."""
+
+
+# ---------------------------------------------------------------- raster side
+
+
+def _hue_mask(hue_deg: NDArray, rng: tuple[float, float]) -> NDArray[np.bool_]:
+    lo, hi = rng
+    return (hue_deg >= lo) & (hue_deg <= hi) if lo <= hi else (hue_deg >= lo) | (hue_deg <= hi)
+
+
+def _min_pool(image: NDArray[np.uint8], f: int) -> NDArray[np.uint8]:
+    """Reduce by factor f keeping the darkest value of every f x f block, so 1 px lines survive."""
+    if f <= 1:
+        return image
+    return cv2.erode(image, np.ones((f, f), np.uint8), anchor=(0, 0))[::f, ::f][: image.shape[0] // f, : image.shape[1] // f]
+
+
+def enhance(image: NDArray[np.uint8], tile_px: int, cfg: PlanConfig) -> NDArray[np.uint8]:
+    """White-patch white balance, then CLAHE on lightness (the Wallis filter's local contrast role)."""
+    img = image.astype(np.float32)
+    step = max(1, img.shape[0] * img.shape[1] // 1_000_000)  # a subsample is enough for a percentile
+    white = np.percentile(img.reshape(-1, 3)[::step], cfg.white_balance_percentile, axis=0)
+    img = np.clip(img * (255.0 / np.maximum(white, 32.0)), 0, 255).astype(np.uint8)
+    if cfg.clahe_clip > 0:
+        lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB)
+        h, w = img.shape[:2]
+        tiles = (max(1, w // max(tile_px, 8)), max(1, h // max(tile_px, 8)))
+        lab[..., 0] = cv2.createCLAHE(clipLimit=cfg.clahe_clip, tileGridSize=tiles).apply(lab[..., 0])
+        img = cv2.cvtColor(lab, cv2.COLOR_LAB2RGB)
+    return img
+
+
+def symbol_mask(image: NDArray[np.uint8], cfg: PlanConfig) -> dict[str, NDArray[np.bool_]]:
+    """Green, red and blue symbol pixels by HSV segmentation (Peter et al. 2013b colour segmentation)."""
+    hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)
+    hue = hsv[..., 0].astype(np.float32) * 2.0
+    coloured = (hsv[..., 1] >= cfg.symbol_min_saturation) & (hsv[..., 2] >= cfg.symbol_min_value)
+    return {
+        "green": coloured & _hue_mask(hue, cfg.green_hue_deg),
+        "red": coloured & _hue_mask(hue, cfg.red_hue_deg),
+        "blue": coloured & _hue_mask(hue, cfg.blue_hue_deg),
+    }
+
+
+def _fill_outline_walls(ink: NDArray[np.bool_], max_width_px: float) -> NDArray[np.bool_]:
+    """Fill the space between facing ink lines closer than max_width_px (outline-drawn walls, CAD style)
+    with horizontal and vertical closings. A disc or diagonal closing would also round every room
+    corner; walls drawn at other angles than 0/90 degrees as outlines are therefore not filled."""
+    L = int(max_width_px) | 1
+    if L < 3:
+        return ink
+    i8 = ink.astype(np.uint8)
+    h = cv2.morphologyEx(i8, cv2.MORPH_CLOSE, np.ones((1, L), np.uint8))
+    v = cv2.morphologyEx(i8, cv2.MORPH_CLOSE, np.ones((L, 1), np.uint8))
+    return (h | v).astype(bool)
+
+
+def _remove_small_components(mask: NDArray[np.bool_], max_size_px: float) -> tuple[NDArray, NDArray]:
+    """Drop components whose bounding box fits in max_size_px; returns (mask, (T, 2) centres of them)."""
+    n, lab, stats, cents = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    small = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) < max_size_px
+    small[0] = False
+    return mask & ~small[lab], cents[small]
+
+
+def _inside_shell(walls: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Keep the wall components whose centre lies within the bounding box of the largest one (the
+    building shell): legend frames, title blocks and north arrows beside the building go."""
+    n, lab, stats, cents = cv2.connectedComponentsWithStats(walls.astype(np.uint8), connectivity=8)
+    if n <= 2:
+        return walls
+    big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_WIDTH] * stats[1:, cv2.CC_STAT_HEIGHT]))
+    x, y, w, h = stats[big, :4]
+    inside = (cents[:, 0] >= x) & (cents[:, 0] <= x + w) & (cents[:, 1] >= y) & (cents[:, 1] <= y + h)
+    inside[0] = False
+    return inside[lab]
+
+
+def _bridge_symbols(walls: NDArray[np.bool_], symbols: NDArray[np.bool_], length_px: int, run_px: int) -> NDArray:
+    """Restore wall pixels hidden under symbols. Walls running along a direction (their runs along it are
+    longer than run_px, more than any wall thickness) are closed along that direction with gaps up to
+    length_px, and the closing is accepted on symbol pixels only: door gaps (paper) stay open, and a
+    symbol between two parallel walls (an arrow in a corridor) is not taken for a wall across them.
+    Horizontal and vertical walls only (the plans' prevailing directions; diagonal kernels are slow)."""
+    if length_px < 3 or not symbols.any():
+        return walls
+    w8 = walls.astype(np.uint8)
+    L, R = int(length_px) | 1, max(3, int(run_px) | 1)
+    out = walls.copy()
+    for run, gap in (((1, R), (1, L)), ((R, 1), (L, 1))):
+        along = cv2.morphologyEx(w8, cv2.MORPH_OPEN, np.ones(run, np.uint8))
+        out |= cv2.morphologyEx(along, cv2.MORPH_CLOSE, np.ones(gap, np.uint8)).astype(bool) & symbols
+    return out
+
+
+# ---------------------------------------------------------------- vector side
+
+
+def _sample_mask(mask_f: NDArray[np.float32], pts: NDArray) -> NDArray[np.float32]:
+    """Bilinear samples of a float raster at (N, 2) pixel positions (u, v); 0 outside."""
+    if len(pts) == 0:
+        return np.zeros(0, np.float32)
+    mx = pts[:, 0].astype(np.float32).reshape(-1, 1)
+    my = pts[:, 1].astype(np.float32).reshape(-1, 1)
+    return cv2.remap(mask_f, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)[:, 0]
+
+
+def _thickness_px(seg: NDArray, mask_f: NDArray[np.float32], max_px: float) -> tuple[float, float]:
+    """(median width, median offset of the run's centre along the left normal) of the ink run across
+    the centreline, sampled along the middle of the wall: the distance across the wall raster, and a
+    sub-pixel correction of the skeleton's position (thinning is biased by up to a pixel)."""
+    a, b = seg[:2], seg[2:]
+    d = b - a
+    L = float(np.hypot(*d))
+    if L <= 0:
+        return 0.0, 0.0
+    u = d / L
+    nrm = np.array([-u[1], u[0]])
+    ts = np.linspace(0.15, 0.85, max(3, min(40, int(L / 2))))
+    step = 0.25
+    offs = np.arange(-max_px, max_px + step, step)
+    pts = (a + ts[:, None, None] * d) + offs[None, :, None] * nrm
+    vals = _sample_mask(mask_f, pts.reshape(-1, 2)).reshape(len(ts), len(offs))
+    c = len(offs) // 2
+    widths, centres = [], []
+    for row in vals:
+        inside = row > 0.01  # down to the bilinear tails, so the run's mass is the full width
+        if not inside[c - 4 : c + 5].any():
+            continue
+        j = c - 4 + int(np.argmax(row[c - 4 : c + 5]))
+        lo = j
+        while lo > 0 and inside[lo - 1]:
+            lo -= 1
+        hi = j
+        while hi < len(row) - 1 and inside[hi + 1]:
+            hi += 1
+        mass = row[lo : hi + 1]
+        widths.append(float(mass.sum()) * step)
+        centres.append(float((mass * offs[lo : hi + 1]).sum() / max(float(mass.sum()), 1e-9)))
+    return (float(np.median(widths)), float(np.median(centres))) if widths else (0.0, 0.0)
+
+
+def _centre_and_measure(segs: NDArray, mask_f: NDArray[np.float32], max_px: float) -> tuple[NDArray, NDArray]:
+    """Segments moved onto the middle of their ink band, and their thickness (px)."""
+    out = segs.copy()
+    thick = np.zeros(len(segs))
+    for i, sg in enumerate(segs):
+        thick[i], off = _thickness_px(sg, mask_f, max_px)
+        d = sg[2:] - sg[:2]
+        nrm = np.array([-d[1], d[0]]) / max(float(np.hypot(*d)), 1e-9)
+        out[i] += np.tile(off * nrm, 2)
+    return out, thick
+
+
+def _free_ends(segs: NDArray, tol: float) -> list[tuple[int, int]]:
+    if len(segs) == 0:
+        return []
+    ends = np.concatenate([segs[:, :2], segs[:, 2:]])
+    owner = np.concatenate([np.arange(len(segs))] * 2)
+    dist = lines.point_segment_distances(ends, segs)
+    dist[np.arange(len(ends)), owner] = np.inf
+    free = dist.min(axis=1) > tol if len(segs) > 1 else np.ones(len(ends), bool)
+    return [(int(owner[k]), int(k >= len(segs))) for k in np.flatnonzero(free)]
+
+
+def _find_doors(segs: NDArray, thick: NDArray, cfg_px: dict[str, float]) -> NDArray[np.float64]:
+    """Door gaps: a free wall end whose prolongation meets another wall (its collinear continuation or a
+    crossing wall) after a gap between door_min and door_max."""
+    doors: list[NDArray] = []
+    used: set[tuple[int, int]] = set()
+    free = _free_ends(segs, 1.0)
+    free_set = set(free)
+    for i, e in free:
+        if (i, e) in used:
+            continue
+        s = segs[i]
+        p = s[2:] if e else s[:2]
+        q = s[:2] if e else s[2:]
+        u = (p - q) / max(float(np.hypot(*(p - q))), 1e-9)
+        best = None
+        for j in range(len(segs)):
+            if j == i:
+                continue
+            t = segs[j]
+            for ej, pt in ((0, t[:2]), (1, t[2:])):  # collinear continuation: a facing free end
+                if (j, ej) not in free_set:
+                    continue
+                v = pt - p
+                along = float(v @ u)
+                lateral = abs(float(v[0] * u[1] - v[1] * u[0]))
+                if cfg_px["door_min"] <= along <= cfg_px["door_max"] and lateral < max(thick[i], 2.0) / 2:
+                    if best is None or along < best[0]:
+                        best = (along, pt.copy(), (j, ej))
+            hit = lines.line_intersection(np.concatenate([p, p + u]), t)
+            if hit is not None:
+                x, s_ray, s_seg = hit
+                if 0 <= s_seg <= 1 and cfg_px["door_min"] <= s_ray <= cfg_px["door_max"]:
+                    foot = x - u * thick[j] / 2  # stop at the face of the crossing wall
+                    if best is None or s_ray < best[0]:
+                        best = (s_ray, foot, None)
+        if best is not None:
+            doors.append(np.concatenate([p, best[1]]))
+            used.add((i, e))
+            if best[2] is not None:
+                used.add(best[2])
+    return np.array(doors, dtype=np.float64).reshape(-1, 4)
+
+
+def _to_metres(seg_px: NDArray, f: int, s: float) -> NDArray[np.float64]:
+    """Working pixels (after min-pooling by f) -> plan metres (u s, -v s) of the input pixel grid."""
+    out = (np.asarray(seg_px, dtype=np.float64) * f + (f - 1) / 2.0) * s
+    out[..., 1::2] *= -1
+    return out
+
+
+def _rectify(
+    image: NDArray[np.uint8], corners: NDArray, size_m: tuple[float, float] | None
+) -> tuple[NDArray[np.uint8], float | None]:
+    """Perspective rectification: the corners go to an axis-parallel rectangle with a 5 % margin. Its
+    sides are the photo's mean side lengths, or, with `size_m`, the true aspect ratio at the photo's
+    mean resolution (then also returns that scale, metres per pixel)."""
+    c = np.asarray(corners, dtype=np.float32)
+    w = 0.5 * (np.hypot(*(c[1] - c[0])) + np.hypot(*(c[2] - c[3])))
+    h = 0.5 * (np.hypot(*(c[3] - c[0])) + np.hypot(*(c[2] - c[1])))
+    s = None
+    if size_m is not None:
+        s = 0.5 * (size_m[0] / w + size_m[1] / h)
+        w, h = size_m[0] / s, size_m[1] / s
+    margin = 0.05 * max(w, h)
+    dst = np.float32([[margin, margin], [margin + w, margin], [margin + w, margin + h], [margin, margin + h]])
+    H = cv2.getPerspectiveTransform(c, dst)
+    size = (int(round(w + 2 * margin)), int(round(h + 2 * margin)))
+    return cv2.warpPerspective(image, H, size, flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255)), s
+
+
+def _outline_scale(image: NDArray[np.uint8], length_m: float, cfg: PlanConfig) -> float:
+    """Metres per pixel from the perimeter of the largest dark outline not touching the image border
+    (a photo's own frame or background does)."""
+    img = enhance(image, max(image.shape[:2]) // 4, cfg)
+    dark = (255 - img.min(axis=2)).astype(np.uint8)
+    _, ink = cv2.threshold(dark, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    ink = cv2.morphologyEx(ink, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
+    contours, _ = cv2.findContours(ink, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    h, w = ink.shape
+    inner = []
+    for c in contours:
+        x, y, cw, ch = cv2.boundingRect(c)
+        if x > 0 and y > 0 and x + cw < w and y + ch < h:
+            inner.append(c)
+    if not inner:
+        raise ValueError("outline_length_m given but no building outline found")
+    c = max(inner, key=cv2.contourArea)
+    c = cv2.approxPolyDP(c, 0.002 * cv2.arcLength(c, True), True)
+    return length_m / cv2.arcLength(c, True)
+
+
+# ---------------------------------------------------------------- the stage
+
+
+def parse_plan(
+    image: NDArray[np.uint8],
+    scale: PlanScale,
+    cfg: PlanConfig,
+    labels: dict[str, tuple[float, float]] | None = None,
+    name: str = "plan image",
+) -> ParsedPlan:
+    """Parse a plan raster (H, W, 3) uint8 RGB into wall centrelines, thicknesses, rooms and doors (m).
+
+    `labels` optionally maps room names to a point (plan-frame metres) inside the room. `name` is used in
+    error messages. Raises ValueError (one line, naming the image) for empty images, implausible scales
+    and images without a floor plan."""
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8 or min(img.shape[:2]) < 16:
+        raise ValueError(f"{name}: expected a non-empty (H, W, 3) uint8 RGB image, got {img.shape} {img.dtype}")
+    if int(img.max()) - int(img.min()) < 16:
+        raise ValueError(f"{name}: the image is blank (no contrast), no floor plan in it")
+    s_rect = None
+    if scale.corners_px is not None:
+        img, s_rect = _rectify(img, np.asarray(scale.corners_px), scale.outline_size_m)
+    if s_rect is not None:
+        s = s_rect
+    elif scale.m_per_px is not None:
+        s = float(scale.m_per_px)
+    elif scale.known_distance is not None:
+        x0, y0, x1, y1, d = scale.known_distance
+        s = float(d) / math.hypot(x1 - x0, y1 - y0)
+    else:
+        s = _outline_scale(img, float(scale.outline_length_m), cfg)
+    extent_m = max(img.shape[:2]) * s
+    if not cfg.min_extent_m <= extent_m <= cfg.max_extent_m * 1.5:
+        raise ValueError(
+            f"{name}: scale {s:.4g} m/px makes the image {extent_m:.3g} m across, outside the plausible "
+            f"{cfg.min_extent_m:g}-{cfg.max_extent_m:g} m (wrong units?)"
+        )
+    f = max(1, math.ceil(max(img.shape[:2]) / cfg.max_side_px))
+    img = _min_pool(img, f)
+    sp = s * f  # metres per working pixel
+    px = 1.0 / sp
+    timings["load_s"] = time.perf_counter() - t_start
+
+    t = time.perf_counter()
+    img = enhance(img, int(cfg.clahe_tile_m * px), cfg)
+    syms = symbol_mask(img, cfg)
+    grow = max(1, int(round(cfg.symbol_grow_m * px)))
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
+    sym_any = cv2.dilate((syms["green"] | syms["red"] | syms["blue"]).astype(np.uint8), kernel)
+    # white pictograms inside a sign belong to the sign
+    hole = max(3, int(round(cfg.symbol_hole_m * px)) | 1)
+    sym_any = cv2.morphologyEx(sym_any, cv2.MORPH_CLOSE, np.ones((hole, hole), np.uint8)).astype(bool)
+    darkness = (255 - img.min(axis=2)).astype(np.uint8)
+    thr, _ = cv2.threshold(darkness, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    thr = float(np.clip(thr, *cfg.ink_threshold_bounds))
+    ink = (darkness > thr) & ~sym_any
+    timings["clean_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    # letters first, while they are still separate components; then outline walls are filled and thin
+    # strokes (hatching, furniture, dimension lines) are opened away
+    ink, text_px = _remove_small_components(ink, cfg.text_max_size_m * px)
+    ink = _fill_outline_walls(ink, cfg.max_outline_width_m * px)
+    k = max(1, int(round(cfg.min_wall_thickness_m * px))) | 1  # odd: an even kernel shifts by a pixel
+    walls_r = cv2.morphologyEx(ink.astype(np.uint8), cv2.MORPH_OPEN, np.ones((k, k), np.uint8)).astype(bool)
+    walls_r, more_text = _remove_small_components(walls_r, cfg.text_max_size_m * px)
+    text_px = np.concatenate([text_px, more_text])
+    walls_r = _bridge_symbols(walls_r, sym_any, int(cfg.bridge_max_m * px), int(cfg.max_outline_width_m * px) + 2)
+    if cfg.drop_outside_shell:
+        walls_r = _inside_shell(walls_r)
+    timings["binarize_s"] = time.perf_counter() - t
+    ink_area = int(walls_r.sum())
+    if ink_area < 10:
+        raise ValueError(f"{name}: no wall lines found in the image, no floor plan in it")
+    ys, xs = np.nonzero(walls_r)
+    size_m = max(xs.max() - xs.min(), ys.max() - ys.min()) * sp
+    if not cfg.min_extent_m <= size_m <= cfg.max_extent_m:
+        raise ValueError(
+            f"{name}: the walls span {size_m:.3g} m at {s:.4g} m/px, outside the plausible "
+            f"{cfg.min_extent_m:g}-{cfg.max_extent_m:g} m (wrong scale units?)"
+        )
+
+    t = time.perf_counter()
+    skel = skeletonize(walls_r).astype(np.uint8) * 255
+    min_len = max(3, int(round(cfg.hough_min_length_m * px)))
+    hough = cv2.HoughLinesP(
+        skel, 1, np.pi / 720, max(3, min_len // 2), minLineLength=min_len,
+        maxLineGap=max(1, int(round(cfg.hough_max_gap_m * px))),
+    )
+    raw = hough.reshape(-1, 4).astype(np.float64) if hough is not None else np.zeros((0, 4))
+    timings["skeleton_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    lcfg = cfg.lines.scaled(px)
+    mask_f = walls_r.astype(np.float32)
+    support = (walls_r | sym_any).astype(np.float32)
+    segs = np.zeros((0, 4))
+    if len(raw):
+        segs = lines.merge_segments(raw, lcfg).segments
+        segs, _ = lines.regularize(segs, lcfg)
+        segs = lines.merge_segments(segs, lcfg).segments
+        segs, _ = _centre_and_measure(segs, mask_f, cfg.max_outline_width_m * px)
+
+        def support_fn(pieces: NDArray, parent: NDArray) -> NDArray:
+            out = np.zeros(len(pieces))
+            for n, p in enumerate(pieces):
+                L = float(np.hypot(p[2] - p[0], p[3] - p[1]))
+                ts = np.linspace(0, 1, max(2, int(L) + 1))
+                pts = p[:2] + ts[:, None] * (p[2:] - p[:2])
+                out[n] = float((_sample_mask(support, pts) > 0.5).mean())
+            return out
+
+        segs, _ = lines.connect(segs, lcfg, support_fn)
+    max_t = cfg.max_outline_width_m * px
+    thick = np.array([_thickness_px(sg, mask_f, max_t)[0] for sg in segs])
+    keep = (lines.lengths(segs) >= cfg.min_wall_length_ratio * thick) & (thick > 0) if len(segs) else np.zeros(0, bool)
+    segs, thick = segs[keep], thick[keep]
+    # skeletons stop half a thickness short of a free wall end: prolong free ends to the wall face
+    for i, e in _free_ends(segs, 1.0):
+        a, b = segs[i, :2], segs[i, 2:]
+        u = (b - a) / max(float(np.hypot(*(b - a))), 1e-9)
+        if e:
+            segs[i, 2:] = b + u * thick[i] / 2
+        else:
+            segs[i, :2] = a - u * thick[i] / 2
+    timings["vectorize_s"] = time.perf_counter() - t
+    if len(segs) < cfg.min_walls:
+        raise ValueError(f"{name}: only {len(segs)} straight walls found, no floor plan in it")
+    rendered = np.zeros(walls_r.shape, np.uint8)
+    for sg, th in zip(segs, thick, strict=True):
+        p0, p1 = np.round(sg[:2]).astype(int), np.round(sg[2:]).astype(int)
+        cv2.line(rendered, tuple(int(v) for v in p0), tuple(int(v) for v in p1), 1, max(1, int(round(th)) + 2))
+    coverage = float((rendered.astype(bool) & walls_r).sum() / ink_area)
+    if coverage < cfg.min_wall_coverage:
+        raise ValueError(
+            f"{name}: straight walls explain only {coverage:.0%} of the dark strokes, no floor plan in it"
+        )
+
+    t = time.perf_counter()
+    doors = _find_doors(segs, thick, {"door_min": cfg.door_min_m * px, "door_max": cfg.door_max_m * px})
+    closed = walls_r.astype(np.uint8)
+    for sg, th in zip(segs, thick, strict=True):
+        cv2.line(closed, tuple(int(v) for v in np.round(sg[:2])), tuple(int(v) for v in np.round(sg[2:])), 1, max(1, int(round(th))))
+    for dr in doors:
+        cv2.line(closed, tuple(int(v) for v in np.round(dr[:2])), tuple(int(v) for v in np.round(dr[2:])), 1, 3)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats((1 - closed).astype(np.uint8), connectivity=4)
+    border = set(np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])).tolist())
+    rooms_px: list[Polygon] = []
+    for c in range(1, n):
+        if c in border or stats[c, cv2.CC_STAT_AREA] * sp * sp < cfg.min_room_area_m2:
+            continue
+        comp = (lab[stats[c, 1] : stats[c, 1] + stats[c, 3], stats[c, 0] : stats[c, 0] + stats[c, 2]] == c)
+        cs, _ = cv2.findContours(comp.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        cont = max(cs, key=cv2.contourArea)
+        cont = cv2.approxPolyDP(cont, 1.0, True).reshape(-1, 2).astype(np.float64)
+        if len(cont) < 3:
+            continue
+        # pixel centres -> pixel edges: the component's outline lies half a pixel outside its centres
+        poly = Polygon(cont + [stats[c, 0], stats[c, 1]]).buffer(0.5, join_style="mitre")
+        if poly.is_valid and poly.area * sp * sp >= cfg.min_room_area_m2:
+            rooms_px.append(poly)
+    rooms_m: list[tuple[Polygon, str | None]] = []
+    for poly in sorted(rooms_px, key=lambda p: -p.area):
+        xy = _to_metres(np.asarray(poly.exterior.coords), f, s)
+        pm = Polygon(xy)
+        label = None
+        for lname, (lx, ly) in (labels or {}).items():
+            if pm.contains(shapely.Point(lx, ly)):
+                label = lname
+                break
+        rooms_m.append((pm, label))
+    timings["rooms_s"] = time.perf_counter() - t
+
+    preview = _preview(walls_r, segs, thick, rooms_px, doors)
+    timings["total_s"] = time.perf_counter() - t_start
+    metrics = {
+        "m_per_px": s,
+        "working_m_per_px": sp,
+        "downsample_factor": f,
+        "ink_threshold": thr,
+        "symbol_pixels": {k2: int(v.sum()) for k2, v in syms.items()},
+        "text_components": int(len(text_px)),
+        "text_positions_m": _to_metres(np.asarray(text_px).reshape(-1, 2), f, s).tolist(),
+        "hough_segments": int(len(raw)),
+        "walls": int(len(segs)),
+        "wall_length_m": float(lines.lengths(segs).sum() * sp) if len(segs) else 0.0,
+        "wall_coverage": coverage,
+        "rooms": len(rooms_m),
+        "doors": int(len(doors)),
+        "timings": timings,
+    }
+    return ParsedPlan(
+        walls=_to_metres(segs, f, s).reshape(-1, 4),
+        thickness_m=thick * sp,
+        rooms=rooms_m,
+        doors=_to_metres(doors, f, s).reshape(-1, 4),
+        preview=preview,
+        metrics=metrics,
+        m_per_px=s,
+    )
+
+
+def _preview(walls_r: NDArray, segs: NDArray, thick: NDArray, rooms_px: list[Polygon], doors: NDArray) -> NDArray[np.uint8]:
+    out = np.full((*walls_r.shape, 3), 255, np.uint8)
+    palette = np.array([[255, 224, 178], [200, 230, 201], [187, 222, 251], [248, 187, 208], [225, 190, 231], [255, 249, 196]], np.uint8)
+    for n, poly in enumerate(rooms_px):
+        pts = np.round(np.asarray(poly.exterior.coords)).astype(np.int32)
+        cv2.fillPoly(out, [pts], tuple(int(v) for v in palette[n % len(palette)]))
+    out[walls_r] = (120, 120, 120)
+    lw = max(1, int(round(min(walls_r.shape) / 800)))
+    for sg in segs:
+        cv2.line(out, tuple(int(v) for v in np.round(sg[:2])), tuple(int(v) for v in np.round(sg[2:])), (220, 0, 0), lw)
+    for dr in doors:
+        cv2.line(out, tuple(int(v) for v in np.round(dr[:2])), tuple(int(v) for v in np.round(dr[2:])), (0, 160, 0), lw + 1)
+    return out
+
+
+def load_plan_image(path: Path) -> NDArray[np.uint8]:
+    """A plan image file as (H, W, 3) RGB uint8, transparent pixels composited on white paper."""
+    path = Path(path)
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None or raw.size == 0:
+        raise ValueError(f"{path}: empty or not a readable image")
+    if raw.dtype != np.uint8:
+        raw = (raw / max(float(raw.max()), 1.0) * 255).astype(np.uint8)
+    if raw.ndim == 2:
+        return cv2.cvtColor(raw, cv2.COLOR_GRAY2RGB)
+    if raw.shape[2] == 4:
+        a3 = cv2.merge([raw[..., 3]] * 3)
+        bgr = cv2.add(cv2.multiply(np.ascontiguousarray(raw[..., :3]), a3, scale=1 / 255), cv2.bitwise_not(a3))
+        return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    return cv2.cvtColor(raw[..., :3], cv2.COLOR_BGR2RGB)
+
+
+def run_parse_plan(image_path: Path, out_dir: Path, scale: PlanScale, cfg: PlanConfig | None = None) -> dict:
+    """CLI-level: parse IMAGE and write plan_walls.parquet, rooms.geojson, plan_preview.png into out_dir.
+    Returns the metrics (with the written paths)."""
+    from tasks import artefacts
+
+    cfg = cfg or PlanConfig()
+    image_path, out_dir = Path(image_path), Path(out_dir)
+    if not image_path.is_file():
+        raise ValueError(f"{image_path}: no such image file")
+    image = load_plan_image(image_path)
+    res = parse_plan(image, scale, cfg, name=str(image_path))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    walls_p = artefacts.write_table(
+        out_dir / "plan_walls.parquet", artefacts.segments_table(res.walls, thickness_m=res.thickness_m)
+    )
+    features = [
+        {
+            "type": "Feature",
+            "geometry": shapely.geometry.mapping(poly),
+            "properties": {"room_id": f"R{n + 1}", "label": label, "area_m2": float(poly.area)},
+        }
+        for n, (poly, label) in enumerate(res.rooms)
+    ]
+    features += [
+        {
+            "type": "Feature",
+            "geometry": {"type": "LineString", "coordinates": [d[:2].tolist(), d[2:].tolist()]},
+            "properties": {"kind": "door"},
+        }
+        for d in res.doors
+    ]
+    rooms_p = artefacts.write_geojson(out_dir / "rooms.geojson", features, crs_note="plan frame, metres")
+    prev_p = artefacts.write_png(out_dir / "plan_preview.png", res.preview)
+    return {**res.metrics, "outputs": {"walls": str(walls_p), "rooms": str(rooms_p), "preview": str(prev_p)}}
