@@ -83,8 +83,9 @@ class WallsConfig:
     """A wall cell must hold data within this distance below the top of the slice (walls reach the
     ceiling, furniture does not); None switches the test off."""
     top_clear_m: float = 0.1
-    """The top-reach test looks for data from `top_reach_m` up to this distance below the top of the slice,
-    above which a ceiling's stray points may fall into any column."""
+    """When the slice reaches within this of the ceiling, the top-reach test looks for data from
+    `top_reach_m` below the top up to this distance below the ceiling (a ceiling's stray points fall into
+    every column above that)."""
     min_column_height_m: float = 0.1
     """A wall cell's data must span at least this height (flat things: table tops, ceiling patches, stray
     points are not walls, however the counts compare)."""
@@ -109,8 +110,9 @@ class WallsConfig:
     """A point of a wall counts as backed by data when a wall pixel lies within this distance."""
     stable_tol_m: float = 0.05
     """Two candidate models (automatic α) are equal when their walls lie within this of each other."""
-    min_wall_length_m: float = 0.1
-    """Final walls shorter than this are dropped."""
+    min_wall_length_m: float = 0.2
+    """Dangling walls (one end free) shorter than this are dropped: skeleton spurs, not partitions (short
+    walls joined at both ends, such as a reveal or a column face, stay)."""
     min_points: int = 100
     """Fewer slice points than this is a degenerate input."""
     min_slice_height_m: float = 0.2
@@ -201,7 +203,7 @@ class Projection:
     """(N,) every point's flat cell index."""
 
 
-def projection_image(points: NDArray, cfg: WallsConfig) -> Projection:
+def projection_image(points: NDArray, cfg: WallsConfig, ceiling_z_m: float = math.inf) -> Projection:
     """Count the occupied voxels above each cell (eq 5.3) and mark the wall-like cells."""
     g = cfg.grid_size_m
     lo = points[:, :2].min(axis=0) - 2 * g
@@ -234,14 +236,17 @@ def projection_image(points: NDArray, cfg: WallsConfig) -> Projection:
     low = np.zeros_like(wall_like)
     low[vcell[first][vlev[first] <= math.floor(reach / g)]] = True
     if cfg.top_reach_m is not None:
-        # data between top_reach_m and top_clear_m below the top: a ceiling's stray points, which land in
-        # every column in the topmost centimetres, do not make a cabinet reach the top
         z_top = float(np.quantile(z, 0.999))
         lo_lev = math.floor((z_top - cfg.top_reach_m - z_lo) / g)
-        hi_lev = max(lo_lev, math.floor((z_top - cfg.top_clear_m - z_lo) / g))
-        in_band = (vlev >= lo_lev) & (vlev <= hi_lev)
-        top = np.zeros_like(wall_like)
-        top[vcell[in_band]] = True
+        if ceiling_z_m - z_top < cfg.top_clear_m:
+            # the slice holds the ceiling, whose stray points land in every column (a cabinet's too):
+            # look for data between top_reach_m and top_clear_m below the ceiling instead
+            hi_lev = max(lo_lev, math.floor((ceiling_z_m - cfg.top_clear_m - z_lo) / g))
+            top = np.zeros_like(wall_like)
+            top[vcell[(vlev >= lo_lev) & (vlev <= hi_lev)]] = True
+        else:
+            top = np.zeros_like(wall_like)
+            top[vcell[last][vlev[last] >= lo_lev]] = True
         wall_like &= top
     return Projection(counts, wall_like.reshape(shape), low.reshape(shape), grid, n_levels, cell)
 
@@ -647,7 +652,7 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     pts = _check_input(slice_points, floor_z_m, ceiling_z_m, cfg)
-    proj = projection_image(pts, cfg)
+    proj = projection_image(pts, cfg, ceiling_z_m)
     grid, counts = proj.grid, proj.counts
     xy = np.ascontiguousarray(pts[:, :2])
     timings["projection_s"] = time.perf_counter() - t0
