@@ -367,10 +367,14 @@ class _Candidate:
     alpha: float | None
     walls: NDArray
     origin: NDArray
-    closed: bool
     counts: dict[str, int]
     binary: NDArray
     polygon: Any
+    """The room, when the walls enclose one (a partition stub may still dangle in it)."""
+
+    @property
+    def closed(self) -> bool:
+        return self.polygon is not None
 
 
 def _model_for(
@@ -406,7 +410,6 @@ def _model_for(
     if hung.any():
         walls, origin = walls[~hung], origin[~hung]
         polygon, _ = _room_polygon(walls, grid.size)
-    closed = polygon is not None  # the walls enclose the room (a partition stub may still dangle in it)
     stats = {
         "binary_px": int(binary.sum()),
         "skeleton_px": int(skel.sum()),
@@ -418,7 +421,7 @@ def _model_for(
         "walls_hung_from_ceiling": int(hung.sum()),
         "walls": len(walls),
     }
-    return _Candidate(alpha, walls, origin, closed, stats, binary, polygon)
+    return _Candidate(alpha, walls, origin, stats, binary, polygon)
 
 
 def _hung_from_ceiling(walls: NDArray, polygon: Any, low_share) -> NDArray[np.bool_]:

@@ -175,14 +175,20 @@ def test_every_alpha_setting_works(rng):
 
 
 def test_alpha_choice_prefers_the_longest_stable_closed_run():
+    from shapely.geometry import Polygon
+
     from tasks.walls import _Candidate
 
     box = np.array([[0, 0, 4, 0], [4, 0, 4, 3], [4, 3, 0, 3], [0, 3, 0, 0.0]])
     clutter = np.concatenate([box, [[1, 1, 2, 1.0]]])
     broken = box[:3]
 
+    room = Polygon([(0, 0), (4, 0), (4, 3), (0, 3)])
+
     def cand(alpha, walls, closed):
-        return _Candidate(alpha, walls, np.array(["observed"] * len(walls)), closed, {}, None, None)
+        return _Candidate(
+            alpha, walls, np.array(["observed"] * len(walls)), {}, None, room if closed else None
+        )
 
     cands = [
         cand(0.05, clutter, True),
