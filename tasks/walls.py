@@ -108,6 +108,10 @@ class WallsConfig:
     """Slice points within this distance of a wall refine its offset (median); 0 switches it off."""
     support_tol_m: float = 0.05
     """A point of a wall counts as backed by data when a wall pixel lies within this distance."""
+    bridge_gaps_m: tuple[float, ...] = (1.2, 1.6, 2.0)
+    """When the walls do not enclose the room, collinear pieces are joined across these larger gaps in turn
+    (a wall hidden behind a partition), keeping the first that closes it; a bridged span between two
+    junctions still needs data (the mouth of an alcove stays open)."""
     stable_tol_m: float = 0.05
     """Two candidate models (automatic α) are equal when their walls lie within this of each other."""
     min_wall_length_m: float = 0.2
@@ -385,11 +389,39 @@ def _model_for(
     binary = binarize(proj.counts, proj.wall_like, cfg, alpha)
     skel = skeleton(binary, cfg)
     hough = hough_segments(skel, grid, cfg)
-    lcfg = cfg.lines
+    share = _support_sampler(binary, grid, cfg.support_tol_m)
+    low_share = _support_sampler(proj.low, grid, cfg.support_tol_m)
+    found = _topology(hough, cfg.lines, cfg, grid, share, low_share, proj.cell, xy)
+    bridged = None
+    for gap in cfg.bridge_gaps_m if found[4] is None else ():
+        wider = _topology(
+            hough, replace(cfg.lines, max_gap_m=gap), cfg, grid, share, low_share, proj.cell, xy
+        )
+        if wider[4] is not None:
+            found, bridged = wider, gap
+            break
+    merged, conn, walls, origin, polygon, outside, hung = found
+    stats = {
+        "binary_px": int(binary.sum()),
+        "skeleton_px": int(skel.sum()),
+        "hough_segments": len(hough),
+        "orientation_clusters": len(merged.orientation_deg),
+        "merged_lines": len(merged.segments),
+        "removed_extensions": len(conn.removed),
+        "walls_outside_room": outside,
+        "walls_hung_from_ceiling": int(hung.sum()),
+        "bridged_gap_m": bridged,
+        "walls": len(walls),
+    }
+    return _Candidate(alpha, walls, origin, stats, binary, polygon)
+
+
+def _topology(hough, lcfg: LinesConfig, cfg: WallsConfig, grid: _Grid, share, low_share, cell, xy):
+    """Steps 5-7 on the Hough segments: merge, regularize, refine (when `xy` is given), connect, then
+    keep the room's walls. Returns (merged, connected, walls, origin, room polygon, walls outside, hung)."""
     merged = merge_segments(hough, lcfg)
     reg, rotation = regularize(merged.segments, lcfg)
-    refined = reg if xy is None else refine_offsets(reg, xy, proj.cell, grid, cfg.refine_band_m)
-    share = _support_sampler(binary, grid, cfg.support_tol_m)
+    refined = reg if xy is None else refine_offsets(reg, xy, cell, grid, cfg.refine_band_m)
     centres = 0.5 * (refined[:, :2] + refined[:, 2:])
 
     def support_fn(pieces: NDArray, parent: NDArray) -> NDArray:
@@ -403,25 +435,13 @@ def _model_for(
     conn = connect_detailed(refined, lcfg, support_fn)
     walls, origin = _drop_short_stubs(conn.segments, conn.origin, cfg.min_wall_length_m)
     polygon, inside = _room_polygon(walls, grid.size)
-    outside = int((~inside).sum())
     # walls outside the room (seen through doors and windows) are not the room's inner faces
     walls, origin = walls[inside], origin[inside]
-    hung = _hung_from_ceiling(walls, polygon, _support_sampler(proj.low, grid, cfg.support_tol_m))
+    hung = _hung_from_ceiling(walls, polygon, low_share)
     if hung.any():
         walls, origin = walls[~hung], origin[~hung]
         polygon, _ = _room_polygon(walls, grid.size)
-    stats = {
-        "binary_px": int(binary.sum()),
-        "skeleton_px": int(skel.sum()),
-        "hough_segments": len(hough),
-        "orientation_clusters": len(merged.orientation_deg),
-        "merged_lines": len(merged.segments),
-        "removed_extensions": len(conn.removed),
-        "walls_outside_room": outside,
-        "walls_hung_from_ceiling": int(hung.sum()),
-        "walls": len(walls),
-    }
-    return _Candidate(alpha, walls, origin, stats, binary, polygon)
+    return merged, conn, walls, origin, polygon, int((~inside).sum()), hung
 
 
 def _hung_from_ceiling(walls: NDArray, polygon: Any, low_share) -> NDArray[np.bool_]:
