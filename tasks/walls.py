@@ -696,6 +696,10 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
         cands = [_model_for(proj, cfg, a) for a in alphas]
         chosen, reason = choose_alpha(cands, cfg.stable_tol_m)
         best = _model_for(proj, cfg, alphas[chosen], xy)
+        if cands[chosen].closed and not best.closed:
+            # the refinement moved a borderline corner out of reach: keep the pixel-accurate model
+            best = cands[chosen]
+            reason += "; offsets not refined (the refined walls did not close)"
     timings["walls_s"] = time.perf_counter() - t1
 
     t2 = time.perf_counter()
