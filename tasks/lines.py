@@ -665,17 +665,22 @@ def _node_pieces(walls: list[_Wall], eps: float) -> tuple[Segments, NDArray, NDA
     )
 
 
-def _end_degrees(pieces: Segments, eps: float) -> NDArray[np.intp]:
-    """(P, 2) number of pieces meeting at each end of every piece (ends closer than eps are one node)."""
+def _point_clusters(points: NDArray, tol: float) -> NDArray[np.intp]:
+    """(P,) cluster label of every point: points chained closer than tol share one."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
+    n = len(points)
+    pairs = cKDTree(points).query_pairs(max(tol, 0.0), output_type="ndarray")
+    adj = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(adj, directed=False)[1].astype(np.intp)
+
+
+def _end_degrees(pieces: Segments, eps: float) -> NDArray[np.intp]:
+    """(P, 2) number of pieces meeting at each end of every piece (ends closer than eps are one node)."""
     n = len(pieces)
-    pts = np.concatenate([pieces[:, :2], pieces[:, 2:]])
-    pairs = cKDTree(pts).query_pairs(eps, output_type="ndarray")
-    adj = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(2 * n, 2 * n))
-    _, label = connected_components(adj, directed=False)
+    label = _point_clusters(np.concatenate([pieces[:, :2], pieces[:, 2:]]), eps)
     deg = np.bincount(label)[label]
     return np.column_stack([deg[:n], deg[n:]])
 
@@ -756,13 +761,7 @@ def _noded(segments: Segments, tol: float) -> tuple[Segments, NDArray[np.intp], 
         pieces.append(np.concatenate([p[:-1], p[1:]], axis=1))
     pieces = np.concatenate(pieces)
     pts = np.concatenate([pieces[:, :2], pieces[:, 2:]])
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    pairs = cKDTree(pts).query_pairs(max(tol, 0.0), output_type="ndarray")
-    adj = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(pts), len(pts)))
-    _, label = connected_components(adj, directed=False)
+    label = _point_clusters(pts, tol)
     count = np.bincount(label)
     xy = np.column_stack([np.bincount(label, pts[:, k]) / count for k in (0, 1)])
     k = len(pieces)
