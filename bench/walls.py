@@ -24,12 +24,11 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(REPO), str(REPO / "tests")]  # the room generator lives with the tests
-
-from rooms import furniture_slice, make_room, sample_room, truth_walls  # noqa: E402
+sys.path.insert(0, str(REPO))  # the room generator lives with the tests (tests/rooms.py)
 
 from tasks.evaluate import evaluate_walls  # noqa: E402
 from tasks.walls import WallsConfig, model_walls  # noqa: E402
+from tests.rooms import furniture_slice, make_room, sample_room, truth_walls  # noqa: E402
 
 ROOMS = ("square10", "rectangle", "l_shape", "wall70", "alcove_column")
 

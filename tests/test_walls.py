@@ -8,7 +8,6 @@ import math
 
 import numpy as np
 import pytest
-from rooms import KINDS, furniture_slice, make_room, sample_room, truth_walls
 
 from tasks.cloud import DegenerateInputError
 from tasks.evaluate import evaluate_walls
@@ -25,6 +24,7 @@ from tasks.walls import (
     same_walls,
     skeleton,
 )
+from tests.rooms import KINDS, furniture_slice, make_room, sample_room, truth_walls
 
 CFG = WallsConfig()
 
