@@ -2,10 +2,11 @@
 
     python bench/walls.py [--seeds 3] [--grid 0.01]
 
-Wall-clock time and the process's CPU time are both printed: on a machine shared with other work the
-CPU time is the fair figure for "one core". Rooms come from tests/rooms.py (Kinect v1-like and TLS-like noise, a door, a window, a tall cabinet and
+Rooms come from tests/rooms.py (Kinect v1-like and TLS-like noise, a door, a window, a tall cabinet and
 a plant); the 10 m x 10 m room at a 1 cm grid is the issue's timing target (<= 2 s on one core). The
-slice is cut at 1.5-2.5 m above the floor, as the preprocess stage does.
+slice is cut at 1.5-2.5 m above the floor, as the preprocess stage does. Wall-clock time and the
+process's CPU time are both printed: on a machine shared with other work the CPU time is the fair
+figure for "one core".
 """
 
 from __future__ import annotations
