@@ -434,14 +434,12 @@ def _topology(hough, lcfg: LinesConfig, cfg: WallsConfig, grid: _Grid, share, lo
 
     conn = connect_detailed(refined, lcfg, support_fn)
     walls, origin = _drop_short_stubs(conn.segments, conn.origin, cfg.min_wall_length_m)
-    polygon, inside = _room_polygon(walls, grid.size)
-    # walls outside the room (seen through doors and windows) are not the room's inner faces
-    walls, origin = walls[inside], origin[inside]
+    polygon, walls, origin, outside = _room_polygon(walls, origin, grid.size)
     hung = _hung_from_ceiling(walls, polygon, low_share)
     if hung.any():
         walls, origin = walls[~hung], origin[~hung]
-        polygon, _ = _room_polygon(walls, grid.size)
-    return merged, conn, walls, origin, polygon, int((~inside).sum()), hung
+        polygon, walls, origin, _ = _room_polygon(walls, origin, grid.size)
+    return merged, conn, walls, origin, polygon, outside, hung
 
 
 def _hung_from_ceiling(walls: NDArray, polygon: Any, low_share) -> NDArray[np.bool_]:
@@ -486,24 +484,42 @@ def _drop_short_stubs(walls: NDArray, origin: NDArray, min_length_m: float) -> t
     return walls[~drop], origin[~drop]
 
 
-def _room_polygon(walls: NDArray, tol_m: float) -> tuple[Any, NDArray[np.bool_]]:
+def _room_polygon(walls: NDArray, origin: NDArray, tol_m: float) -> tuple[Any, NDArray, NDArray, int]:
     """The room: the largest face the walls enclose, provided the walls on or inside its outline hold most
-    of the wall length (else it is a column or a cupboard, not the room: None). Also which walls lie on
-    or inside it (all of them when there is no room)."""
-    everything = np.ones(len(walls), dtype=bool)
+    of the wall length (else it is a column or a cupboard, not the room: None). With a room, the walls are
+    clipped to its outline (a wall seen through a door, or a wall line running on past the room's
+    corner, is not one of its inner faces). Returns (room, walls, origin, walls dropped)."""
     polys = room_polygons(walls) if len(walls) >= 3 else []
     if not polys:
-        return None, everything
+        return None, walls, origin, 0
     import shapely
     from shapely.geometry import Polygon
 
-    shell = Polygon(polys[0].exterior).buffer(tol_m)
-    mid = 0.5 * (walls[:, :2] + walls[:, 2:])
-    inside = shapely.contains_xy(shell, mid[:, 0], mid[:, 1])
+    shell = Polygon(polys[0].exterior).buffer(tol_m, join_style="mitre")
+    lines = shapely.linestrings(walls.reshape(-1, 2, 2))
+    inner = shapely.intersection(lines, shell)
     L = lengths(walls)
-    if L[inside].sum() < 0.5 * L.sum():
-        return None, everything
-    return polys[0], inside
+    kept_len = shapely.length(inner)
+    if kept_len.sum() < 0.5 * L.sum():
+        return None, walls, origin, 0
+    room = polys[0]
+    corners = np.concatenate([np.asarray(r.coords) for r in [room.exterior, *room.interiors]])
+    out, out_origin = [], []
+    for wall, geom, o in zip(walls, inner, origin, strict=True):
+        parts = [g for g in shapely.get_parts(geom) if g.geom_type == "LineString" and g.length > tol_m]
+        if not parts:
+            continue
+        c = np.asarray(max(parts, key=lambda g: g.length).coords)[[0, -1]]
+        for k in (0, 1):
+            # a cut end (the wall ran on past the room's corner) goes to that corner exactly
+            if min(np.hypot(*(c[k] - wall[:2])), np.hypot(*(c[k] - wall[2:]))) > 1e-9:
+                d = np.hypot(*(corners - c[k]).T)
+                if d.min() <= 2 * tol_m:
+                    c[k] = corners[int(np.argmin(d))]
+        out.append([*c[0], *c[1]])
+        out_origin.append(o)
+    kept = np.array(out, dtype=np.float64).reshape(-1, 4)
+    return polys[0], kept, np.array(out_origin, dtype=origin.dtype), len(walls) - len(kept)
 
 
 def same_walls(a: NDArray, b: NDArray, tol_m: float) -> bool:
