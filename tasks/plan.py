@@ -53,8 +53,11 @@ class PlanConfig:
     """Hue range (degrees, wrapping) of red symbols (fire equipment)."""
     blue_hue_deg: tuple[float, float] = (200.0, 260.0)
     """Hue range (degrees) of blue symbols (mandatory / information signs). Cyan (180°) is not a symbol."""
-    symbol_grow_m: float = 0.03
+    symbol_grow_m: float = 0.06
     """Symbol masks are grown by this to swallow their anti-aliased rims."""
+    pen_colour_share: float = 0.5
+    """A symbol colour covering more than this share of all dark pixels is the drawing's line colour
+    (one-colour CAD renderings) and is kept."""
     symbol_hole_m: float = 0.12
     """White details narrower than this inside a symbol (pictograms) are part of the symbol."""
     max_outline_width_m: float = 0.5
@@ -64,7 +67,7 @@ class PlanConfig:
     """Ink thinner than this (text strokes, hatching, furniture, dimension lines) is removed by opening."""
     text_max_size_m: float = 0.35
     """Connected components whose bounding box is smaller than this (letters, dots) are text."""
-    drop_outside_shell: bool = True
+    drop_outside_shell: bool = False
     """Drop wall-like strokes outside the bounding box of the largest wall component (legend, title)."""
     bridge_max_m: float = 2.0
     """Longest wall stretch hidden under a symbol that is bridged (only across symbol pixels)."""
@@ -74,7 +77,12 @@ class PlanConfig:
     """Gap closed along a skeleton line by the Hough transform."""
     lines: lines.LinesConfig = field(
         default_factory=lambda: lines.LinesConfig(
-            angle_tol_deg=3.0, offset_tol_m=0.06, max_gap_m=0.3, extend_m=0.4, min_overlap=0.5
+            explained_variance=0.9995,
+            angle_tol_deg=2.0,
+            offset_tol_m=0.06,
+            max_gap_m=0.3,
+            extend_m=0.4,
+            min_overlap=0.5,
         )
     )
     """Shared line clustering / regularization / connection settings (metres; scaled to pixels)."""
@@ -92,7 +100,9 @@ class PlanConfig:
     """Largest plausible plan extent; a larger one means the scale is wrong."""
     min_walls: int = 3
     """Fewer walls than this means the image holds no floor plan."""
-    min_wall_coverage: float = 0.6
+    min_wall_length_diagonals: float = 0.5
+    """The walls must add up to at least this many image diagonals, else it is no plan."""
+    min_wall_coverage: float = 0.4
     """Share of the cleaned wall raster that the vector walls must explain, else it is no plan."""
 
 
@@ -115,7 +125,8 @@ class PlanScale:
 
     def __post_init__(self) -> None:
         given = [
-            v is not None for v in (self.m_per_px, self.known_distance, self.outline_length_m, self.outline_size_m)
+            v is not None
+            for v in (self.m_per_px, self.known_distance, self.outline_length_m, self.outline_size_m)
         ]
         if sum(given) != 1:
             raise ValueError(
@@ -128,7 +139,9 @@ class PlanScale:
         if self.known_distance is not None:
             x0, y0, x1, y1, d = self.known_distance
             if not (d > 0 and math.hypot(x1 - x0, y1 - y0) > 0):
-                raise ValueError(f"known_distance needs two distinct points and a positive distance, got {self.known_distance}")
+                raise ValueError(
+                    f"known_distance needs two distinct points and a positive distance, got {self.known_distance}"
+                )
         if self.outline_length_m is not None and not self.outline_length_m > 0:
             raise ValueError(f"outline_length_m must be positive, got {self.outline_length_m}")
         if self.corners_px is not None and np.asarray(self.corners_px).shape != (4, 2):
@@ -167,7 +180,9 @@ def _min_pool(image: NDArray[np.uint8], f: int) -> NDArray[np.uint8]:
     """Reduce by factor f keeping the darkest value of every f x f block, so 1 px lines survive."""
     if f <= 1:
         return image
-    return cv2.erode(image, np.ones((f, f), np.uint8), anchor=(0, 0))[::f, ::f][: image.shape[0] // f, : image.shape[1] // f]
+    return cv2.erode(image, np.ones((f, f), np.uint8), anchor=(0, 0))[::f, ::f][
+        : image.shape[0] // f, : image.shape[1] // f
+    ]
 
 
 def enhance(image: NDArray[np.uint8], tile_px: int, cfg: PlanConfig) -> NDArray[np.uint8]:
@@ -197,6 +212,11 @@ def symbol_mask(image: NDArray[np.uint8], cfg: PlanConfig) -> dict[str, NDArray[
     }
 
 
+def _close(mask: NDArray[np.uint8], kernel: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """Closing with paper (0) outside the image: the default border would join strokes to the edge."""
+    return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+
+
 def _fill_outline_walls(ink: NDArray[np.bool_], max_width_px: float) -> NDArray[np.bool_]:
     """Fill the space between facing ink lines closer than max_width_px (outline-drawn walls, CAD style)
     with horizontal and vertical closings. A disc or diagonal closing would also round every room
@@ -205,33 +225,39 @@ def _fill_outline_walls(ink: NDArray[np.bool_], max_width_px: float) -> NDArray[
     if L < 3:
         return ink
     i8 = ink.astype(np.uint8)
-    h = cv2.morphologyEx(i8, cv2.MORPH_CLOSE, np.ones((1, L), np.uint8))
-    v = cv2.morphologyEx(i8, cv2.MORPH_CLOSE, np.ones((L, 1), np.uint8))
+    h = _close(i8, np.ones((1, L), np.uint8))
+    v = _close(i8, np.ones((L, 1), np.uint8))
     return (h | v).astype(bool)
 
 
 def _remove_small_components(mask: NDArray[np.bool_], max_size_px: float) -> tuple[NDArray, NDArray]:
     """Drop components whose bounding box fits in max_size_px; returns (mask, (T, 2) centres of them)."""
-    n, lab, stats, cents = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    _n, lab, stats, cents = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     small = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) < max_size_px
     small[0] = False
     return mask & ~small[lab], cents[small]
 
 
 def _inside_shell(walls: NDArray[np.bool_]) -> NDArray[np.bool_]:
-    """Keep the wall components whose centre lies within the bounding box of the largest one (the
-    building shell): legend frames, title blocks and north arrows beside the building go."""
+    """Keep the wall components whose centre lies within the building: the union of the bounding boxes
+    of the big components (diagonal at least half the largest one's). Legend frames, title blocks and
+    north arrows beside the building go; free-standing walls inside it stay."""
     n, lab, stats, cents = cv2.connectedComponentsWithStats(walls.astype(np.uint8), connectivity=8)
     if n <= 2:
         return walls
-    big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_WIDTH] * stats[1:, cv2.CC_STAT_HEIGHT]))
-    x, y, w, h = stats[big, :4]
-    inside = (cents[:, 0] >= x) & (cents[:, 0] <= x + w) & (cents[:, 1] >= y) & (cents[:, 1] <= y + h)
+    diag = np.hypot(stats[1:, cv2.CC_STAT_WIDTH], stats[1:, cv2.CC_STAT_HEIGHT])
+    big = 1 + np.flatnonzero(diag >= 0.5 * diag.max())
+    x0, y0 = stats[big, 0].min(), stats[big, 1].min()
+    x1 = (stats[big, 0] + stats[big, 2]).max()
+    y1 = (stats[big, 1] + stats[big, 3]).max()
+    inside = (cents[:, 0] >= x0) & (cents[:, 0] <= x1) & (cents[:, 1] >= y0) & (cents[:, 1] <= y1)
     inside[0] = False
     return inside[lab]
 
 
-def _bridge_symbols(walls: NDArray[np.bool_], symbols: NDArray[np.bool_], length_px: int, run_px: int) -> NDArray:
+def _bridge_symbols(
+    walls: NDArray[np.bool_], symbols: NDArray[np.bool_], length_px: int, run_px: int
+) -> NDArray:
     """Restore wall pixels hidden under symbols. Walls running along a direction (their runs along it are
     longer than run_px, more than any wall thickness) are closed along that direction with gaps up to
     length_px, and the closing is accepted on symbol pixels only: door gaps (paper) stay open, and a
@@ -244,7 +270,7 @@ def _bridge_symbols(walls: NDArray[np.bool_], symbols: NDArray[np.bool_], length
     out = walls.copy()
     for run, gap in (((1, R), (1, L)), ((R, 1), (L, 1))):
         along = cv2.morphologyEx(w8, cv2.MORPH_OPEN, np.ones(run, np.uint8))
-        out |= cv2.morphologyEx(along, cv2.MORPH_CLOSE, np.ones(gap, np.uint8)).astype(bool) & symbols
+        out |= _close(along, np.ones(gap, np.uint8)).astype(bool) & symbols
     return out
 
 
@@ -384,7 +410,7 @@ def _rectify(
     margin = 0.05 * max(w, h)
     dst = np.float32([[margin, margin], [margin + w, margin], [margin + w, margin + h], [margin, margin + h]])
     H = cv2.getPerspectiveTransform(c, dst)
-    size = (int(round(w + 2 * margin)), int(round(h + 2 * margin)))
+    size = (round(w + 2 * margin), round(h + 2 * margin))
     return cv2.warpPerspective(image, H, size, flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255)), s
 
 
@@ -394,7 +420,7 @@ def _outline_scale(image: NDArray[np.uint8], length_m: float, cfg: PlanConfig) -
     img = enhance(image, max(image.shape[:2]) // 4, cfg)
     dark = (255 - img.min(axis=2)).astype(np.uint8)
     _, ink = cv2.threshold(dark, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-    ink = cv2.morphologyEx(ink, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
+    ink = _close(ink, np.ones((5, 5), np.uint8))
     contours, _ = cv2.findContours(ink, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     h, w = ink.shape
     inner = []
@@ -428,7 +454,9 @@ def parse_plan(
     timings: dict[str, float] = {}
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8 or min(img.shape[:2]) < 16:
-        raise ValueError(f"{name}: expected a non-empty (H, W, 3) uint8 RGB image, got {img.shape} {img.dtype}")
+        raise ValueError(
+            f"{name}: expected a non-empty (H, W, 3) uint8 RGB image, got {img.shape} {img.dtype}"
+        )
     if int(img.max()) - int(img.min()) < 16:
         raise ValueError(f"{name}: the image is blank (no contrast), no floor plan in it")
     s_rect = None
@@ -458,16 +486,24 @@ def parse_plan(
     t = time.perf_counter()
     img = enhance(img, int(cfg.clahe_tile_m * px), cfg)
     syms = symbol_mask(img, cfg)
-    grow = max(1, int(round(cfg.symbol_grow_m * px)))
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
-    sym_any = cv2.dilate((syms["green"] | syms["red"] | syms["blue"]).astype(np.uint8), kernel)
-    # white pictograms inside a sign belong to the sign
-    hole = max(3, int(round(cfg.symbol_hole_m * px)) | 1)
-    sym_any = cv2.morphologyEx(sym_any, cv2.MORPH_CLOSE, np.ones((hole, hole), np.uint8)).astype(bool)
     darkness = (255 - img.min(axis=2)).astype(np.uint8)
     thr, _ = cv2.threshold(darkness, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     thr = float(np.clip(thr, *cfg.ink_threshold_bounds))
-    ink = (darkness > thr) & ~sym_any
+    dark = darkness > thr
+    n_dark = max(int(dark.sum()), 1)
+    # a colour carrying most of the line work is the drawing's pen (a one-colour CAD rendering), not symbols
+    pen = [c for c, m in syms.items() if (m & dark).sum() > cfg.pen_colour_share * n_dark]
+    sym_union = np.zeros(dark.shape, bool)
+    for c, m in syms.items():
+        if c not in pen:
+            sym_union |= m
+    grow = max(1, round(cfg.symbol_grow_m * px))
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
+    sym_any = cv2.dilate(sym_union.astype(np.uint8), kernel)
+    # white pictograms inside a sign belong to the sign
+    hole = max(3, round(cfg.symbol_hole_m * px) | 1)
+    sym_any = _close(sym_any, np.ones((hole, hole), np.uint8)).astype(bool)
+    ink = dark & ~sym_any
     timings["clean_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -475,11 +511,13 @@ def parse_plan(
     # strokes (hatching, furniture, dimension lines) are opened away
     ink, text_px = _remove_small_components(ink, cfg.text_max_size_m * px)
     ink = _fill_outline_walls(ink, cfg.max_outline_width_m * px)
-    k = max(1, int(round(cfg.min_wall_thickness_m * px))) | 1  # odd: an even kernel shifts by a pixel
+    k = max(1, round(cfg.min_wall_thickness_m * px)) | 1  # odd: an even kernel shifts by a pixel
     walls_r = cv2.morphologyEx(ink.astype(np.uint8), cv2.MORPH_OPEN, np.ones((k, k), np.uint8)).astype(bool)
     walls_r, more_text = _remove_small_components(walls_r, cfg.text_max_size_m * px)
     text_px = np.concatenate([text_px, more_text])
-    walls_r = _bridge_symbols(walls_r, sym_any, int(cfg.bridge_max_m * px), int(cfg.max_outline_width_m * px) + 2)
+    walls_r = _bridge_symbols(
+        walls_r, sym_any, int(cfg.bridge_max_m * px), int(cfg.max_outline_width_m * px) + 2
+    )
     if cfg.drop_outside_shell:
         walls_r = _inside_shell(walls_r)
     timings["binarize_s"] = time.perf_counter() - t
@@ -496,10 +534,14 @@ def parse_plan(
 
     t = time.perf_counter()
     skel = skeletonize(walls_r).astype(np.uint8) * 255
-    min_len = max(3, int(round(cfg.hough_min_length_m * px)))
+    min_len = max(3, round(cfg.hough_min_length_m * px))
     hough = cv2.HoughLinesP(
-        skel, 1, np.pi / 720, max(3, min_len // 2), minLineLength=min_len,
-        maxLineGap=max(1, int(round(cfg.hough_max_gap_m * px))),
+        skel,
+        1,
+        np.pi / 720,
+        max(3, min_len // 2),
+        minLineLength=min_len,
+        maxLineGap=max(1, round(cfg.hough_max_gap_m * px)),
     )
     raw = hough.reshape(-1, 4).astype(np.float64) if hough is not None else np.zeros((0, 4))
     timings["skeleton_s"] = time.perf_counter() - t
@@ -527,7 +569,11 @@ def parse_plan(
         segs, _ = lines.connect(segs, lcfg, support_fn)
     max_t = cfg.max_outline_width_m * px
     thick = np.array([_thickness_px(sg, mask_f, max_t)[0] for sg in segs])
-    keep = (lines.lengths(segs) >= cfg.min_wall_length_ratio * thick) & (thick > 0) if len(segs) else np.zeros(0, bool)
+    keep = (
+        (lines.lengths(segs) >= cfg.min_wall_length_ratio * thick) & (thick > 0)
+        if len(segs)
+        else np.zeros(0, bool)
+    )
     segs, thick = segs[keep], thick[keep]
     # skeletons stop half a thickness short of a free wall end: prolong free ends to the wall face
     for i, e in _free_ends(segs, 1.0):
@@ -540,10 +586,16 @@ def parse_plan(
     timings["vectorize_s"] = time.perf_counter() - t
     if len(segs) < cfg.min_walls:
         raise ValueError(f"{name}: only {len(segs)} straight walls found, no floor plan in it")
+    total_px = float(lines.lengths(segs).sum())
+    if total_px < cfg.min_wall_length_diagonals * math.hypot(*walls_r.shape):
+        raise ValueError(
+            f"{name}: the straight walls add up to only {total_px * sp:.3g} m in a "
+            f"{math.hypot(*walls_r.shape) * sp:.3g} m wide image, no floor plan in it"
+        )
     rendered = np.zeros(walls_r.shape, np.uint8)
     for sg, th in zip(segs, thick, strict=True):
         p0, p1 = np.round(sg[:2]).astype(int), np.round(sg[2:]).astype(int)
-        cv2.line(rendered, tuple(int(v) for v in p0), tuple(int(v) for v in p1), 1, max(1, int(round(th)) + 2))
+        cv2.line(rendered, tuple(int(v) for v in p0), tuple(int(v) for v in p1), 1, max(1, round(th) + 2))
     coverage = float((rendered.astype(bool) & walls_r).sum() / ink_area)
     if coverage < cfg.min_wall_coverage:
         raise ValueError(
@@ -554,23 +606,31 @@ def parse_plan(
     doors = _find_doors(segs, thick, {"door_min": cfg.door_min_m * px, "door_max": cfg.door_max_m * px})
     closed = walls_r.astype(np.uint8)
     for sg, th in zip(segs, thick, strict=True):
-        cv2.line(closed, tuple(int(v) for v in np.round(sg[:2])), tuple(int(v) for v in np.round(sg[2:])), 1, max(1, int(round(th))))
+        cv2.line(
+            closed,
+            tuple(int(v) for v in np.round(sg[:2])),
+            tuple(int(v) for v in np.round(sg[2:])),
+            1,
+            max(1, round(th)),
+        )
     for dr in doors:
-        cv2.line(closed, tuple(int(v) for v in np.round(dr[:2])), tuple(int(v) for v in np.round(dr[2:])), 1, 3)
+        cv2.line(
+            closed, tuple(int(v) for v in np.round(dr[:2])), tuple(int(v) for v in np.round(dr[2:])), 1, 3
+        )
     n, lab, stats, _ = cv2.connectedComponentsWithStats((1 - closed).astype(np.uint8), connectivity=4)
     border = set(np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])).tolist())
     rooms_px: list[Polygon] = []
     for c in range(1, n):
         if c in border or stats[c, cv2.CC_STAT_AREA] * sp * sp < cfg.min_room_area_m2:
             continue
-        comp = (lab[stats[c, 1] : stats[c, 1] + stats[c, 3], stats[c, 0] : stats[c, 0] + stats[c, 2]] == c)
+        comp = lab[stats[c, 1] : stats[c, 1] + stats[c, 3], stats[c, 0] : stats[c, 0] + stats[c, 2]] == c
         cs, _ = cv2.findContours(comp.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         cont = max(cs, key=cv2.contourArea)
         cont = cv2.approxPolyDP(cont, 1.0, True).reshape(-1, 2).astype(np.float64)
         if len(cont) < 3:
             continue
         # pixel centres -> pixel edges: the component's outline lies half a pixel outside its centres
-        poly = Polygon(cont + [stats[c, 0], stats[c, 1]]).buffer(0.5, join_style="mitre")
+        poly = Polygon(cont + np.array([stats[c, 0], stats[c, 1]])).buffer(0.5, join_style="mitre")
         if poly.is_valid and poly.area * sp * sp >= cfg.min_room_area_m2:
             rooms_px.append(poly)
     rooms_m: list[tuple[Polygon, str | None]] = []
@@ -592,15 +652,16 @@ def parse_plan(
         "working_m_per_px": sp,
         "downsample_factor": f,
         "ink_threshold": thr,
-        "symbol_pixels": {k2: int(v.sum()) for k2, v in syms.items()},
-        "text_components": int(len(text_px)),
+        "symbol_pixels": {k2: int(v.sum()) for k2, v in syms.items() if k2 not in pen},
+        "pen_colours": pen,
+        "text_components": len(text_px),
         "text_positions_m": _to_metres(np.asarray(text_px).reshape(-1, 2), f, s).tolist(),
-        "hough_segments": int(len(raw)),
-        "walls": int(len(segs)),
+        "hough_segments": len(raw),
+        "walls": len(segs),
         "wall_length_m": float(lines.lengths(segs).sum() * sp) if len(segs) else 0.0,
         "wall_coverage": coverage,
         "rooms": len(rooms_m),
-        "doors": int(len(doors)),
+        "doors": len(doors),
         "timings": timings,
     }
     return ParsedPlan(
@@ -614,19 +675,76 @@ def parse_plan(
     )
 
 
-def _preview(walls_r: NDArray, segs: NDArray, thick: NDArray, rooms_px: list[Polygon], doors: NDArray) -> NDArray[np.uint8]:
+def _preview(
+    walls_r: NDArray, segs: NDArray, thick: NDArray, rooms_px: list[Polygon], doors: NDArray
+) -> NDArray[np.uint8]:
     out = np.full((*walls_r.shape, 3), 255, np.uint8)
-    palette = np.array([[255, 224, 178], [200, 230, 201], [187, 222, 251], [248, 187, 208], [225, 190, 231], [255, 249, 196]], np.uint8)
+    palette = np.array(
+        [
+            [255, 224, 178],
+            [200, 230, 201],
+            [187, 222, 251],
+            [248, 187, 208],
+            [225, 190, 231],
+            [255, 249, 196],
+        ],
+        np.uint8,
+    )
     for n, poly in enumerate(rooms_px):
         pts = np.round(np.asarray(poly.exterior.coords)).astype(np.int32)
         cv2.fillPoly(out, [pts], tuple(int(v) for v in palette[n % len(palette)]))
     out[walls_r] = (120, 120, 120)
-    lw = max(1, int(round(min(walls_r.shape) / 800)))
+    lw = max(1, round(min(walls_r.shape) / 800))
     for sg in segs:
-        cv2.line(out, tuple(int(v) for v in np.round(sg[:2])), tuple(int(v) for v in np.round(sg[2:])), (220, 0, 0), lw)
+        cv2.line(
+            out,
+            tuple(int(v) for v in np.round(sg[:2])),
+            tuple(int(v) for v in np.round(sg[2:])),
+            (220, 0, 0),
+            lw,
+        )
     for dr in doors:
-        cv2.line(out, tuple(int(v) for v in np.round(dr[:2])), tuple(int(v) for v in np.round(dr[2:])), (0, 160, 0), lw + 1)
+        cv2.line(
+            out,
+            tuple(int(v) for v in np.round(dr[:2])),
+            tuple(int(v) for v in np.round(dr[2:])),
+            (0, 160, 0),
+            lw + 1,
+        )
     return out
+
+
+def rectangle_centrelines(rects: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Centrelines (K, 4) of wall rectangles given as (K, 4, 2) corners in order: the segment joining the
+    midpoints of the two short sides (how CAD data such as MLSTRUCT-FP store walls)."""
+    p = np.asarray(rects, dtype=np.float64).reshape(-1, 4, 2)
+    e01 = np.hypot(*(p[:, 1] - p[:, 0]).T)
+    e12 = np.hypot(*(p[:, 2] - p[:, 1]).T)
+    long01 = (e01 >= e12)[:, None]
+    a = np.where(long01, (p[:, 0] + p[:, 3]) / 2, (p[:, 0] + p[:, 1]) / 2)
+    b = np.where(long01, (p[:, 1] + p[:, 2]) / 2, (p[:, 2] + p[:, 3]) / 2)
+    return np.concatenate([a, b], axis=1)
+
+
+def thickness_errors(
+    pred: NDArray, pred_thickness: NDArray, truth: NDArray, truth_thickness: NDArray, tol_m: float = 0.10
+) -> NDArray[np.float64]:
+    """|thickness error| (m) of every truth wall against the predicted wall nearest to most of its
+    samples within tol_m (walls (M, 4) / (K, 4) metres); truth walls without a match are left out."""
+    pts, owner = lines.sample_segments(lines.as_segments(truth), 0.02)
+    pred = lines.as_segments(pred)
+    if len(pred) == 0 or len(pts) == 0:
+        return np.zeros(0)
+    d = lines.point_segment_distances(pts, pred)
+    near, dmin = d.argmin(axis=1), d.min(axis=1)
+    errs = []
+    for k in range(len(truth)):
+        m = (owner == k) & (dmin <= tol_m)
+        if m.sum() < 3:
+            continue
+        j = np.bincount(near[m]).argmax()
+        errs.append(abs(float(pred_thickness[j]) - float(truth_thickness[k])))
+    return np.array(errs)
 
 
 def load_plan_image(path: Path) -> NDArray[np.uint8]:
@@ -641,7 +759,9 @@ def load_plan_image(path: Path) -> NDArray[np.uint8]:
         return cv2.cvtColor(raw, cv2.COLOR_GRAY2RGB)
     if raw.shape[2] == 4:
         a3 = cv2.merge([raw[..., 3]] * 3)
-        bgr = cv2.add(cv2.multiply(np.ascontiguousarray(raw[..., :3]), a3, scale=1 / 255), cv2.bitwise_not(a3))
+        bgr = cv2.add(
+            cv2.multiply(np.ascontiguousarray(raw[..., :3]), a3, scale=1 / 255), cv2.bitwise_not(a3)
+        )
         return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
     return cv2.cvtColor(raw[..., :3], cv2.COLOR_BGR2RGB)
 

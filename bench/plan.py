@@ -1,0 +1,105 @@
+"""Plan parsing on the real MLSTRUCT-FP CAD plans: wall completeness / correctness at 0.10 m, thickness
+error and run time per plan.
+
+    .venv/bin/python -m bench.plan [--data ../shared/realdata/floorplans_mlstruct] [--floors 302,748]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import shapely
+
+from tasks.evaluate import evaluate_walls
+from tasks.plan import (
+    PlanConfig,
+    PlanScale,
+    load_plan_image,
+    parse_plan,
+    rectangle_centrelines,
+    thickness_errors,
+)
+
+DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "floorplans_mlstruct"
+
+
+def truth_walls(
+    fp: dict, floor_id: str, width_px: int, height_px: int, image: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """GT centrelines (K, 4) metres, thickness (K,) and drawn (K,) of one floor, clipped to the image.
+    `drawn`: at least half of the wall rectangle's outline has ink in `image` (some GT walls are not
+    drawn in their image)."""
+    scale = fp["floor"][floor_id]["scale"]
+    box = shapely.box(0, -height_px / scale, width_px / scale, 0)
+    ink = None
+    if image is not None:
+        ink = cv2.dilate((image.min(axis=2) < 200).astype(np.uint8), np.ones((5, 5), np.uint8))
+    segs, thick, drawn = [], [], []
+    for r in fp["rect"].values():
+        if str(r["floorID"]) != floor_id:
+            continue
+        p = np.column_stack([r["x"], r["y"]])
+        c = rectangle_centrelines(p[None])[0]
+        clipped = shapely.LineString([c[:2], c[2:]]).intersection(box)
+        if clipped.is_empty or clipped.length <= 0:
+            continue
+        c = np.asarray(clipped.coords)
+        segs.append([c[0, 0], c[0, 1], c[-1, 0], c[-1, 1]])
+        thick.append(r["thickness"])
+        ok = True
+        if ink is not None:
+            outline = np.zeros(ink.shape, np.uint8)
+            cv2.polylines(outline, [np.round(p * [scale, -scale]).astype(np.int32)], True, 1, 1)
+            ok = bool((outline & ink).sum() >= 0.5 * max(int(outline.sum()), 1))
+        drawn.append(ok)
+    return np.array(segs).reshape(-1, 4), np.array(thick), np.array(drawn, dtype=bool)
+
+
+def run_floor(data: Path, fp: dict, floor_id: str, cfg: PlanConfig) -> dict:
+    info = fp["floor"][floor_id]
+    t0 = time.perf_counter()
+    image = load_plan_image(data / info["image"])
+    t_load = time.perf_counter() - t0
+    try:
+        res = parse_plan(image, PlanScale(m_per_px=1.0 / info["scale"]), cfg, name=info["image"])
+    except ValueError as exc:
+        return {"floor": floor_id, "error": str(exc)}
+    truth, truth_t, drawn = truth_walls(fp, floor_id, image.shape[1], image.shape[0], image)
+    ev = evaluate_walls(res.walls, truth, tol_m=0.10)
+    ev_drawn = evaluate_walls(res.walls, truth[drawn], tol_m=0.10)
+    te = thickness_errors(res.walls, res.thickness_m, truth, truth_t, tol_m=0.10)
+    return {
+        "floor": floor_id,
+        "completeness": ev["completeness"],
+        "correctness": ev["correctness"],
+        "completeness_drawn": ev_drawn["completeness"],
+        "walls_not_drawn": int((~drawn).sum()),
+        "accuracy_median_m": ev["accuracy_median_m"],
+        "thickness_median_err_m": float(np.median(te)) if len(te) else float("nan"),
+        "walls_pred": len(res.walls),
+        "walls_truth": len(truth),
+        "working_m_per_px": res.metrics["working_m_per_px"],
+        "load_s": t_load,
+        "parse_s": res.metrics["timings"]["total_s"],
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    ap.add_argument("--floors", default="")
+    args = ap.parse_args()
+    fp = json.loads((args.data / "fp.json").read_text())
+    floors = args.floors.split(",") if args.floors else sorted(fp["floor"])
+    cfg = PlanConfig()
+    for fid in floors:
+        print(json.dumps(run_floor(args.data, fp, fid, cfg)), flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,292 @@
+"""Plan parsing (thesis 4.2.3): evacuation-style plans drawn here with known walls, rooms and scale, bad
+inputs, the CLI-level writer, and the real MLSTRUCT-FP CAD plans."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+import shapely
+from shapely.geometry import box
+
+from tasks.artefacts import read_table
+from tasks.evaluate import evaluate_walls
+from tasks.plan import (
+    PlanConfig,
+    PlanScale,
+    load_plan_image,
+    parse_plan,
+    rectangle_centrelines,
+    run_parse_plan,
+    thickness_errors,
+)
+
+S = 0.02  # metres per pixel of the drawn plans
+OUTER_T, INNER_T = 0.30, 0.14  # odd pixel widths (15, 7) keep the centreline on a pixel centre
+
+
+def _px(v: float) -> int:
+    return round(v / S)
+
+
+# Walls (page metres: X right, Y down) with door gaps; the plan frame is (X, -Y).
+OUTER = [(2, 2, 18, 2), (18, 2, 18, 12), (18, 12, 2, 12), (2, 12, 2, 2)]
+DOORS = {6: [(4.0, 4.9), (9.0, 9.9), (14.0, 14.9)], 8: [(5.0, 5.9), (13.0, 13.9)]}
+PARTITIONS = [(7, 2, 7, 6), (12, 2, 12, 6), (10, 8, 10, 12)]
+
+
+def _corridor_walls() -> list[tuple[float, float, float, float]]:
+    out = []
+    for y, gaps in DOORS.items():
+        x = 2.0
+        for a, b in gaps:
+            out.append((x, y, a, y))
+            x = b
+        out.append((x, y, 18.0, y))
+    return out
+
+
+def _truth() -> tuple[np.ndarray, list]:
+    segs = np.array(OUTER + _corridor_walls() + PARTITIONS, dtype=np.float64)
+    segs[:, 1::2] *= -1
+    o, i = OUTER_T / 2, INNER_T / 2
+    rects = [  # inner faces, page metres (x0, y0, x1, y1)
+        (2 + o, 2 + o, 7 - i, 6 - i),
+        (7 + i, 2 + o, 12 - i, 6 - i),
+        (12 + i, 2 + o, 18 - o, 6 - i),
+        (2 + o, 6 + i, 18 - o, 8 - i),
+        (2 + o, 8 + i, 10 - i, 12 - o),
+        (10 + i, 8 + i, 18 - o, 12 - o),
+    ]
+    rooms = [box(x0, -y1, x1, -y0) for x0, y0, x1, y1 in rects]
+    return segs, rooms
+
+
+def _wall(img: np.ndarray, seg: tuple[float, float, float, float], t: float, extend: bool = False) -> None:
+    """A filled wall of thickness t around the centreline; `extend` squares the ends (outer corners)."""
+    h = (_px(t) - 1) // 2
+    e = h if extend else 0
+    u0, v0, u1, v1 = (_px(c) for c in seg)
+    u0, u1 = sorted((u0, u1))
+    v0, v1 = sorted((v0, v1))
+    if v0 == v1:
+        cv2.rectangle(img, (u0 - e, v0 - h), (u1 + e, v1 + h), (0, 0, 0), -1)
+    else:
+        cv2.rectangle(img, (u0 - h, v0 - e), (u1 + h, v1 + e), (0, 0, 0), -1)
+
+
+def evacuation_plan(with_symbols: bool = True) -> np.ndarray:
+    """A 22 m x 14 m evacuation-style plan at 2 cm/px: black generalized walls, door gaps, green escape
+    arrows and exit signs, red fire equipment, a blue sign, room labels, title, legend, you-are-here."""
+    img = np.full((_px(14), _px(22), 3), 255, np.uint8)
+    for seg in OUTER:
+        _wall(img, seg, OUTER_T, extend=True)
+    for seg in _corridor_walls() + PARTITIONS:
+        _wall(img, seg, INNER_T)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    for text, (x, y) in {
+        "101": (4, 4),
+        "102": (9, 4),
+        "103": (14.5, 4),
+        "104": (5.5, 10),
+        "105": (13.5, 10),
+        "Flur": (9.5, 7.1),
+    }.items():
+        cv2.putText(img, text, (_px(x), _px(y)), font, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(
+        img, "Flucht- und Rettungsplan  EG", (_px(2), _px(1.2)), font, 0.55, (0, 0, 0), 1, cv2.LINE_AA
+    )
+    if not with_symbols:
+        return img
+    green, red, blue = (0, 150, 70), (220, 20, 30), (20, 60, 200)
+    for x in (4.0, 8.0, 12.0):  # escape-route arrows along the corridor
+        pts = np.array(
+            [
+                [x, 6.85],
+                [x + 0.8, 6.85],
+                [x + 0.8, 6.65],
+                [x + 1.2, 7.0],
+                [x + 0.8, 7.35],
+                [x + 0.8, 7.15],
+                [x, 7.15],
+            ]
+        )
+        cv2.fillPoly(img, [np.round(pts / S).astype(np.int32)], green, cv2.LINE_AA)
+    # exit sign hung over the east outer wall, fire extinguisher over a corridor wall: gaps to bridge
+    cv2.rectangle(img, (_px(17.6), _px(6.6)), (_px(18.4), _px(7.4)), green, -1)
+    cv2.arrowedLine(img, (_px(17.7), _px(7.0)), (_px(18.3), _px(7.0)), (255, 255, 255), 3)
+    cv2.circle(img, (_px(6.2), _px(6.0)), _px(0.25), red, -1, cv2.LINE_AA)
+    cv2.rectangle(img, (_px(11.8), _px(9.0)), (_px(12.4), _px(9.6)), red, -1)
+    cv2.rectangle(img, (_px(15.5), _px(10.5)), (_px(16.1), _px(11.1)), blue, -1)
+    # you-are-here mark
+    cv2.circle(img, (_px(10.5), _px(7.0)), _px(0.2), red, -1, cv2.LINE_AA)
+    cv2.putText(img, "Sie sind hier", (_px(10.8), _px(7.6)), font, 0.45, red, 1, cv2.LINE_AA)
+    # legend box east of the building
+    cv2.rectangle(img, (_px(18.8), _px(2)), (_px(21.6), _px(7)), (0, 0, 0), 1)
+    for k, (c, text) in enumerate([(green, "Notausgang"), (red, "Feuerloescher"), (blue, "Info")]):
+        y = 2.8 + k * 1.2
+        cv2.rectangle(img, (_px(19.0), _px(y - 0.25)), (_px(19.5), _px(y + 0.25)), c, -1)
+        cv2.putText(img, text, (_px(19.7), _px(y + 0.1)), font, 0.35, (0, 0, 0), 1, cv2.LINE_AA)
+    return img
+
+
+def _room_scores(pred: list, truth: list) -> tuple[list[float], list[float]]:
+    def iou(a, b):
+        return a.intersection(b).area / a.union(b).area
+
+    per_truth = [max((iou(t, p) for p, _ in pred), default=0.0) for t in truth]
+    per_pred = [max((iou(t, p) for t in truth), default=0.0) for p, _ in pred]
+    return per_truth, per_pred
+
+
+def test_evacuation_plan_walls_rooms_doors():
+    truth, truth_rooms = _truth()
+    res = parse_plan(evacuation_plan(), PlanScale(m_per_px=S), PlanConfig())
+    ev = evaluate_walls(res.walls, truth, tol_m=0.05)
+    assert ev["completeness"] >= 0.95, ev
+    assert ev["correctness"] >= 0.95, ev
+    assert ev["accuracy_median_m"] <= 0.02
+    per_truth, per_pred = _room_scores(res.rooms, truth_rooms)
+    assert min(per_truth) >= 0.95, per_truth
+    assert min(per_pred) >= 0.95, per_pred
+    assert len(res.rooms) == len(truth_rooms)
+    # every door gap found, nothing else
+    assert len(res.doors) == 5
+    mids = (res.doors[:, :2] + res.doors[:, 2:]) / 2
+    expected = [((a + b) / 2, -y) for y, gaps in DOORS.items() for a, b in gaps]
+    for ex in expected:
+        assert np.min(np.hypot(*(mids - ex).T)) < 0.1
+    # thickness of outer and inner walls
+    outer = np.abs(res.walls[:, 0] - res.walls[:, 2]) + np.abs(res.walls[:, 1] - res.walls[:, 3]) > 9.5
+    assert np.median(res.thickness_m[outer]) == pytest.approx(OUTER_T, abs=0.02)
+    assert np.median(res.thickness_m[~outer]) == pytest.approx(INNER_T, abs=0.02)
+    m = res.metrics
+    assert (
+        m["symbol_pixels"]["green"] > 0 and m["symbol_pixels"]["red"] > 0 and m["symbol_pixels"]["blue"] > 0
+    )
+    assert m["text_components"] > 10
+    assert res.preview.shape == (*evacuation_plan().shape[:2], 3)
+
+
+def test_symbols_are_bridged():
+    """Walls hidden under symbols come back; a plan without symbols gives the same walls."""
+    truth, _ = _truth()
+    clean = parse_plan(evacuation_plan(with_symbols=False), PlanScale(m_per_px=S), PlanConfig())
+    dirty = parse_plan(evacuation_plan(), PlanScale(m_per_px=S), PlanConfig())
+    e_clean = evaluate_walls(clean.walls, truth, tol_m=0.05)
+    e_dirty = evaluate_walls(dirty.walls, truth, tol_m=0.05)
+    assert e_dirty["completeness"] >= e_clean["completeness"] - 0.01
+    # the east wall under the exit sign is one wall, not two
+    east = np.abs(dirty.walls[:, 0] - 18) + np.abs(dirty.walls[:, 2] - 18) < 0.1
+    assert east.sum() == 1
+
+
+def test_known_distance_scale_and_labels():
+    image = evacuation_plan()
+    # the south outer wall's centreline is 16 m long: pixels (100, 600) -> (900, 600)
+    scale = PlanScale(known_distance=(_px(2), _px(12), _px(18), _px(12), 16.0))
+    labels = {"101": (4.5, -4.0), "Flur": (10.0, -7.0)}
+    res = parse_plan(image, scale, PlanConfig(), labels=labels)
+    assert res.m_per_px == pytest.approx(S)
+    named = {label: poly for poly, label in res.rooms if label}
+    assert set(named) == {"101", "Flur"}
+    assert named["101"].area == pytest.approx((7 - 0.07 - 2.15) * (6 - 0.07 - 2.15), rel=0.02)
+
+
+def test_photographed_plan_rectified():
+    """A photo: perspective, uneven light, colour cast and noise; rectified from the four outline corners."""
+    image = evacuation_plan()
+    h, w = image.shape[:2]
+    src = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
+    dst = np.float32([[60, 40], [w + 10, 0], [w + 40, h + 60], [20, h + 20]])
+    H = cv2.getPerspectiveTransform(src, dst)
+    photo = cv2.warpPerspective(image, H, (w + 80, h + 80), borderValue=(200, 200, 200)).astype(np.float32)
+    _yy, xx = np.mgrid[0 : photo.shape[0], 0 : photo.shape[1]]
+    light = 0.75 + 0.2 * xx / photo.shape[1]
+    photo = photo * light[..., None] * np.array([1.0, 0.95, 0.85])
+    photo += np.random.default_rng(0).normal(0, 4, photo.shape)
+    photo = np.clip(photo, 0, 255).astype(np.uint8)
+    # outline corners (outer faces) in the photo and the outline's size in metres
+    o = OUTER_T / 2
+    page = np.float32([[2 - o, 2 - o], [18 + o, 2 - o], [18 + o, 12 + o], [2 - o, 12 + o]]) / S
+    corners = cv2.perspectiveTransform(page[None], H)[0]
+    scale = PlanScale(outline_size_m=(16 + 2 * o, 10 + 2 * o), corners_px=tuple(map(tuple, corners)))
+    res = parse_plan(photo, scale, PlanConfig())
+    # compare in a frame anchored at the west and north outer wall centrelines (the long walls)
+    truth, truth_rooms = _truth()
+    long = res.walls[np.hypot(res.walls[:, 2] - res.walls[:, 0], res.walls[:, 3] - res.walls[:, 1]) > 9]
+    ends = long.reshape(-1, 2)
+    shift = np.array([2 - ends[:, 0].min(), -2 - ends[:, 1].max()])
+    walls = res.walls + np.tile(shift, 2)
+    ev = evaluate_walls(walls, truth, tol_m=0.05)
+    assert ev["completeness"] >= 0.95, ev
+    assert ev["correctness"] >= 0.95, ev
+    rooms = [(shapely.affinity.translate(p, *shift), lab) for p, lab in res.rooms]
+    per_truth, per_pred = _room_scores(rooms, truth_rooms)
+    assert min(per_truth) >= 0.95, per_truth
+    assert min(per_pred) >= 0.95, per_pred
+
+
+def test_bad_inputs(tmp_path):
+    plan = evacuation_plan()
+    with pytest.raises(ValueError, match="blank"):
+        parse_plan(
+            np.full((400, 600, 3), 255, np.uint8), PlanScale(m_per_px=S), PlanConfig(), name="white.png"
+        )
+    with pytest.raises(ValueError, match="wrong"):
+        parse_plan(plan, PlanScale(m_per_px=1.0), PlanConfig(), name="plan.png")  # 1100 m across
+    with pytest.raises(ValueError, match="wrong"):
+        parse_plan(plan, PlanScale(m_per_px=1e-4), PlanConfig(), name="plan.png")  # 11 cm across
+    rng = np.random.default_rng(1)
+    photo = cv2.GaussianBlur(rng.integers(0, 256, (700, 1000, 3)).astype(np.uint8), (0, 0), 6)
+    photo = cv2.normalize(photo, None, 0, 255, cv2.NORM_MINMAX)
+    with pytest.raises(ValueError, match="no floor plan"):
+        parse_plan(photo, PlanScale(m_per_px=S), PlanConfig(), name="holiday.jpg")
+    with pytest.raises(ValueError, match="exactly one"):
+        PlanScale(m_per_px=S, outline_length_m=52.0)
+    empty = tmp_path / "empty.png"
+    empty.write_bytes(b"")
+    with pytest.raises(ValueError, match=r"empty\.png"):
+        run_parse_plan(empty, tmp_path / "out", PlanScale(m_per_px=S))
+
+
+def test_outline_length_scale():
+    o = OUTER_T / 2
+    perimeter = 2 * ((16 + 2 * o) + (10 + 2 * o))
+    res = parse_plan(evacuation_plan(), PlanScale(outline_length_m=perimeter), PlanConfig())
+    assert res.m_per_px == pytest.approx(S, rel=0.01)
+
+
+def test_run_parse_plan_writes_outputs(tmp_path):
+    path = tmp_path / "plan.png"
+    cv2.imwrite(str(path), cv2.cvtColor(evacuation_plan(), cv2.COLOR_RGB2BGR))
+    out = tmp_path / "out"
+    metrics = run_parse_plan(path, out, PlanScale(m_per_px=S))
+    table = read_table(out / "plan_walls.parquet")
+    assert table.column_names == ["x0", "y0", "x1", "y1", "thickness_m"]
+    assert table.num_rows == metrics["walls"]
+    rooms = json.loads((out / "rooms.geojson").read_text())
+    polys = [f for f in rooms["features"] if f["geometry"]["type"] == "Polygon"]
+    assert len(polys) == 6 and all(f["properties"]["room_id"] for f in polys)
+    assert load_plan_image(out / "plan_preview.png").shape == (700, 1100, 3)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("floor", ["748", "966"])
+def test_real_cad_plans(realdata, floor):
+    """Real CAD plans (MLSTRUCT-FP, walls drawn as outlines): centrelines from the wall rectangles."""
+    data = realdata("floorplans_mlstruct")
+    fp = json.loads((data / "fp.json").read_text())
+    info = fp["floor"][floor]
+    image = load_plan_image(data / info["image"])
+    rects = [np.column_stack([r["x"], r["y"]]) for r in fp["rect"].values() if str(r["floorID"]) == floor]
+    truth = rectangle_centrelines(np.array(rects))
+    truth_t = np.array([r["thickness"] for r in fp["rect"].values() if str(r["floorID"]) == floor])
+    res = parse_plan(image, PlanScale(m_per_px=1.0 / info["scale"]), PlanConfig(), name=info["image"])
+    ev = evaluate_walls(res.walls, truth, tol_m=0.10)
+    assert ev["completeness"] >= 0.90, ev
+    assert ev["correctness"] >= 0.90, ev
+    assert np.median(thickness_errors(res.walls, res.thickness_m, truth, truth_t, tol_m=0.10)) <= 0.02
+    assert res.metrics["timings"]["total_s"] < 30
