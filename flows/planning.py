@@ -122,16 +122,11 @@ def execute(call: StageCall, upstream: dict[str, StageResult]) -> StageResult:
 
 
 def room_stages(capture: Path) -> list[str]:
-    """The stages that apply to a room, given what its capture is."""
+    """The stages that apply to a room, given what its capture is: a registered cloud needs no
+    registration."""
     if capture_kind(capture) == "cloud":
-        stages = ["ingest", "preprocess"]
-    elif "register" in STAGES:
-        stages = ["ingest", "register", "preprocess"]
-    else:  # frames, but no registration stage: nothing beyond ingest
-        stages = ["ingest"]
-    if "preprocess" in stages and "walls" in STAGES:
-        stages.append("walls")
-    return stages
+        return ["ingest", "preprocess", "walls"]
+    return ["ingest", "register", "preprocess", "walls"]
 
 
 UPSTREAM: dict[str, tuple[str, ...]] = {

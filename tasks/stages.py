@@ -6,7 +6,9 @@ lives in flows/; formats live in tasks/artefacts.py; the computation lives in ea
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import importlib
 import inspect
 import sys
 from collections.abc import Callable
@@ -57,11 +59,16 @@ class Stage:
 
     def code_version(self) -> str:
         """Hash of the computation's module source and of this stage's shell, so editing either
-        invalidates the stage (and, through content hashes, what depends on it)."""
-        module = sys.modules.get(self.module) or __import__(self.module, fromlist=["_"])
-        digest = hashlib.sha256(Path(inspect.getfile(module)).read_bytes())
-        digest.update(inspect.getsource(self.run).encode())
-        return digest.hexdigest()[:16]
+        invalidates the stage (and, through content hashes, what depends on it). Read once per process."""
+        return _code_version(self.module, self.run)
+
+
+@functools.cache
+def _code_version(module_name: str, run: Callable[..., Any]) -> str:
+    module = sys.modules.get(module_name) or importlib.import_module(module_name)
+    digest = hashlib.sha256(Path(inspect.getfile(module)).read_bytes())
+    digest.update(inspect.getsource(run).encode())
+    return digest.hexdigest()[:16]
 
 
 # ------------------------------------------------------------------------------------------------ shells
