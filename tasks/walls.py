@@ -506,20 +506,22 @@ def _room_polygon(walls: NDArray, origin: NDArray, tol_m: float) -> tuple[Any, N
     corners = np.concatenate([np.asarray(r.coords) for r in [room.exterior, *room.interiors]])
     out, out_origin = [], []
     for wall, geom, o in zip(walls, inner, origin, strict=True):
-        parts = [g for g in shapely.get_parts(geom) if g.geom_type == "LineString" and g.length > tol_m]
-        if not parts:
-            continue
-        c = np.asarray(max(parts, key=lambda g: g.length).coords)[[0, -1]]
-        for k in (0, 1):
-            # a cut end (the wall ran on past the room's corner) goes to that corner exactly
-            if min(np.hypot(*(c[k] - wall[:2])), np.hypot(*(c[k] - wall[2:]))) > 1e-9:
-                d = np.hypot(*(corners - c[k]).T)
-                if d.min() <= 2 * tol_m:
-                    c[k] = corners[int(np.argmin(d))]
-        out.append([*c[0], *c[1]])
-        out_origin.append(o)
+        for part in shapely.get_parts(geom):
+            # a wall cut in two (its span behind a partition stub lies outside the room) gives two walls
+            if part.geom_type != "LineString" or part.length <= tol_m:
+                continue
+            c = np.asarray(part.coords)[[0, -1]]
+            for k in (0, 1):
+                # a cut end (the wall ran on past the room's corner) goes to that corner exactly
+                if min(np.hypot(*(c[k] - wall[:2])), np.hypot(*(c[k] - wall[2:]))) > 1e-9:
+                    d = np.hypot(*(corners - c[k]).T)
+                    if d.min() <= 2 * tol_m:
+                        c[k] = corners[int(np.argmin(d))]
+            out.append([*c[0], *c[1]])
+            out_origin.append(o)
     kept = np.array(out, dtype=np.float64).reshape(-1, 4)
-    return polys[0], kept, np.array(out_origin, dtype=origin.dtype), len(walls) - len(kept)
+    dropped = int((kept_len <= tol_m).sum())
+    return polys[0], kept, np.array(out_origin, dtype=origin.dtype), dropped
 
 
 def same_walls(a: NDArray, b: NDArray, tol_m: float) -> bool:
@@ -536,31 +538,31 @@ def same_walls(a: NDArray, b: NDArray, tol_m: float) -> bool:
 
 
 def choose_alpha(cands: list[_Candidate], tol_m: float) -> tuple[int, str]:
-    """Index of the chosen candidate and the reason (see the module docstring)."""
+    """Index of the chosen candidate and the reason (see the module docstring). Models closed as they
+    are rank before models closed only by bridging wider gaps, which rank before unclosed ones."""
     n = len(cands)
-    for need_closed in (True, False):
+    tiers = (
+        ("closed", lambda c: c.closed and c.counts.get("bridged_gap_m") is None),
+        ("closed (after bridging wider gaps)", lambda c: c.closed),
+        ("unclosed (no candidate gave a closed wall graph)", lambda c: True),
+    )
+    for what, ok in tiers:
         best, best_len = -1, 0
         i = 0
         while i < n:
-            if (need_closed and not cands[i].closed) or len(cands[i].walls) == 0:
+            if not ok(cands[i]) or len(cands[i].walls) == 0:
                 i += 1
                 continue
             j = i
-            while (
-                j + 1 < n
-                and (cands[j + 1].closed or not need_closed)
-                and same_walls(cands[j].walls, cands[j + 1].walls, tol_m)
-            ):
+            while j + 1 < n and ok(cands[j + 1]) and same_walls(cands[j].walls, cands[j + 1].walls, tol_m):
                 j += 1
             if j - i + 1 > best_len:
                 best, best_len = i, j - i + 1
             i = j + 1
         if best >= 0:
-            a = cands[best].alpha
-            what = "closed" if need_closed else "unclosed (no candidate gave a closed wall graph)"
             return best, (
-                f"smallest alpha of the longest run of equal {what} models: alpha={a} stable over "
-                f"{best_len} of {n} candidates"
+                f"smallest alpha of the longest run of equal {what} models: alpha={cands[best].alpha} stable "
+                f"over {best_len} of {n} candidates"
             )
     return 0, "no candidate found any wall"
 
