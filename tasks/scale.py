@@ -59,7 +59,7 @@ class ScaleConfig:
     that fit agrees with, of the depth measured along the ray to the SfM depth of the point in that frame.
     The similarity's λ also follows the lateral extent of the points, which inherits any error of the
     colour intrinsics and of the depth/colour registration (on 7-Scenes, whose colour intrinsics are only
-    nominal, "helmert" was 1.9 % off the given poses and "range" 0.2 %)."""
+    nominal, "helmert" was 1.9 % off the given poses and "range" 0.3 %)."""
     scale_formula: Literal["asymmetric", "symmetric"] = "asymmetric"
     """Horn's scale formula (see `horn_similarity`): asymmetric = errors in the depth points."""
     combine: Literal["median", "trimmed_mean"] = "median"

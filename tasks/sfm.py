@@ -106,6 +106,43 @@ class SfmResult:
         """Whether enough frames were registered for the reconstruction to be used."""
         return self.registered_fraction >= cfg.min_registered_fraction
 
+    def poses_columns(self) -> dict[str, NDArray]:
+        """The SfM poses as table columns: name, qw qx qy qz tx ty tz (cam_from_world, SfM units; NaN when
+        unregistered), registered, reprojection_error_px."""
+        from scipy.spatial.transform import Rotation
+
+        n = len(self.names)
+        q, t = np.full((n, 4), np.nan), np.full((n, 3), np.nan)
+        err = np.full(n, np.nan)
+        for k, name in enumerate(self.names):
+            T = self.cam_from_world.get(name)
+            if T is None:
+                continue
+            x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+            q[k] = (w, x, y, z) if w >= 0 else (-w, -x, -y, -z)
+            t[k] = T[:3, 3]
+            err[k] = self.reprojection_error_px.get(name, np.nan)
+        return {
+            "name": np.array(self.names, dtype=object),
+            **{c: q[:, i] for i, c in enumerate(("qw", "qx", "qy", "qz"))},
+            **{c: t[:, i] for i, c in enumerate(("tx", "ty", "tz"))},
+            "registered": self.registered.copy(),
+            "reprojection_error_px": err,
+        }
+
+    def observation_columns(self) -> dict[str, NDArray]:
+        """Every observation of a sparse point as table columns: name, point (row of `points`), u v (px)."""
+        names, rows, uvs = [], [], []
+        for name in self.names:
+            if name in self.observations:
+                r, uv = self.observations[name]
+                names += [name] * len(r)
+                rows.append(r)
+                uvs.append(uv)
+        rows_a = np.concatenate(rows) if rows else np.zeros(0, np.intp)
+        uv_a = np.concatenate(uvs) if uvs else np.zeros((0, 2))
+        return {"name": np.array(names, dtype=object), "point": rows_a, "u": uv_a[:, 0], "v": uv_a[:, 1]}
+
     def camera_centres(self) -> dict[str, NDArray[np.float64]]:
         """name -> (3,) camera centre in the SfM frame."""
         return {n: -T[:3, :3].T @ T[:3, 3] for n, T in self.cam_from_world.items()}

@@ -159,7 +159,9 @@ def run_register(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
     track = read_track(Path(ctx.raw_inputs["track"])) if "track" in ctx.raw_inputs else None
     plan_walls = None
     if "plan" in ctx.upstream:
-        plan_walls, _ = art.read_segments(ctx.upstream["plan"].file("plan_walls.parquet"))
+        segments, table = art.read_segments(ctx.upstream["plan"].file("plan_walls.parquet"))
+        # (M, 5): the thickness lets the fallback put frames against the walls' faces, not centrelines
+        plan_walls = np.column_stack([segments, table["thickness_m"].to_numpy()])
     with tempfile.TemporaryDirectory(prefix="sfm-") as workdir:
         result = register_room(
             ingest.file("frames.parquet"),

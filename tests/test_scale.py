@@ -1,0 +1,248 @@
+"""Scale stage (eq 3.16, appendix A): Horn's closed form, RANSAC, per-frame scales from depth, metric poses.
+
+The scene helpers here (an analytic box room rendered to depth and textured colour) are also used by
+test_sfm.py and test_register.py."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from tasks.calibration import Calibration, CameraModel, RigidPose
+from tasks.cloud import DegenerateInputError
+from tasks.scale import (
+    ROOM_FROM_CAMERA_AXES,
+    FrameScale,
+    ScaleConfig,
+    apply_scale,
+    combine_scales,
+    estimate_scale,
+    horn_similarity,
+    ransac_similarity,
+)
+from tasks.sfm import SfmResult
+
+BOX = (np.array([-2.0, -1.5, 0.0]), np.array([2.5, 2.0, 2.6]))
+"""A room 4.5 x 3.5 x 2.6 m, floor at z = 0 (world frame, z up)."""
+
+
+def small_camera(w: int = 160, h: int = 120, f: float = 140.0) -> CameraModel:
+    return CameraModel(np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1]]), np.zeros(5), (w, h))
+
+
+def look_pose(position: NDArray, yaw_rad: float, pitch_rad: float = -0.15) -> NDArray[np.float64]:
+    """Camera → world (4, 4) for an OpenCV camera at `position` looking along `yaw_rad` (from +x, CCW),
+    tilted down by -pitch."""
+    fwd = np.array(
+        [np.cos(yaw_rad) * np.cos(pitch_rad), np.sin(yaw_rad) * np.cos(pitch_rad), np.sin(pitch_rad)]
+    )
+    right = np.cross(fwd, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([right, down, fwd], axis=1)
+    T[:3, 3] = position
+    return T
+
+
+def box_hits(camera: CameraModel, world_from_cam: NDArray, box=BOX) -> tuple[NDArray, NDArray]:
+    """Ray cast of the inside of the box: ((H, W) depth z in the camera frame, (H, W, 3) world points)."""
+    w, h = camera.size
+    rays = camera.pixel_rays()
+    d_cam = np.concatenate([rays, np.ones((h, w, 1))], axis=2)
+    R, o = world_from_cam[:3, :3], world_from_cam[:3, 3]
+    d = d_cam @ R.T
+    lo, hi = box
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (lo - o) / d
+        t2 = (hi - o) / d
+    t = np.where(t1 > 0, t1, np.inf)
+    t = np.minimum(t, np.where(t2 > 0, t2, np.inf)).min(axis=2)
+    pts = o + d * t[..., None]
+    return t, pts  # d_cam has z = 1, so the ray parameter is the depth z
+
+
+def texture(pts: NDArray) -> NDArray[np.uint8]:
+    """A deterministic, feature-rich colour for world points: blobs of value noise on every wall."""
+    p = pts * 7.0
+    v = (
+        np.sin(p[..., 0] * 1.7 + np.cos(p[..., 1] * 2.3)) * np.cos(p[..., 2] * 2.1 + np.sin(p[..., 0] * 1.3))
+        + 0.5 * np.sin(p[..., 1] * 5.1 + p[..., 2] * 3.7) * np.cos(p[..., 0] * 4.3 - p[..., 2] * 1.9)
+        + 0.3 * np.sin((p[..., 0] + p[..., 1] + p[..., 2]) * 9.7)
+    )
+    g = np.clip(128 + 80 * v, 0, 255)
+    return np.stack([g, np.clip(255 - g * 0.7, 0, 255), np.clip(g * 0.5 + 60, 0, 255)], axis=-1).astype(
+        np.uint8
+    )
+
+
+def render(camera: CameraModel, world_from_cam: NDArray, box=BOX) -> tuple[NDArray, NDArray]:
+    """((H, W) depth in metres, (H, W, 3) RGB) of the textured box from one camera."""
+    z, pts = box_hits(camera, world_from_cam, box)
+    return z, texture(pts)
+
+
+def scene_points(n: int, rng: np.random.Generator, box=BOX) -> NDArray[np.float64]:
+    """n points spread over the box's six faces."""
+    lo, hi = box
+    p = rng.uniform(lo, hi, size=(n, 3))
+    face = rng.integers(0, 6, n)
+    axis, side = face // 2, face % 2
+    p[np.arange(n), axis] = np.where(side == 0, lo[axis], hi[axis])
+    return p
+
+
+def fake_sfm(
+    poses_world_from_cam: list[NDArray],
+    camera: CameraModel,
+    sfm_from_world_scale: float,
+    rng: np.random.Generator,
+    noise_px: float = 0.3,
+) -> tuple[SfmResult, NDArray]:
+    """A canned SfM reconstruction: world points seen by the cameras, expressed in an SfM frame that is
+    the world rotated, shifted and scaled by `sfm_from_world_scale`, with noisy observations."""
+    R_s = Rotation.from_rotvec([0.3, -0.2, 0.9]).as_matrix()
+    t_s = np.array([0.5, -1.0, 2.0])
+    world = scene_points(4000, rng)
+    sfm_pts = sfm_from_world_scale * world @ R_s.T + t_s
+    names = [f"{k:06d}.png" for k in range(len(poses_world_from_cam))]
+    cam_from_world, obs, errs = {}, {}, {}
+    w, h = camera.size
+    for name, T in zip(names, poses_world_from_cam, strict=True):
+        cam_from_w = np.linalg.inv(T)
+        pc = world @ cam_from_w[:3, :3].T + cam_from_w[:3, 3]
+        uv, z = camera.project(pc)
+        # visible: in front, inside, and not hidden (the box is convex, so only the in-box test matters)
+        ok = (z > 0.2) & (uv[:, 0] >= 1) & (uv[:, 0] <= w - 2) & (uv[:, 1] >= 1) & (uv[:, 1] <= h - 2)
+        rows = np.flatnonzero(ok)
+        obs[name] = (rows, uv[rows] + rng.normal(0, noise_px, (len(rows), 2)))
+        errs[name] = noise_px
+        # the same camera in the SfM frame: X_cam = R_c (X_world) + t_c, X_world = R_s^T (X_sfm - t_s) / k
+        k = sfm_from_world_scale
+        Tc = np.eye(4)
+        Tc[:3, :3] = cam_from_w[:3, :3] @ R_s.T
+        Tc[:3, 3] = k * cam_from_w[:3, 3] - Tc[:3, :3] @ t_s
+        cam_from_world[name] = Tc  # in SfM units: X_cam_sfm = k * X_cam
+    result = SfmResult(
+        names,
+        np.ones(len(names), bool),
+        cam_from_world,
+        errs,
+        sfm_pts,
+        np.arange(len(sfm_pts), dtype=np.int64),
+        obs,
+        camera,
+    )
+    return result, world
+
+
+def ring_poses(n: int) -> list[NDArray]:
+    return [
+        look_pose(np.array([0.3, 0.2, 1.4]) + 0.4 * np.array([np.cos(a), np.sin(a), 0]), a + 0.3)
+        for a in np.linspace(0, 2 * np.pi, n, endpoint=False)
+    ]
+
+
+# ------------------------------------------------------------------------------------------------ tests
+
+
+def test_horn_similarity_recovers_a_known_similarity(rng):
+    local = rng.normal(size=(40, 3))
+    R = Rotation.from_rotvec([0.4, -1.1, 2.0]).as_matrix()
+    obj = 3.7 * local @ R.T + np.array([1.0, -2.0, 0.5])
+    lam, R_est, T = horn_similarity(local, obj)
+    assert lam == pytest.approx(3.7, rel=1e-12)
+    assert np.allclose(R_est, R, atol=1e-10)
+    assert np.allclose(T, [1.0, -2.0, 0.5], atol=1e-10)
+    assert np.linalg.det(R_est) == pytest.approx(1.0)
+
+
+def test_horn_similarity_rejects_degenerate_sets():
+    with pytest.raises(DegenerateInputError, match="coincide"):
+        horn_similarity(np.ones((5, 3)), np.zeros((5, 3)))
+    with pytest.raises(DegenerateInputError, match="N>=3"):
+        horn_similarity(np.zeros((2, 3)), np.zeros((2, 3)))
+
+
+def test_ransac_similarity_ignores_outliers(rng):
+    local = rng.uniform(-1, 1, size=(60, 3))
+    R = Rotation.from_rotvec([0.1, 0.2, -0.3]).as_matrix()
+    obj = 0.42 * local @ R.T + np.array([0.0, 0.0, 2.0])
+    obj[:15] += rng.uniform(-0.5, 0.5, size=(15, 3))
+    lam, _R, _T, inl = ransac_similarity(local, obj, ScaleConfig(), rng)
+    assert lam == pytest.approx(0.42, rel=1e-9)
+    assert inl[15:].all() and inl[:15].sum() <= 1
+
+
+def test_combine_scales_is_robust_and_reports_spread():
+    frames = [
+        FrameScale(f"f{k}", s, np.eye(3), np.zeros(3), 50, 40, 0.01)
+        for k, s in enumerate([2.0, 2.02, 1.98, 2.01, 9.0])
+    ]
+    rep = combine_scales(frames, ScaleConfig())
+    assert rep.scale == pytest.approx(2.01)
+    assert 0 < rep.mad < 0.05 and rep.iqr == pytest.approx(0.02)
+    assert len(rep.frames_used) == 5
+    with pytest.raises(DegenerateInputError, match="at least 1 frames"):
+        combine_scales([], ScaleConfig())
+
+
+def test_estimate_scale_and_apply_scale_on_a_rendered_box_room(rng):
+    cam = small_camera()
+    poses = ring_poses(8)
+    sfm, _world = fake_sfm(poses, cam, 0.37, rng)
+    # depth camera 2.5 cm beside the colour camera, as on a Kinect
+    ir_to_rgb = RigidPose(Rotation.from_rotvec([0.0, 0.01, 0.0]).as_matrix(), np.array([-0.025, 0.0, 0.0]))
+    calib = Calibration(cam, cam, ir_to_rgb)
+    rgb_from_ir = ir_to_rgb.matrix
+    depth_frames = []
+    for name, T_rgb in zip(sfm.names, poses, strict=True):
+        world_from_ir = T_rgb @ rgb_from_ir
+        z, _ = box_hits(cam, world_from_ir)
+        depth_frames.append((name, z))
+    report = estimate_scale(sfm, iter(depth_frames), calib, ScaleConfig())
+    # metres per SfM unit = 1 / 0.37
+    assert report.scale == pytest.approx(1 / 0.37, rel=0.005)
+    assert len(report.frames_used) == 8
+    assert report.relative_spread < 0.01
+    metric = apply_scale(sfm, report.scale, calib)
+    # room frame: anchored at the first depth camera, z up; distances between cameras are metric
+    first = metric[sfm.names[0]]
+    assert np.allclose(first[:3, :3], ROOM_FROM_CAMERA_AXES, atol=1e-9) and np.allclose(
+        first[:3, 3], 0, atol=1e-9
+    )
+    for k in range(1, 8):
+        truth = np.linalg.inv(poses[0] @ rgb_from_ir) @ (poses[k] @ rgb_from_ir)
+        est = np.linalg.inv(first) @ metric[sfm.names[k]]
+        assert np.linalg.norm(est[:3, 3] - truth[:3, 3]) < 0.01
+        assert np.allclose(est[:3, :3], truth[:3, :3], atol=1e-6)
+
+
+def test_estimate_scale_fails_clearly_without_depth(rng):
+    cam = small_camera()
+    sfm, _ = fake_sfm(ring_poses(4), cam, 1.0, rng)
+    empty = [(n, np.zeros((120, 160))) for n in sfm.names]
+    with pytest.raises(DegenerateInputError, match="depth-matched SfM points"):
+        estimate_scale(
+            sfm, iter(empty), Calibration(cam, cam, RigidPose(np.eye(3), np.zeros(3))), ScaleConfig()
+        )
+
+
+def test_sfm_result_tables(rng):
+    cam = small_camera()
+    sfm, _ = fake_sfm(ring_poses(3), cam, 1.0, rng)
+    cols = sfm.poses_columns()
+    assert list(cols["name"]) == sfm.names and cols["registered"].all()
+    R = Rotation.from_quat(np.column_stack([cols["qx"], cols["qy"], cols["qz"], cols["qw"]])).as_matrix()
+    assert np.allclose(R[1], sfm.cam_from_world[sfm.names[1]][:3, :3])
+    obs = sfm.observation_columns()
+    assert len(obs["point"]) == sum(len(r) for r, _ in sfm.observations.values())
+
+
+def test_apply_scale_rejects_bad_scale(rng):
+    cam = small_camera()
+    sfm, _ = fake_sfm(ring_poses(3), cam, 1.0, rng)
+    with pytest.raises(DegenerateInputError, match="positive"):
+        apply_scale(sfm, float("nan"), Calibration(cam))
