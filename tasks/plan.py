@@ -13,6 +13,7 @@ given) to metres (u * s, -v * s): x to the right, y up.
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from dataclasses import dataclass, field
@@ -23,6 +24,7 @@ import cv2
 import numpy as np
 import shapely
 from numpy.typing import NDArray
+from scipy import ndimage
 from shapely.geometry import Polygon
 from skimage.morphology import skeletonize
 
@@ -69,6 +71,11 @@ class PlanConfig:
     """Connected components whose bounding box is smaller than this (letters, dots) are text."""
     drop_outside_shell: bool = False
     """Drop wall-like strokes outside the bounding box of the largest wall component (legend, title)."""
+    legend_frame_min_m: float = 1.0
+    """Thin-line rectangles at least this wide and high that do not hold the building are legend or title
+    frames: the walls inside them (scale bars, legend symbols) are dropped. 0 disables."""
+    legend_frame_cover: float = 0.9
+    """Share of each side of a thin component's bounding box that its ink must cover to be a frame."""
     bridge_max_m: float = 2.0
     """Longest wall stretch hidden under a symbol that is bridged (only across symbol pixels)."""
     hough_min_length_m: float = 0.15
@@ -81,17 +88,23 @@ class PlanConfig:
             angle_tol_deg=2.0,
             offset_tol_m=0.06,
             max_gap_m=0.3,
-            extend_m=0.4,
+            extend_m=0.2,
             min_overlap=0.5,
         )
     )
     """Shared line clustering / regularization / connection settings (metres; scaled to pixels)."""
-    min_wall_length_ratio: float = 1.2
+    min_wall_length_ratio: float = 0.5
     """Walls shorter than this times their thickness are skeleton spurs at wall ends and corners."""
+    short_wall_length_ratio: float = 1.2
+    """Walls shorter than this times their thickness are kept only as the straight continuation of
+    another wall beyond a junction (a jamb beside a door); turned ones are skeleton spurs at corners."""
     door_min_m: float = 0.5
     """Smallest wall gap taken for a door."""
     door_max_m: float = 2.2
     """Largest wall gap taken for a door."""
+    window_ink_share: float = 0.9
+    """A wall gap whose length is covered by thin ink at least this much is a window (a thin line in the
+    wall) and becomes part of the wall; above 1 keeps every gap a door."""
     min_room_area_m2: float = 1.0
     """Free-space regions smaller than this are not rooms (shafts, wall interiors)."""
     min_extent_m: float = 2.0
@@ -102,8 +115,11 @@ class PlanConfig:
     """Fewer walls than this means the image holds no floor plan."""
     min_wall_length_diagonals: float = 0.5
     """The walls must add up to at least this many image diagonals, else it is no plan."""
-    min_wall_coverage: float = 0.4
+    min_wall_coverage: float = 0.8
     """Share of the cleaned wall raster that the vector walls must explain, else it is no plan."""
+    coverage_wall_length_ratio: float = 1.2
+    """Only walls at least this many times their thickness long explain the raster in that test: texture
+    and noise also yield short straight pieces."""
 
 
 @dataclass(frozen=True)
@@ -159,7 +175,8 @@ class ParsedPlan:
     rooms: list[tuple[Polygon, str | None]]
     """Enclosed free-space polygons with their label (None when unlabelled), largest first."""
     doors: NDArray[np.float64]
-    """(D, 4) door gaps as segments between the two wall ends (or wall end and wall)."""
+    """(D, 4) door gaps as segments between the two wall ends (or wall end and wall); gaps spanned by a
+    thin line (windows) are walls instead."""
     preview: NDArray[np.uint8]
     """(h, w, 3) RGB picture at working resolution: cleaned plan, walls, rooms, doors."""
     metrics: dict[str, Any]
@@ -255,22 +272,72 @@ def _inside_shell(walls: NDArray[np.bool_]) -> NDArray[np.bool_]:
     return inside[lab]
 
 
+def _legend_frames(dark: NDArray[np.bool_], min_side_px: float, cover: float) -> list[tuple[int, ...]]:
+    """Bounding boxes (x, y, w, h) of the ink components drawn as a rectangle frame (every side of the
+    box covered by the component's ink) at least min_side_px wide and high: legend and title frames."""
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(dark.astype(np.uint8), connectivity=8)
+    out = []
+    for k in range(1, n):
+        x, y, w, h, _a = (int(v) for v in stats[k])
+        if min(w, h) < min_side_px:
+            continue
+        comp = lab[y : y + h, x : x + w] == k
+        b = 3  # a frame line a few pixels wide, or anti-aliased
+        sides = (comp[:b].any(0), comp[-b:].any(0), comp[:, :b].any(1), comp[:, -b:].any(1))
+        if min(float(side.mean()) for side in sides) >= cover:
+            out.append((x, y, w, h))
+    return out
+
+
+def _drop_framed(walls: NDArray[np.bool_], frames: list[tuple[int, ...]]) -> NDArray[np.bool_]:
+    """Drop the wall components inside a legend frame; a frame around the largest wall component (a
+    drawing's border, or the outline of a building drawn in thin lines) holds the building and stays."""
+    if not frames:
+        return walls
+    n, lab, stats, cents = cv2.connectedComponentsWithStats(walls.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return walls
+    big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    drop = np.zeros(n, bool)
+    for x, y, w, h in frames:
+        bx, by, bw, bh = stats[big, :4]
+        if bx >= x and by >= y and bx + bw <= x + w and by + bh <= y + h:
+            continue
+        drop |= (cents[:, 0] > x) & (cents[:, 0] < x + w) & (cents[:, 1] > y) & (cents[:, 1] < y + h)
+    drop[0] = False
+    return walls & ~drop[lab]
+
+
 def _bridge_symbols(
     walls: NDArray[np.bool_], symbols: NDArray[np.bool_], length_px: int, run_px: int
 ) -> NDArray:
-    """Restore wall pixels hidden under symbols. Walls running along a direction (their runs along it are
-    longer than run_px, more than any wall thickness) are closed along that direction with gaps up to
-    length_px, and the closing is accepted on symbol pixels only: door gaps (paper) stay open, and a
-    symbol between two parallel walls (an arrow in a corridor) is not taken for a wall across them.
-    Horizontal and vertical walls only (the plans' prevailing directions; diagonal kernels are slow)."""
+    """Restore wall pixels hidden under symbols. Walls running along a direction (with the symbols, their
+    runs along it are longer than run_px, more than any wall thickness) are closed along that direction
+    with gaps up to length_px, and a gap is filled only when symbols cover all of it: door gaps (paper,
+    even with an escape arrow drawn across) stay open, and a symbol between two parallel walls (an arrow
+    in a corridor) is not taken for a wall across them. Horizontal and vertical walls only (the plans'
+    prevailing directions; diagonal kernels are slow)."""
     if length_px < 3 or not symbols.any():
         return walls
     w8 = walls.astype(np.uint8)
+    ws8 = (walls | symbols).astype(np.uint8)
     L, R = int(length_px) | 1, max(3, int(run_px) | 1)
     out = walls.copy()
-    for run, gap in (((1, R), (1, L)), ((R, 1), (L, 1))):
-        along = cv2.morphologyEx(w8, cv2.MORPH_OPEN, np.ones(run, np.uint8))
-        out |= _close(along, np.ones(gap, np.uint8)).astype(bool) & symbols
+    for axis, run, gap in ((1, (1, R), (1, L)), (0, (R, 1), (L, 1))):
+        # wall pieces between symbols are short, but with the symbols they run along the direction
+        along = cv2.morphologyEx(ws8, cv2.MORPH_OPEN, np.ones(run, np.uint8)) & w8
+        gaps = _close(along, np.ones(gap, np.uint8)).astype(bool) & ~along.astype(bool)
+        # a gap is bridged only when symbols cover all of it: an arrow drawn across a door leaves paper
+        # on both of its sides, and the door stays open
+        structure = np.zeros((3, 3), int)
+        structure[1, :] = 1
+        runs, _ = ndimage.label(gaps if axis == 1 else gaps.T, structure=structure)
+        if axis == 0:
+            runs = runs.T
+        bad = np.zeros(runs.max() + 1, bool)
+        bad[np.unique(runs[gaps & ~symbols & ~walls])] = True
+        bad[0] = True
+        out |= ~bad[runs]
     return out
 
 
@@ -329,28 +396,66 @@ def _centre_and_measure(segs: NDArray, mask_f: NDArray[np.float32], max_px: floa
         thick[i], off = _thickness_px(sg, mask_f, max_px)
         d = sg[2:] - sg[:2]
         nrm = np.array([-d[1], d[0]]) / max(float(np.hypot(*d)), 1e-9)
-        out[i] += np.tile(off * nrm, 2)
+        # thinning is biased by up to a pixel; a larger offset is another wall's ink met at a junction
+        out[i] += np.tile(float(np.clip(off, -1.5, 1.5)) * nrm, 2)
     return out, thick
 
 
-def _free_ends(segs: NDArray, tol: float) -> list[tuple[int, int]]:
+def _free_ends(segs: NDArray, tol: float, thick: NDArray | None = None) -> list[tuple[int, int]]:
+    """(segment, end) pairs of the ends farther than tol from every other segment (with `thick`, also
+    outside its ink: farther than half its thickness)."""
     if len(segs) == 0:
         return []
     ends = np.concatenate([segs[:, :2], segs[:, 2:]])
     owner = np.concatenate([np.arange(len(segs))] * 2)
     dist = lines.point_segment_distances(ends, segs)
+    if thick is not None:
+        dist -= np.maximum(np.asarray(thick)[None, :] / 2 - tol, 0.0)
     dist[np.arange(len(ends)), owner] = np.inf
     free = dist.min(axis=1) > tol if len(segs) > 1 else np.ones(len(ends), bool)
     return [(int(owner[k]), int(k >= len(segs))) for k in np.flatnonzero(free)]
 
 
-def _find_doors(segs: NDArray, thick: NDArray, cfg_px: dict[str, float]) -> NDArray[np.float64]:
+def _spur_free(segs: NDArray, keep: NDArray[np.bool_], short_px: NDArray) -> NDArray[np.bool_]:
+    """False for the short segments (length below short_px), off the plan's main axes, that are not on the
+    line of another kept segment (both ends within 1.5 px of it, directions within 2 degrees): a jamb beside a door or window
+    continues its wall, a skeleton spur at a corner turns away from both walls."""
+    out = np.ones(len(segs), bool)
+    if len(segs) == 0:
+        return out
+    ang = lines.angles(segs)
+    main = ang[int(np.argmax(lines.lengths(segs)))]
+    # along or across the longest wall: the plan's main axes, where spurs (diagonal at corners) are not
+    on_axes = np.abs(np.sin(2 * (ang - main))) < math.sin(math.radians(4.0))
+    for i in np.flatnonzero((lines.lengths(segs) < short_px) & ~on_axes):
+        others = np.flatnonzero(keep & (np.arange(len(segs)) != i))
+        turn = np.abs(np.sin(np.asarray(lines.angle_difference(ang[others], ang[i]))))
+        same = others[turn < math.sin(math.radians(2.0))]
+        a = segs[same, :2]
+        u = segs[same, 2:] - a
+        u /= np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-9)[:, None]
+        off = [np.abs(u[:, 0] * (e[1] - a[:, 1]) - u[:, 1] * (e[0] - a[:, 0])) for e in segs[i].reshape(2, 2)]
+        out[i] = bool(len(same) and (np.maximum(*off) <= 1.5).any())
+    return out
+
+
+def _jamb(p: NDArray, u: NDArray, segs: NDArray, thick: NDArray, i: int, mask_f: NDArray[np.float32]) -> bool:
+    """Whether wall ink runs on from the junction p along u past the face of the wall crossing there."""
+    d = lines.point_segment_distances(p[None], segs)[0]
+    d[i] = np.inf
+    reach = thick[int(np.argmin(d))] / 2 + 2.0
+    return bool(_sample_mask(mask_f, (p + reach * u)[None])[0] > 0.5)
+
+
+def _find_doors(
+    segs: NDArray, thick: NDArray, cfg_px: dict[str, float], mask_f: NDArray[np.float32] | None = None
+) -> NDArray[np.float64]:
     """Door gaps: a free wall end whose prolongation meets another wall (its collinear continuation or a
     crossing wall) after a gap between door_min and door_max."""
     doors: list[NDArray] = []
     used: set[tuple[int, int]] = set()
-    free = _free_ends(segs, 1.0)
-    free_set = set(free)
+    # an end inside another wall's ink is a junction the skeleton stopped short of, not a door jamb
+    free = _free_ends(segs, 1.0, thick)
     for i, e in free:
         if (i, e) in used:
             continue
@@ -363,8 +468,9 @@ def _find_doors(segs: NDArray, thick: NDArray, cfg_px: dict[str, float]) -> NDAr
             if j == i:
                 continue
             t = segs[j]
-            for ej, pt in ((0, t[:2]), (1, t[2:])):  # collinear continuation: a facing free end
-                if (j, ej) not in free_set:
+            for ej, pt in ((0, t[:2]), (1, t[2:])):
+                # collinear continuation: a facing end, free or at a corner (a door beside a T-junction)
+                if (j, ej) in used or float((t[2:] if ej == 0 else t[:2]) @ u - pt @ u) <= 0:
                     continue
                 v = pt - p
                 along = float(v @ u)
@@ -375,7 +481,9 @@ def _find_doors(segs: NDArray, thick: NDArray, cfg_px: dict[str, float]) -> NDAr
             hit = lines.line_intersection(np.concatenate([p, p + u]), t)
             if hit is not None:
                 x, s_ray, s_seg = hit
-                if 0 <= s_seg <= 1 and cfg_px["door_min"] <= s_ray <= cfg_px["door_max"]:
+                # the wall's end may stop at the face of the wall the ray runs along (a door at a corner)
+                slack = (thick[i] / 2 + 1.0) / max(float(np.hypot(*(t[2:] - t[:2]))), 1e-9)
+                if -slack <= s_seg <= 1 + slack and cfg_px["door_min"] <= s_ray <= cfg_px["door_max"]:
                     foot = x - u * thick[j] / 2  # stop at the face of the crossing wall
                     if best is None or s_ray < best[0]:
                         best = (s_ray, foot, None)
@@ -384,6 +492,35 @@ def _find_doors(segs: NDArray, thick: NDArray, cfg_px: dict[str, float]) -> NDAr
             used.add((i, e))
             if best[2] is not None:
                 used.add(best[2])
+    # a door beside two junctions (both jambs trimmed to a crossing wall) has no free end: collinear
+    # walls whose facing ends are a door width apart with nothing crossing the gap
+    ang = lines.angles(segs) if len(segs) else np.zeros(0)
+    for i, j in itertools.combinations(range(len(segs)), 2):
+        if abs(math.sin(float(lines.angle_difference(ang[i], ang[j])))) > math.sin(math.radians(2.0)):
+            continue
+        for ei, ej in itertools.product((0, 1), (0, 1)):
+            if (i, ei) in used or (j, ej) in used:
+                continue
+            p, q = segs[i].reshape(2, 2)[ei], segs[j].reshape(2, 2)[ej]
+            u = segs[i].reshape(2, 2)[ei] - segs[i].reshape(2, 2)[1 - ei]
+            u /= max(float(np.hypot(*u)), 1e-9)
+            v = q - p
+            along, lateral = float(v @ u), abs(float(v[0] * u[1] - v[1] * u[0]))
+            facing = float((segs[j].reshape(2, 2)[1 - ej] - q) @ u) > 0
+            if not (facing and cfg_px["door_min"] <= along <= cfg_px["door_max"]):
+                continue
+            if lateral >= max(thick[i], 2.0) / 2:
+                continue
+            probe = p + np.outer([0.25, 0.5, 0.75], v)
+            others = np.delete(segs, [i, j], axis=0)
+            if len(others) and lines.point_segment_distances(probe, others).min() <= 1.0:
+                continue
+            if mask_f is not None and not (
+                _jamb(p, u, segs, thick, i, mask_f) and _jamb(q, -u, segs, thick, j, mask_f)
+            ):
+                continue  # the walls turn at both ends (an alcove's mouth), no wall runs on into the gap
+            doors.append(np.concatenate([p, q]))
+            used.update({(i, ei), (j, ej)})
     return np.array(doors, dtype=np.float64).reshape(-1, 4)
 
 
@@ -520,6 +657,9 @@ def parse_plan(
     )
     if cfg.drop_outside_shell:
         walls_r = _inside_shell(walls_r)
+    if cfg.legend_frame_min_m > 0:
+        frames = _legend_frames(dark, cfg.legend_frame_min_m * px, cfg.legend_frame_cover)
+        walls_r = _drop_framed(walls_r, frames)
     timings["binarize_s"] = time.perf_counter() - t
     ink_area = int(walls_r.sum())
     if ink_area < 10:
@@ -574,6 +714,7 @@ def parse_plan(
         if len(segs)
         else np.zeros(0, bool)
     )
+    keep &= _spur_free(segs, keep, cfg.short_wall_length_ratio * thick)
     segs, thick = segs[keep], thick[keep]
     # skeletons stop half a thickness short of a free wall end: prolong free ends to the wall face
     for i, e in _free_ends(segs, 1.0):
@@ -593,7 +734,8 @@ def parse_plan(
             f"{math.hypot(*walls_r.shape) * sp:.3g} m wide image, no floor plan in it"
         )
     rendered = np.zeros(walls_r.shape, np.uint8)
-    for sg, th in zip(segs, thick, strict=True):
+    long_walls = lines.lengths(segs) >= cfg.coverage_wall_length_ratio * thick
+    for sg, th in zip(segs[long_walls], thick[long_walls], strict=True):
         p0, p1 = np.round(sg[:2]).astype(int), np.round(sg[2:]).astype(int)
         cv2.line(rendered, tuple(int(v) for v in p0), tuple(int(v) for v in p1), 1, max(1, round(th) + 2))
     coverage = float((rendered.astype(bool) & walls_r).sum() / ink_area)
@@ -603,7 +745,23 @@ def parse_plan(
         )
 
     t = time.perf_counter()
-    doors = _find_doors(segs, thick, {"door_min": cfg.door_min_m * px, "door_max": cfg.door_max_m * px})
+    doors = _find_doors(
+        segs, thick, {"door_min": cfg.door_min_m * px, "door_max": cfg.door_max_m * px}, mask_f
+    )
+    n_windows = 0
+    if len(doors) and cfg.window_ink_share <= 1.0:
+        # a gap spanned by a thin line is a window drawn in its wall: the wall goes on through it
+        thin = cv2.dilate((dark & ~sym_any).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
+        window = np.zeros(len(doors), bool)
+        for n, dr in enumerate(doors):
+            L = float(np.hypot(*(dr[2:] - dr[:2])))
+            pts = dr[:2] + np.linspace(0, 1, max(2, int(L) + 1))[:, None] * (dr[2:] - dr[:2])
+            window[n] = float((_sample_mask(thin, pts) > 0.5).mean()) >= cfg.window_ink_share
+        if window.any():
+            near = lines.point_segment_distances(doors[window][:, :2], segs).argmin(axis=1)
+            segs = np.concatenate([segs, doors[window]])
+            thick = np.concatenate([thick, thick[near]])
+            doors, n_windows = doors[~window], int(window.sum())
     closed = walls_r.astype(np.uint8)
     for sg, th in zip(segs, thick, strict=True):
         cv2.line(
@@ -611,11 +769,11 @@ def parse_plan(
             tuple(int(v) for v in np.round(sg[:2])),
             tuple(int(v) for v in np.round(sg[2:])),
             1,
-            max(1, round(th)),
+            max(1, round(th) - 2),  # inside the raster wall: closes its gaps, does not fatten it
         )
-    for dr in doors:
+    for dr in doors:  # one 8-connected pixel line separates 4-connected free space
         cv2.line(
-            closed, tuple(int(v) for v in np.round(dr[:2])), tuple(int(v) for v in np.round(dr[2:])), 1, 3
+            closed, tuple(int(v) for v in np.round(dr[:2])), tuple(int(v) for v in np.round(dr[2:])), 1, 1
         )
     n, lab, stats, _ = cv2.connectedComponentsWithStats((1 - closed).astype(np.uint8), connectivity=4)
     border = set(np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])).tolist())
@@ -662,6 +820,7 @@ def parse_plan(
         "wall_coverage": coverage,
         "rooms": len(rooms_m),
         "doors": len(doors),
+        "windows": n_windows,
         "timings": timings,
     }
     return ParsedPlan(

@@ -7,6 +7,7 @@
     rooms/<id>/capture.mcap            RGB-D rooms and the hallway (ROS 2 messages, zstd chunks)
     rooms/<id>/cloud.ply               the TLS-scanned room (registered, plan frame)
     truth/walls.parquet, walls.geojson, plan_walls.parquet, rooms.geojson, changes.parquet,
+    truth/planned_walls.parquet, planned_rooms.geojson   what plan/plan.png draws (as planned)
     truth/poses/<id>.parquet, calibration.json, track.csv, overview.png
 
 Every random draw comes from ``numpy.random.default_rng`` streams derived from (seed, purpose, room), and
@@ -44,6 +45,8 @@ from tasks.artefacts import (
 from tasks.config import load_sensor_profile
 from tasks.synth.building import Building, RoomSpec, generate_building
 from tasks.synth.plan_raster import PlanRasterConfig, render_overview, render_plan
+from tasks.synth.plan_raster import _opening_gap as opening_gap  # how the plan draws doors and walls
+from tasks.synth.plan_raster import _wall_polygon as wall_outline
 from tasks.synth.track import TrackConfig, TrackLeg, survey_track, walk_time_ns, walkable_area
 
 TRUTH_WALLS_SCHEMA = pa.schema([*SEGMENT_FIELDS, ("room_id", pa.string())])
@@ -173,8 +176,52 @@ def _track_csv(t_ns: NDArray[np.int64], xy: NDArray[np.float64]) -> bytes:
     return ("\n".join(lines) + "\n").encode()
 
 
+def planned_truth(building: Building) -> tuple[NDArray[np.float64], NDArray[np.float64], list[dict]]:
+    """What the plan raster draws: as-planned wall centrelines (W, 4) metres cut at the planned doors
+    (a door is a gap in the drawing; a window is drawn as part of its wall), their thickness (W,) m, and
+    GeoJSON features of the as-planned rooms (centreline cell minus the drawn walls, so up to the
+    middle of its door gaps; room_id and plan_room label)."""
+    doors = [op for op in building.planned_openings if op.kind == "door"]
+    segs, thick = [], []
+    for w in building.planned_walls:
+        rest = w.line
+        for op in doors:
+            if w.line.distance(Point(op.centre)) < 1e-6:
+                rest = rest.difference(
+                    shapely.geometry.LineString([(op.x0, op.y0), (op.x1, op.y1)]).buffer(
+                        1e-9, cap_style="flat"
+                    )
+                )
+        for g in getattr(rest, "geoms", [rest]):
+            if g.length > 1e-6:
+                (x0, y0), (x1, y1) = g.coords[0], g.coords[-1]
+                segs.append((round(x0, 9), round(y0, 9), round(x1, 9), round(y1, 9)))
+                thick.append(w.thickness_m)
+    # the room reaches into its door gaps up to the door's centreline, where the cell boundary runs
+    drawn = shapely.union_all([wall_outline(w) for w in building.planned_walls]).difference(
+        shapely.union_all([opening_gap(op) for op in doors])
+    )
+    features = []
+    for r in building.rooms:
+        free = r.cell.difference(drawn)
+        poly = max(getattr(free, "geoms", [free]), key=lambda g: g.area)
+        poly = shapely.set_precision(poly, 1e-9)
+        rings = [[list(c) for c in poly.exterior.coords]] + [
+            [list(c) for c in i.coords] for i in poly.interiors
+        ]
+        features.append(
+            {
+                "type": "Feature",
+                "properties": {"room_id": r.id, "plan_room": r.label},
+                "geometry": {"type": "Polygon", "coordinates": rings},
+            }
+        )
+    return np.array(segs, dtype=np.float64).reshape(-1, 4), np.array(thick, dtype=np.float64), features
+
+
 def write_truth(folder: Path, building: Building, surveyed: list[RoomSpec]) -> None:
-    """truth/walls.parquet + .geojson, plan_walls.parquet, rooms.geojson, changes.parquet (PIPELINE.md)."""
+    """truth/walls.parquet + .geojson, plan_walls.parquet, rooms.geojson, changes.parquet (PIPELINE.md),
+    planned_walls.parquet and planned_rooms.geojson (`planned_truth`)."""
     ids = {r.id for r in surveyed}
     walls = [w for w in building.truth_walls if w[4] in ids]
     write_table(
@@ -232,6 +279,19 @@ def write_truth(folder: Path, building: Building, surveyed: list[RoomSpec]) -> N
             }
         )
     write_geojson(folder / "rooms.geojson", features, crs_note="plan")
+    p_segs, p_thick, p_rooms = planned_truth(building)
+    write_table(
+        folder / "planned_walls.parquet",
+        {
+            "x0": p_segs[:, 0],
+            "y0": p_segs[:, 1],
+            "x1": p_segs[:, 2],
+            "y1": p_segs[:, 3],
+            "thickness_m": p_thick,
+        },
+        PLAN_WALLS_SCHEMA,
+    )
+    write_geojson(folder / "planned_rooms.geojson", p_rooms, crs_note="plan")
     ch = building.changes
     write_table(
         folder / "changes.parquet",
