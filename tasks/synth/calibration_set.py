@@ -8,6 +8,7 @@ both cameras through the true IR->RGB pose).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -38,7 +39,26 @@ class CalibrationSetConfig:
     square_m: float = 0.04
     """Chessboard square size (m)."""
     n_views: int = 14
-    """Number of synchronized IR + RGB chessboard views (at least 8)."""
+    """Number of synchronized IR + RGB chessboard views with the whole board in both images (at least 8)."""
+    n_rgb_edge_views: int = 8
+    """Further synchronized views with the board pushed into the RGB image's corners (each corner twice, then the
+    edge middles), where the narrower IR image mostly sees it only partly: they fill the RGB image format (thesis 3.1.2) so its distortion is
+    measured there, not extrapolated; the calibration rejects their IR images as partial."""
+    edge_distance_range_m: tuple[float, float] = (0.55, 1.15)
+    """Board distances of the edge views (m). The first round of corners takes the near half (the IR image
+    often sees those boards whole: complete pairs near the IR corners), the next the far half (smaller squares
+    come closer to the RGB corners)."""
+    edge_margin_px: float = 3.0
+    """Least gap between the image border and the board's outer squares plus `edge_white_squares` of white
+    around them in the views pushed into corners and edges (px at the rendered size)."""
+    edge_white_squares: float = 0.3
+    """White border (in squares) kept in view around the outer squares: the detector needs them whole."""
+    edge_min_square_px: float = 7.0
+    """Least side of a projected square in the RGB image of the edge views (px at the rendered size): smaller
+    squares of a far, tilted board are not found reliably."""
+    edge_min_ir_corners: float = 0.25
+    """Least share of the inner corners an edge view shows the IR camera (so its IR image holds a partial
+    target, which the calibration rejects as partial, never an empty one, which it treats as an error)."""
     distance_range_m: tuple[float, float] = (0.55, 1.1)
     """Board distances from the IR camera (m)."""
     max_tilt_deg: float = 40.0
@@ -139,21 +159,109 @@ def render_board_view(
     return img + rng.normal(0.0, cfg.image_noise_dn, size=img.shape)
 
 
-def _board_fits(cam: CameraModel, R: NDArray, t: NDArray, cfg: CalibrationSetConfig, margin: float) -> bool:
+def _board_fits(
+    cam: CameraModel,
+    R: NDArray,
+    t: NDArray,
+    cfg: CalibrationSetConfig,
+    margin: float,
+    margin_px: float = 0.0,
+    white: float = 0.3,
+) -> bool:
+    """Whether the board's squares (and `white` squares of white around them) project inside the image,
+    `margin` (fraction of the image size) plus `margin_px` away from its border."""
     cols, rows = cfg.inner_corners
     s = cfg.square_m
-    # the squares must be in view; the white margin around them may leave the image
-    lo, hx, hy = -1.3 * s, (cols + 0.3) * s, (rows + 0.3) * s
-    corners = np.array([[lo, lo, 0], [hx, lo, 0], [lo, hy, 0], [hx, hy, 0]])
+    # the squares must be in view; the white margin around them may leave the image. The outline is sampled
+    # along its edges: distortion bends them, so the four corners alone do not bound it
+    lo, hx, hy = -(1 + white) * s, (cols + white) * s, (rows + white) * s
+    a = np.linspace(0.0, 1.0, 9)[:, None]
+    corners = np.concatenate(
+        [
+            np.column_stack([lo + (hx - lo) * a[:, 0], np.full(9, lo)]),
+            np.column_stack([lo + (hx - lo) * a[:, 0], np.full(9, hy)]),
+            np.column_stack([np.full(9, lo), lo + (hy - lo) * a[:, 0]]),
+            np.column_stack([np.full(9, hx), lo + (hy - lo) * a[:, 0]]),
+        ]
+    )
+    corners = np.column_stack([corners, np.zeros(len(corners))])
     cam_pts = corners @ R.T + t
     if np.any(cam_pts[:, 2] < 0.2):
         return False
+    # far outside the field of view the distortion polynomial folds back into the image: the pinhole projection
+    # must be near the image too
+    pin = cam_pts[:, :2] / cam_pts[:, 2:] @ cam.K[:2, :2].T + cam.K[:2, 2]
+    if np.any(np.abs(pin - [cam.width / 2, cam.height / 2]) > 0.6 * np.array([cam.width, cam.height])):
+        return False
     uv, _ = cv2.projectPoints(cam_pts, np.zeros(3), np.zeros(3), cam.K, cam.dist)
     uv = uv.reshape(-1, 2)
-    mw, mh = margin * cam.width, margin * cam.height
+    mw, mh = margin * cam.width + margin_px, margin * cam.height + margin_px
     return bool(
         np.all((uv[:, 0] > mw) & (uv[:, 0] < cam.width - mw) & (uv[:, 1] > mh) & (uv[:, 1] < cam.height - mh))
     )
+
+
+def _smallest_square_px(cam: CameraModel, R: NDArray, t: NDArray, cfg: CalibrationSetConfig) -> float:
+    """Shortest distance between neighbouring inner corners of the board in the image (px)."""
+    cols, rows = cfg.inner_corners
+    grid = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * cfg.square_m
+    uv, _ = cv2.projectPoints(
+        np.column_stack([grid, np.zeros(len(grid))]) @ R.T + t, np.zeros(3), np.zeros(3), cam.K, cam.dist
+    )
+    uv = uv.reshape(rows, cols, 2)
+    dx = np.linalg.norm(np.diff(uv, axis=1), axis=2)
+    dy = np.linalg.norm(np.diff(uv, axis=0), axis=2)
+    return float(min(dx.min(), dy.min()))
+
+
+def _inner_corners_seen(cam: CameraModel, R: NDArray, t: NDArray, cfg: CalibrationSetConfig) -> float:
+    """Share of the board's inner corners that project into the image at least one square from its border."""
+    cols, rows = cfg.inner_corners
+    s = cfg.square_m
+    grid = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * s
+    cam_pts = np.column_stack([grid, np.zeros(len(grid))]) @ R.T + t
+    if np.any(cam_pts[:, 2] < 0.2):
+        return 0.0
+    uv, _ = cv2.projectPoints(cam_pts, np.zeros(3), np.zeros(3), cam.K, cam.dist)
+    uv = uv.reshape(-1, 2)
+    pad = s * cam.K[0, 0] / float(np.median(cam_pts[:, 2]))
+    inside = (
+        (uv[:, 0] > pad) & (uv[:, 0] < cam.width - pad) & (uv[:, 1] > pad) & (uv[:, 1] < cam.height - pad)
+    )
+    return float(np.mean(inside))
+
+
+def _push_to_spot(
+    fits: Callable[[NDArray[np.float64]], bool], size: tuple[int, int], spot: tuple[float, float]
+) -> NDArray[np.float64] | None:
+    """The pixel (u, v) nearest the image spot (fractions of width and height; 0 or 1 is the border) at which
+    the board centre can sit with `fits(uv)` true, found by bisection along u and v in turn from the image centre
+    (so that a board stopped by one border still slides along it into a corner); None when the board does not
+    fit even at the centre."""
+    w, h = size
+    uv = np.array([w / 2, h / 2])
+    if not fits(uv):
+        return None
+    goal = np.array(
+        [w * (0.5 + 1.6 * (spot[0] - 0.5)), h * (0.5 + 1.6 * (spot[1] - 0.5))]
+    )  # beyond the border
+    axes = [a for a in (0, 1) if abs(spot[a] - 0.5) >= 0.25]
+    pushes = [a for _round in range(4) for a in axes]
+    for n, axis in enumerate(pushes):
+        lo, hi = uv[axis], goal[axis]
+        for _ in range(20):
+            trial = uv.copy()
+            trial[axis] = 0.5 * (lo + hi)
+            lo, hi = (trial[axis], hi) if fits(trial) else (lo, trial[axis])
+        # a board flush with one border cannot slide along it (perspective and distortion bend its outline):
+        # step back a little before pushing along the other axis
+        back = (
+            0.0
+            if n == len(pushes) - 1
+            else min(0.004 * (w + h), abs(lo - w / 2 * (axis == 0) - h / 2 * (axis == 1)))
+        )
+        uv[axis] = lo - back * np.sign(goal[axis] - lo)
+    return uv
 
 
 def _view_poses(
@@ -161,55 +269,86 @@ def _view_poses(
     rgb: CameraModel,
     R_rel: NDArray,
     t_rel: NDArray,
-    size: str,
     rng: np.random.Generator,
-    cfg,
+    cfg: CalibrationSetConfig,
 ) -> list[tuple[NDArray, NDArray]]:
-    """Board poses in the IR frame: frontal, oblique (tilted about either axis), and rotated by 90 deg."""
+    """Board poses in the IR frame (X_cam = R X_board + t): frontal, oblique (tilted about either axis), and
+    rotated by 90 deg. The first `n_views` show the whole board in both cameras, centred or pushed into the IR
+    image's corners and edges (the narrower image); the `n_rgb_edge_views` after them are pushed into the RGB
+    image's corners and edges and the IR image sees them only partly. X_ir = R_rel X_rgb + t_rel."""
     cols, rows = cfg.inner_corners
     centre = np.array([(cols - 1) * cfg.square_m / 2, (rows - 1) * cfg.square_m / 2])
-    lo, hi = cfg.distance_range_m
     # board centres spread over the image (corners and edges too), so the fitted distortion holds everywhere
-    spots = [
-        (0.5, 0.5),
-        (0.05, 0.05),
-        (0.95, 0.95),
-        (0.95, 0.05),
-        (0.05, 0.95),
-        (0.5, 0.05),
-        (0.5, 0.95),
-        (0.05, 0.5),
-    ]
-    spots += [(0.95, 0.5)]
-    K_inv = np.linalg.inv(ir.K)
-    poses = []
-    for k in range(cfg.n_views):
-        kind = k % 4  # 0 frontal, 1 tilted about x, 2 tilted about y, 3 rotated 90 deg
-        su, sv = spots[k % len(spots)]
-        for attempt in range(300):
-            pull = attempt / 300.0  # drift towards the image centre when the spot does not fit
-            u = ir.width * (0.5 + (su - 0.5) * (1 - pull) + rng.uniform(-0.04, 0.04))
-            v = ir.height * (0.5 + (sv - 0.5) * (1 - pull) + rng.uniform(-0.04, 0.04))
+    spots = [(0.5, 0.5), (0.0, 0.0), (1.0, 1.0), (1.0, 0.0), (0.0, 1.0), (0.5, 0.0), (0.5, 1.0), (0.0, 0.5)]
+    spots += [(1.0, 0.5)]
+    corner_spots = [(0.0, 0.0), (1.0, 1.0), (1.0, 0.0), (0.0, 1.0)]
+    edge_spots = [(0.5, 0.0), (1.0, 0.5), (0.5, 1.0), (0.0, 0.5)]
+    # the corners twice (they bound the distortion's extrapolation), then the edge middles
+    rgb_spots = corner_spots + corner_spots[::-1] + edge_spots
+
+    def ir_pose(cam: CameraModel, uv: NDArray, dist: float, angles: tuple[float, float, float]):
+        c = dist * (np.linalg.solve(cam.K, np.array([uv[0], uv[1], 1.0])))
+        R, t = board_pose(*angles, c, centre)
+        return (R, t) if cam is ir else (R_rel @ R, R_rel @ t + t_rel)
+
+    def in_both(R: NDArray, t: NDArray) -> bool:
+        R_rgb, t_rgb = R_rel.T @ R, R_rel.T @ (t - t_rel)
+        m, w = cfg.edge_margin_px, cfg.edge_white_squares
+        return _board_fits(ir, R, t, cfg, 0.0, m, w) and _board_fits(rgb, R_rgb, t_rgb, cfg, 0.0, m, w)
+
+    def in_rgb(R: NDArray, t: NDArray) -> bool:
+        R_rgb, t_rgb = R_rel.T @ R, R_rel.T @ (t - t_rel)
+        return _board_fits(rgb, R_rgb, t_rgb, cfg, 0.0, cfg.edge_margin_px, cfg.edge_white_squares)
+
+    poses: list[tuple[NDArray, NDArray]] = []
+    n_total = cfg.n_views + cfg.n_rgb_edge_views
+    for k in range(n_total):
+        paired = k < cfg.n_views
+        j = k if paired else k - cfg.n_views
+        kind = j % 4  # 0 frontal, 1 tilted about x, 2 tilted about y, 3 rotated 90 deg
+        cam, spot = (ir, spots[j % len(spots)]) if paired else (rgb, rgb_spots[j % len(rgb_spots)])
+        lo, hi = cfg.distance_range_m if paired else cfg.edge_distance_range_m
+        if not paired:
+            mid_m = 0.5 * (lo + hi)
+            lo, hi = (lo, mid_m) if (j // 4) % 2 == 0 else (mid_m, hi)
+        fits = in_both if paired else in_rgb
+        for _attempt in range(200):
             dist = rng.uniform(lo, hi)
-            roll = (90.0 if kind == 3 else 0.0) + rng.uniform(-8, 8)
+            # edge views stay nearly square to the image so the board slides into the corner
+            roll = (90.0 if kind == 3 else 0.0) + rng.uniform(-8, 8) * (1.0 if paired else 0.4)
             tilt = cfg.max_tilt_deg * rng.uniform(0.55, 1.0) * rng.choice([-1, 1])
             tx = tilt if kind == 1 else rng.uniform(-6, 6)
             ty = tilt if kind == 2 else rng.uniform(-6, 6)
-            if kind == 3:
+            if kind == 3 and paired:
                 tx = rng.uniform(-20, 20)
-            c = dist * (K_inv @ np.array([u, v, 1.0]))
-            R, t = board_pose(roll, tx, ty, c, centre)
-            R_rgb, t_rgb = R_rel.T @ R, R_rel.T @ (t - t_rel)
-            if _board_fits(ir, R, t, cfg, 0.005) and _board_fits(rgb, R_rgb, t_rgb, cfg, 0.005):
+            angles = (roll, tx, ty)
+            jitter = rng.uniform(-0.04, 0.04, size=2) if spot == (0.5, 0.5) else np.zeros(2)
+            target = (spot[0] + jitter[0], spot[1] + jitter[1])
+            uv = _push_to_spot(
+                lambda uv, cam=cam, fits=fits, dist=dist, angles=angles: fits(
+                    *ir_pose(cam, uv, dist, angles)
+                ),
+                (cam.width, cam.height),
+                target,
+            )
+            if uv is None:
+                continue
+            R, t = ir_pose(cam, uv, dist, angles)
+            sharp = paired or (
+                _smallest_square_px(rgb, R_rel.T @ R, R_rel.T @ (t - t_rel), cfg) >= cfg.edge_min_square_px
+            )
+            if sharp and (paired or _inner_corners_seen(ir, R, t, cfg) >= cfg.edge_min_ir_corners):
                 poses.append((R, t))
                 break
         else:
-            raise ValueError(f"no chessboard pose fits both cameras for view {k} (board too large?)")
+            raise ValueError(f"no chessboard pose fits the cameras for view {k} (board too large?)")
     return poses
 
 
 def _png_bytes(img: NDArray) -> bytes:
-    ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 4])
+    # the noisy views compress best with PNG's per-row filters and full effort (about 10 % below level 4)
+    params = [cv2.IMWRITE_PNG_COMPRESSION, 9, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_FILTERED]
+    ok, buf = cv2.imencode(".png", img, params)
     if not ok:
         raise ValueError("PNG encoding failed")
     return buf.tobytes()
@@ -293,7 +432,7 @@ def write_calibration_set(
     ir = camera_model(profile, "ir", size)
     rgb = camera_model(profile, "rgb", size)
     R_rel, t_rel = ir_to_rgb_transform(profile)
-    views = _view_poses(ir, rgb, R_rel, t_rel, size, rng, cfg)
+    views = _view_poses(ir, rgb, R_rel, t_rel, rng, cfg)
     (folder / "ir").mkdir(parents=True, exist_ok=True)
     (folder / "rgb").mkdir(parents=True, exist_ok=True)
     for k, (R, t) in enumerate(views):
