@@ -56,7 +56,7 @@ def test_rerun_recomputes_nothing(mini_run, capsys):
     capsys.readouterr()
     assert main(["run", str(MINI), "--work", str(work)]) == 0
     out = capsys.readouterr()
-    summary = [line for line in out.out.splitlines() if "stage runs:" in line][0]
+    summary = next(line for line in out.out.splitlines() if "stage runs:" in line)
     total = int(summary.split()[0])
     assert f"{total} stage runs: {total} cached" in summary
     assert "nothing to compute" in out.err
