@@ -170,7 +170,9 @@ def plan_walk(
             2 * np.pi * np.arange(n_frames) / cfg.corridor_sweep_frames
         )
     else:
-        yaw = yaw + np.radians(cfg.room_sweep_deg) * np.sin(2 * np.pi * np.arange(n_frames) / cfg.room_sweep_frames)
+        yaw = yaw + np.radians(cfg.room_sweep_deg) * np.sin(
+            2 * np.pi * np.arange(n_frames) / cfg.room_sweep_frames
+        )
     # hand-held wobble, kept inside the clearance margin
     pos = pos + np.stack([_slow_noise(rng, n_frames, 0.04), _slow_noise(rng, n_frames, 0.04)], axis=1)
     lo, hi = cfg.height_range_m
