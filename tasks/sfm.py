@@ -62,8 +62,10 @@ class SfmConfig:
     length and principal point (for intrinsics that are only nominal)."""
     uncalibrated_camera_model: str = "SIMPLE_RADIAL"
     """COLMAP camera model estimated when no calibrated camera is given."""
-    num_threads: int = 2
-    """Threads for extraction, matching and mapping (1 = fully repeatable runs)."""
+    num_threads: int = 1
+    """Threads for extraction, matching and mapping. 1 makes runs repeatable (a cache key must mean one
+    result; with 2 threads one CI run in a few mapped a room wrongly); the building flow already runs
+    rooms in parallel."""
     random_seed: int = 0
     """Seed of COLMAP's RANSAC and mapper."""
     min_registered_fraction: float = 0.5
