@@ -300,6 +300,22 @@ def _ingest(capture: Path, out: Path) -> tuple[Path, dict]:
     return out / "frames.parquet", json.loads((out / "camera_info.json").read_text())
 
 
+def _register_kinect(frames: Path, info: dict, workdir: Path, **kwargs: object):
+    """register_room with default settings and the Kinect v1 profile, no calibration file."""
+    from tasks.config import load_sensor_profile
+
+    return register_room(
+        frames,
+        info,
+        None,
+        RegisterConfig(),
+        SfmConfig(),
+        workdir,
+        profile=load_sensor_profile("kinect_v1"),
+        **kwargs,
+    )
+
+
 def _truth_poses(path: Path) -> dict[int, np.ndarray]:
     cols = pq.read_table(path).to_pydict()
     return pose_matrices(cols)
@@ -320,20 +336,11 @@ def _survey_rooms(root: Path) -> dict[str, str]:
 
 @pytest.mark.slow
 def test_synthetic_room_registered_metric_and_accurate(synthetic_survey, tmp_path):
-    from tasks.config import load_sensor_profile
 
     rooms = _survey_rooms(synthetic_survey)
     room = next(r for r, kind in rooms.items() if kind != "hallway")
     frames, info = _ingest(synthetic_survey / "rooms" / room / "capture.mcap", tmp_path / "ingest")
-    res = register_room(
-        frames,
-        info,
-        None,
-        RegisterConfig(),
-        SfmConfig(),
-        tmp_path / "work",
-        profile=load_sensor_profile("kinect_v1"),
-    )
+    res = _register_kinect(frames, info, tmp_path / "work")
     truth = _truth_poses(synthetic_survey / "truth" / "poses" / f"{room}.parquet")
     est = pose_matrices(res.poses)
     registered = np.mean([m == "sfm" for m in res.poses["method"]])
@@ -379,17 +386,7 @@ def test_synthetic_hallway_sfm_fails_and_the_track_fallback_places_every_frame(s
     pw = pq.read_table(synthetic_survey / "truth" / "plan_walls.parquet").to_pydict()
     walls = np.column_stack([pw["x0"], pw["y0"], pw["x1"], pw["y1"], pw["thickness_m"]])
     profile = load_sensor_profile("kinect_v1")
-    res = register_room(
-        frames,
-        info,
-        None,
-        RegisterConfig(),
-        SfmConfig(),
-        tmp_path / "work",
-        track=track,
-        plan_walls=walls,
-        profile=profile,
-    )
+    res = _register_kinect(frames, info, tmp_path / "work", track=track, plan_walls=walls)
     assert res.metrics["sfm_registered_fraction"] < 0.5
     assert set(res.poses["method"]) == {"track"}
     est = pose_matrices(res.poses)
@@ -429,19 +426,10 @@ def test_synthetic_hallway_sfm_fails_and_the_track_fallback_places_every_frame(s
 def test_real_7scenes_registered_accurate_and_metric(realdata, tmp_path):
     """Real Kinect v1 frames (7-Scenes redkitchen, 100 frames): ≥ 90 registered, ATE ≤ 5 cm after a
     similarity fit to the given poses, metric scale within 2 % (trajectory lengths)."""
-    from tasks.config import load_sensor_profile
 
     folder = realdata("rgbd_7scenes_redkitchen")
     frames, info = _ingest(folder, tmp_path / "ingest")
-    res = register_room(
-        frames,
-        info,
-        None,
-        RegisterConfig(),
-        SfmConfig(),
-        tmp_path / "work",
-        profile=load_sensor_profile("kinect_v1"),
-    )
+    res = _register_kinect(frames, info, tmp_path / "work")
     given = pq.read_table(tmp_path / "ingest" / "device_poses.parquet").to_pydict()
     truth = pose_matrices({"frame_id": list(range(len(given["tx"]))), **given})
     est = pose_matrices(res.poses)
