@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -102,6 +102,25 @@ class RegisterConfig:
     drift_penalty_m_per_m: float = 2.0
     """Plan-line correction: a placement's agreement with the plan (metres of wall line) is lowered by this
     much per metre its track drift departs from the median drift of its neighbours in time."""
+    track_drift_model: bool = True
+    """Plan-line correction, then one drift model per capture (beyond the thesis): the track's drift over the
+    capture is fitted (a 2D similarity and a heading drift) to the directions the frames' walls pin (`track_drift`), and
+    every frame is placed by it and fitted to the walls once more, within `track_refit_max_shift_m`."""
+    track_drift_prior: tuple[float, float] = (0.05, 5.0)
+    """Drift model prior: standard deviations of its scale/rotation terms (fraction, radians) and of its
+    shift (m) around the track itself; they hold what no frame pins."""
+    track_heading_rate_prior_deg_s: float = 0.05
+    """Drift model: standard deviation of its heading drift rate (the gyro z bias of a MEMS IMU, deg/s)."""
+    track_drift_sigma_m: float = 0.05
+    """Drift model: standard deviation of a frame's plan-fitted position in a pinned direction."""
+    track_drift_rounds: int = 3
+    """Drift model: rounds of fitting the model and fitting the frames placed by it to the walls again."""
+    track_pin_length_m: float = 1.0
+    """Drift model: the wall length (m) a frame must see across a direction for its position to count fully
+    in that direction (less counts in proportion)."""
+    track_refit_max_shift_m: float = 0.3
+    """Drift model: a frame fitted to the walls again may move at most this far from the model's placement
+    (else the model's placement stands); also the robust scale of the model's residuals."""
     wall_band_m: tuple[float, float] = (0.3, 2.0)
     """Height band above the floor whose points form the projected wall image."""
 
@@ -611,22 +630,16 @@ def place_by_track(
 
     poses = {fid: initial(fid, np.zeros(2)) for fid in inside}
     angles: dict[int, float] = {}
-    restarted = 0
+    restarted = searched = 0
+    drift_metrics: dict[str, Any] = {}
     if use_plan:
         walls = np.asarray(plan_walls, dtype=np.float64)
-        scores: dict[int, float] = {}
-        starts: dict[int, float] = {}
-        searched = 0
-        totals: dict[int, float] = {}
-        for fid in inside:
-            poses[fid], angles[fid], scores[fid], totals[fid] = fit_to_plan(
-                poses[fid], cam_points[fid], walls, cfg
-            )
-            starts[fid] = 0.0
+        fit = {fid: fit_to_plan(poses[fid], cam_points[fid], walls, cfg) for fid in inside}
+        starts = dict.fromkeys(inside, 0.0)
         order = sorted(inside, key=lambda f: times[f])
 
         def drift_of(f: int) -> NDArray[np.float64]:
-            return poses[f][:2, 3] - _interp_track(track, times[f])
+            return fit[f].T[:2, 3] - _interp_track(track, times[f])
 
         def neighbour_drift(k: int) -> NDArray[np.float64] | None:
             near = [drift_of(order[j]) for j in (k - 2, k - 1, k + 1, k + 2) if 0 <= j < len(order)]
@@ -642,18 +655,15 @@ def place_by_track(
         def retry(
             fid: int, offset: NDArray[np.float64], dyaw: float, prior: NDArray[np.float64] | None
         ) -> bool:
-            T, angle, score, total = fit_to_plan(initial(fid, offset, dyaw), cam_points[fid], walls, cfg)
-            new = merit(score, T[:2, 3] - _interp_track(track, times[fid]), prior)
-            if new > merit(scores[fid], drift_of(fid), prior) + 0.5 * cfg.line_min_length_m:
-                poses[fid], angles[fid], scores[fid], totals[fid], starts[fid] = (
-                    T,
-                    angle + dyaw,
-                    score,
-                    total,
-                    dyaw,
-                )
+            new = fit_to_plan(initial(fid, offset, dyaw), cam_points[fid], walls, cfg)
+            gain = merit(new.score, new.T[:2, 3] - _interp_track(track, times[fid]), prior)
+            if gain > merit(fit[fid].score, drift_of(fid), prior) + 0.5 * cfg.line_min_length_m:
+                fit[fid], starts[fid] = new, dyaw
                 return True
             return False
+
+        def fits_well(f: int) -> bool:
+            return fit[f].score >= cfg.line_good_fraction * fit[f].length
 
         # a frame whose wall lines lay too far from the plan for its position to be fixed starts again from
         # the track drift its neighbours in time measured (the drift changes slowly); the placement whose
@@ -669,40 +679,193 @@ def place_by_track(
         # frames still fitting poorly may look far off the walking direction (eq 3.17): other start
         # headings are tried, and kept only when the frame then fits the plan well
         for k, fid in enumerate(order):
-            if scores[fid] >= cfg.line_good_fraction * totals[fid]:
+            if fits_well(fid):
                 continue
             searched += 1
-            keep = (poses[fid], angles[fid], scores[fid], totals[fid], starts[fid])
+            keep = (fit[fid], starts[fid])
             offset = drift_of(fid)
             changed = False
             for step in cfg.heading_search_deg:
                 for sign in (1.0, -1.0):
                     changed |= retry(fid, offset, sign * np.radians(step), neighbour_drift(k))
-            if changed and scores[fid] < cfg.line_good_fraction * totals[fid]:
-                poses[fid], angles[fid], scores[fid], totals[fid], starts[fid] = keep
+            if changed and not fits_well(fid):
+                fit[fid], starts[fid] = keep
+        if cfg.track_drift_model and inside:
+            # one drift model for the whole capture: each frame pins its position only across the walls it
+            # sees (along a corridor it is free), so the frames that see end walls or door jambs correct the
+            # track's scale and heading drift for all the others
+            xy = np.array([_interp_track(track, times[f]) for f in order])
+            t_s = np.array([times[f] for f in order], dtype=np.float64) * 1e-9
+            placed = np.array([fit[f].T[:2, 3] for f in order])
+            good = [fits_well(f) and fit[f].score >= cfg.line_min_length_m for f in order]
+            info = np.array(
+                [
+                    _pinning(fit[f].information, cfg.track_pin_length_m) if g else np.zeros((2, 2))
+                    for f, g in zip(order, good, strict=True)
+                ]
+            )
+            base = dict(fit)
+            faces = plan_faces(walls)
+            # placed by the model, every frame is fitted to the wall faces point by point (ICP): short wall
+            # pieces and door jambs that gave no Hough line then pin it along a corridor too, and the model
+            # is fitted again
+            reach = cfg.track_refit_max_shift_m
+            for _round in range(cfg.track_drift_rounds):
+                model, drift_metrics = track_drift(xy, t_s, placed, info, cfg)
+                refitted = 0
+                for k, (f, p) in enumerate(zip(order, model, strict=True)):
+                    T0 = base[f].T.copy()
+                    T0[:2, 3] = p
+                    T1, H, n, total = icp_to_plan(T0, cam_points[f], faces, cfg, reach)
+                    if n < cfg.line_good_fraction * total:
+                        # placed well, a frame fitting the walls poorly looks elsewhere than its start heading
+                        # says (eq 3.17 follows the walk): all headings are tried
+                        for dyaw in np.radians(np.arange(30.0, 360.0, 30.0)):
+                            T2, H2, n2, _ = icp_to_plan(_turn(T0, dyaw), cam_points[f], faces, cfg, reach)
+                            if n2 > max(n, cfg.line_good_fraction * total):
+                                T1, H, n = T2, H2, n2
+                    shift = float(np.linalg.norm(T1[:2, 3] - p))
+                    if n >= 10 and shift <= reach:
+                        refitted += 1
+                        fit[f] = base[f]._replace(T=T1)
+                        placed[k], info[k] = T1[:2, 3], _pinning(H, cfg.track_pin_length_m / cfg.line_cell_m)
+                    else:
+                        fit[f] = base[f]._replace(T=T0)
+                        placed[k], info[k] = p, 0.0
+                drift_metrics["frames_refitted"] = refitted
+                # a frame the walls pull far from a model that fits the others well matched a wrong wall
+                spread = drift_metrics["residual_spread_m"] or reach
+                reach = min(cfg.track_refit_max_shift_m, max(3 * spread, 2 * cfg.track_drift_sigma_m))
+        poses = {f: fit[f].T for f in inside}
+        angles = {f: fit[f].angle + starts[f] for f in inside}
     metrics = {
         "track_frames": len(poses),
         "frames_outside_track": len(times) - len(inside),
         "frames_levelled_by_own_floor": len(fits),
         "frames_restarted_from_neighbours": restarted,
-        "frames_heading_searched": searched if use_plan else 0,
+        "frames_heading_searched": searched,
         "camera_height_m": default_h,
         "heading_corrections_deg": [round(float(np.degrees(angles.get(f, 0.0))), 2) for f in inside],
+        "drift_model": drift_metrics,
     }
     return poses, metrics
 
 
+def _turn(T: NDArray[np.float64], yaw_rad: float) -> NDArray[np.float64]:
+    """T (camera → plan) turned by `yaw_rad` about the vertical through the camera."""
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    D = np.eye(4)
+    D[:2, :2] = [[c, -s], [s, c]]
+    D[:2, 3] = T[:2, 3] - D[:2, :2] @ T[:2, 3]
+    return D @ T
+
+
+def _pinning(information: NDArray[np.float64], saturation: float) -> NDArray[np.float64]:
+    """(2, 2) information (sum of n n^T over lines (by length) or points) → pinning in [0, 1] per direction:
+    its eigenvalues divided by `saturation` and capped at 1 (a frame seeing much of one wall is not
+    surer of its position than one seeing enough of it: the plan is coarse)."""
+    vals, vecs = np.linalg.eigh(np.asarray(information, dtype=np.float64))
+    return (vecs * np.clip(vals / saturation, 0.0, 1.0)) @ vecs.T
+
+
+def track_drift(
+    track_xy: NDArray[np.float64],
+    t_s: NDArray[np.float64],
+    placed_xy: NDArray[np.float64],
+    information: NDArray[np.float64],
+    cfg: RegisterConfig,
+) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    """The track's drift over one capture (beyond the thesis). A foot-mounted IMU's position error over a
+    capture comes from its stride-scale error and its heading error, which grows with the gyro bias:
+    true increments ≈ s R(ψ0 + ψ1 τ) (track increments), τ the time from the capture's middle. To first
+    order in ψ1 that is linear: true_i ≈ c + t + s R(ψ0) (track_i − c) + ψ1 g_i, with
+    g_i = R(ψ0) J Σ_{j<i} τ_j Δtrack_j (J: a quarter turn; c: the track's centroid).
+
+    The frames (N, in time order; track positions and times (N,) s) are fitted by iteratively reweighted
+    least squares to their plan-fitted positions (N, 2), each counting only in the directions its walls
+    pin (`information`, (N, 2, 2) pinning in [0, 1], see `_pinning`; zeros for frames that did not fit),
+    with a weak prior at the track itself so that what no frame pins stays as the track has it.
+    Returns (the model's positions (N, 2), metrics)."""
+    track_xy = np.asarray(track_xy, dtype=np.float64)
+    n = len(track_xy)
+    c = track_xy.mean(axis=0)
+    u = track_xy - c
+    tau = np.asarray(t_s, dtype=np.float64) - 0.5 * (np.min(t_s) + np.max(t_s))
+    steps = np.diff(track_xy, axis=0) * (0.5 * (tau[1:] + tau[:-1]))[:, None]
+    swept = np.vstack([np.zeros(2), np.cumsum(steps, axis=0)])
+    swept = np.column_stack([-swept[:, 1], swept[:, 0]])  # J applied
+    rows = np.zeros((n, 2, 5))
+    rows[:, 0, :4] = np.column_stack([u[:, 0], -u[:, 1], np.ones(n), np.zeros(n)])
+    rows[:, 1, :4] = np.column_stack([u[:, 1], u[:, 0], np.zeros(n), np.ones(n)])
+    d = np.asarray(placed_xy, dtype=np.float64) - track_xy
+    H = np.asarray(information, dtype=np.float64)
+    used = np.trace(H, axis1=1, axis2=2) > 0
+    sig_s, sig_t = cfg.track_drift_prior
+    sig_rate = np.radians(cfg.track_heading_rate_prior_deg_s)
+    prior = np.diag([1 / sig_s**2, 1 / sig_s**2, 1 / sig_t**2, 1 / sig_t**2, 1 / sig_rate**2])
+    line_var = cfg.track_drift_sigma_m**2
+    w = np.ones(n)
+    theta = np.zeros(5)
+    r = np.zeros(n)
+    locked = prior.copy()
+    locked[4, 4] = 1e12
+    # the similarity first (its rate locked), then with the heading drift: from the track alone the drift
+    # rate is the weakest term and would otherwise absorb the first passes' outliers
+    for i, robust_m in enumerate(np.geomspace(16 * cfg.track_drift_sigma_m, 2 * cfg.track_drift_sigma_m, 20)):
+        psi0 = np.arctan2(theta[1], 1 + theta[0])
+        rot = np.array([[np.cos(psi0), -np.sin(psi0)], [np.sin(psi0), np.cos(psi0)]])
+        rows[:, :, 4] = swept @ rot.T
+        A = (locked if i < 10 else prior) + np.einsum("n,nji,njk,nkl->il", w / line_var, rows, H, rows)
+        b = np.einsum("n,nji,njk,nk->i", w / line_var, rows, H, d)
+        theta = np.linalg.solve(A, b)
+        e = np.einsum("nij,j->ni", rows, theta) - d
+        r = np.sqrt(np.maximum(np.einsum("ni,nij,nj->n", e, H, e), 0.0))
+        w = 1.0 / (1.0 + (r / robust_m) ** 2)  # Cauchy, annealed: frames fitted to a wrong wall lose weight
+    model = track_xy + np.einsum("nij,j->ni", rows, theta)
+
+    eig = np.linalg.eigvalsh(H[used].sum(axis=0)) if used.any() else np.zeros(2)
+    metrics = {
+        "scale": round(float(np.hypot(1 + theta[0], theta[1])), 5),
+        "angle_deg": round(float(np.degrees(np.arctan2(theta[1], 1 + theta[0]))), 3),
+        "heading_rate_deg_s": round(float(np.degrees(theta[4])), 4),
+        "shift_m": [round(float(v), 4) for v in theta[2:4]],
+        "frames_used": int(used.sum()),
+        "residual_spread_m": round(float(1.4826 * np.median(r[used])), 4) if used.any() else None,
+        "frames_pinned_both_ways": int((np.linalg.eigvalsh(H)[:, 0] > 0.5).sum()),
+        "pinning_eigenvalues": [round(float(v), 2) for v in eig],
+    }
+    return model, metrics
+
+
+class PlanFit(NamedTuple):
+    """One frame fitted to the plan walls by `fit_to_plan`."""
+
+    T: NDArray[np.float64]
+    """Corrected depth camera → plan (4, 4)."""
+    angle: float
+    """Total heading correction (rad)."""
+    score: float
+    """Agreement: the length (m) of the frame's lines lying on a plan wall face within 5 cm and 2 degrees."""
+    length: float
+    """The length (m) of all the frame's lines."""
+    information: NDArray[np.float64]
+    """(2, 2) sum over the agreeing lines of length x n n^T (n: the matched wall's normal): the directions in
+    which the walls pin the frame's position (rank 1 for a frame seeing one corridor's walls only)."""
+
+
 def fit_to_plan(
-    T: NDArray[np.float64], points_cam: NDArray, plan_walls: NDArray[np.float64], cfg: RegisterConfig
-) -> tuple[NDArray[np.float64], float, float, float]:
-    """Passes of `plan_line_correction` with shrinking tolerances on one frame placed at T (depth camera →
-    plan): the heading turned about the camera and, when thickness is given, the frame shifted onto the
-    wall faces. Returns (corrected T, total heading correction (rad), agreement: the length (m) of the
-    frame's lines lying on a plan wall face within 5 cm and 2 degrees afterwards, the length of all its
-    lines)."""
+    T: NDArray[np.float64],
+    points_cam: NDArray,
+    plan_walls: NDArray[np.float64],
+    cfg: RegisterConfig,
+    tolerances: tuple[float, ...] = (1.0, 0.5, 0.25, 0.25),
+) -> PlanFit:
+    """Passes of `plan_line_correction` with the given (shrinking) tolerances on one frame placed at T
+    (depth camera → plan): the heading turned about the camera and, when thickness is given, the frame
+    shifted onto the wall faces."""
     pts = _transform(T, np.asarray(points_cam, dtype=np.float64))
     total = 0.0
-    for tolerance in (1.0, 0.5, 0.25, 0.25):
+    for tolerance in tolerances:
         angle, shift, n = plan_line_correction(wall_lines(pts, cfg), plan_walls, cfg, tolerance, T[:2, 3])
         if n == 0:
             continue
@@ -718,11 +881,127 @@ def fit_to_plan(
         total -= angle
     lines = wall_lines(pts, cfg)
     score = length = 0.0
+    info = np.zeros((2, 2))
     if len(lines):
-        _best, _dang, ok = match_plan_lines(lines, plan_walls, np.radians(2.0), 0.05)
+        best, _dang, ok = match_plan_lines(lines, plan_walls, np.radians(2.0), 0.05)
         seg_len = np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1])
         score, length = float(seg_len[ok].sum()), float(seg_len.sum())
-    return T, total, score, length
+        a = _seg_angle(plan_walls[best[ok], :4])
+        nrm = np.column_stack([-np.sin(a), np.cos(a)])
+        info = (nrm * seg_len[ok, None]).T @ nrm
+    return PlanFit(T, total, score, length, info)
+
+
+def plan_faces(plan_walls: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The surfaces a sensor sees of the plan walls ((M, 4) centrelines, or (M, 5) with thickness): both faces
+    of each wall, thickness/2 either side of its centreline, and its two end faces (door jambs, wall ends).
+    Returns ((F, 4) face segments x0 y0 x1 y1, (F, 2) unit normals pointing out of the wall, to the side
+    from which the face can be seen)."""
+    walls = np.asarray(plan_walls, dtype=np.float64)
+    a, b = walls[:, :2], walls[:, 2:4]
+    ln = np.linalg.norm(b - a, axis=1)
+    keep = ln > 1e-6
+    a, b, ln, half = a[keep], b[keep], ln[keep], 0.5 * _thickness(walls)[keep]
+    u = (b - a) / ln[:, None]
+    n = np.column_stack([-u[:, 1], u[:, 0]])
+    off = n * half[:, None]
+    segs = [np.hstack([a + off, b + off]), np.hstack([a - off, b - off])]
+    normals = [n, -n]
+    thick = half > 1e-3
+    if thick.any():  # end faces
+        segs += [np.hstack([a - off, a + off])[thick], np.hstack([b - off, b + off])[thick]]
+        normals += [-u[thick], u[thick]]
+    return np.vstack(segs), np.vstack(normals)
+
+
+def _nearest_faces(
+    p: NDArray[np.float64],
+    faces: NDArray[np.float64],
+    normals: NDArray[np.float64],
+    max_distance_m: float,
+    viewpoint: NDArray[np.float64],
+) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """For (N, 2) points, the face each lies nearest among those facing `viewpoint` (within
+    `max_distance_m`, its foot on the face) and the signed distance along the face normal; -1 and NaN where
+    none. Only the faces turned toward the sensor count: a wall's far face is a thickness away from its near
+    one, nearer than a frame's error may be."""
+    lo = p.min(axis=0) - max_distance_m
+    hi = p.max(axis=0) + max_distance_m
+    near = np.flatnonzero(
+        (((viewpoint - faces[:, :2]) * normals).sum(axis=1) > 0)
+        & (np.minimum(faces[:, 0], faces[:, 2]) <= hi[0])
+        & (np.maximum(faces[:, 0], faces[:, 2]) >= lo[0])
+        & (np.minimum(faces[:, 1], faces[:, 3]) <= hi[1])
+        & (np.maximum(faces[:, 1], faces[:, 3]) >= lo[1])
+    )
+    idx = np.full(len(p), -1, dtype=np.intp)
+    signed = np.full(len(p), np.nan)
+    if len(near) == 0 or len(p) == 0:
+        return idx, signed
+    f, nf = faces[near], normals[near]
+    a, d = f[:, :2], f[:, 2:4] - f[:, :2]
+    ln = np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+    u = d / ln[:, None]
+    rel = p[:, None, :] - a[None]
+    along = (rel * u[None]).sum(axis=2)
+    across = (rel * nf[None]).sum(axis=2)
+    on = (along >= -0.02) & (along <= ln[None] + 0.02) & (np.abs(across) <= max_distance_m)
+    dist = np.where(on, np.abs(across), np.inf)
+    best = np.argmin(dist, axis=1)
+    rows = np.arange(len(p))
+    ok = np.isfinite(dist[rows, best])
+    idx[ok] = near[best[ok]]
+    signed[ok] = across[rows, best][ok]
+    return idx, signed
+
+
+def icp_to_plan(
+    T: NDArray[np.float64],
+    points_cam: NDArray,
+    faces: tuple[NDArray[np.float64], NDArray[np.float64]],
+    cfg: RegisterConfig,
+    reach_m: float | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], int, int]:
+    """2D point-to-line ICP of one frame's wall-band points (thinned to one per `line_cell_m` cell) onto the
+    plan's wall faces (`plan_faces`, end faces included): heading about the camera and position, with the
+    correspondence distance shrinking from `reach_m` (default `track_refit_max_shift_m`) to 5 cm and robust (Cauchy) weights.
+    Returns (corrected T, (2, 2) information: sum over the matched points of n n^T, matched points, points)."""
+    face_segs, normals = faces
+    lo, hi = cfg.wall_band_m
+    pts = _transform(T, np.asarray(points_cam, dtype=np.float64))
+    pts = pts[(pts[:, 2] > lo) & (pts[:, 2] < hi), :2]
+    info = np.zeros((2, 2))
+    if len(pts) == 0 or len(face_segs) == 0:
+        return T, info, 0, 0
+    _, first = np.unique(np.floor(pts / cfg.line_cell_m).astype(np.int64), axis=0, return_index=True)
+    p = pts[first]
+    c = T[:2, 3].copy()
+    R = np.eye(2)
+    t = np.zeros(2)
+    matched = 0
+    for max_d in np.geomspace(max(reach_m or cfg.track_refit_max_shift_m, 0.05), 0.05, 8):
+        q = (p - c) @ R.T + c + t
+        idx, signed = _nearest_faces(q, face_segs, normals, float(max_d), c + t)
+        ok = idx >= 0
+        matched = int(ok.sum())
+        if matched < 10:
+            break
+        n = normals[idx[ok]]
+        r = signed[ok]
+        arm = q[ok] - (c + t)
+        J = np.column_stack([n[:, 1] * arm[:, 0] - n[:, 0] * arm[:, 1], n])  # d(n.q)/d(yaw, tx, ty)
+        w = 1.0 / (1.0 + (r / 0.03) ** 2)
+        sw = np.sqrt(w)
+        delta, *_ = np.linalg.lstsq(J * sw[:, None], -r * sw, rcond=None)
+        ca, sa = np.cos(delta[0]), np.sin(delta[0])
+        dR = np.array([[ca, -sa], [sa, ca]])
+        R = dR @ R
+        t = t + delta[1:]
+        info = (n * w[:, None]).T @ n
+    D = np.eye(4)
+    D[:2, :2] = R
+    D[:2, 3] = c + t - R @ c
+    return D @ T, info, matched, len(p)
 
 
 # ------------------------------------------------------------------------------------ the stage
