@@ -109,9 +109,11 @@ class WallsConfig:
     support_tol_m: float = 0.05
     """A point of a wall counts as backed by data when a wall pixel lies within this distance."""
     bridge_gaps_m: tuple[float, ...] = (1.2, 1.6, 2.0)
-    """When the walls do not enclose the room, collinear pieces are joined across these larger gaps in turn
-    (a wall hidden behind a partition), keeping the first that closes it; a bridged span between two
-    junctions still needs data (the mouth of an alcove stays open)."""
+    """When the walls do not enclose the room, collinear pieces are joined across these larger gaps, and
+    ends are extended to intersections this far, in turn (a wall hidden behind a partition or furniture, a
+    corner the capture did not see in the slice), keeping the first that closes it; a bridged span between
+    two junctions still needs data (the mouth of an alcove stays open), and so does a wall made only by
+    extension that is longer than `lines.extend_m`."""
     stable_tol_m: float = 0.05
     """Two candidate models (automatic α) are equal when their walls lie within this of each other."""
     min_wall_length_m: float = 0.2
@@ -394,10 +396,14 @@ def _model_for(
     found = _topology(hough, cfg.lines, cfg, grid, share, low_share, proj.cell, xy)
     bridged = None
     for gap in cfg.bridge_gaps_m if found[4] is None else ():
-        wider = _topology(
-            hough, replace(cfg.lines, max_gap_m=gap), cfg, grid, share, low_share, proj.cell, xy
-        )
-        if wider[4] is not None:
+        # the unseen span may be a corner as well as a stretch of one wall: ends reach as far
+        lines = replace(cfg.lines, max_gap_m=gap, extend_m=max(cfg.lines.extend_m, gap))
+        wider = _topology(hough, lines, cfg, grid, share, low_share, proj.cell, xy)
+        # a wall made only by extension (a perpendicular join) longer than the usual reach needs data:
+        # without it the wider reach would cut off a poorly seen part of the room (behind a partition)
+        made = wider[3] != OBSERVED
+        long_made = made & (lengths(wider[2]) > cfg.lines.extend_m)
+        if wider[4] is not None and not (share(wider[2][long_made]) < cfg.lines.min_overlap).any():
             found, bridged = wider, gap
             break
     merged, conn, walls, origin, polygon, outside, hung = found

@@ -327,6 +327,61 @@ def test_outlier_filter_on_plane_with_scattered_points(rng):
     assert 0.08 < removed_share < 0.22
 
 
+def _range_sampled_wall(step_near: float = 0.02, step_far: float = 0.10) -> NDArray[np.float64]:
+    """A 6 m x 1 m wall sampled like a range sensor's far surface: the spacing, along it and up, grows
+    linearly from step_near at x = 0 to step_far at x = 6 (a fixed angular step seen from ever farther)."""
+    columns, x = [], 0.0
+    while x < 6.0:
+        step = step_near + (step_far - step_near) * x / 6.0
+        z = np.arange(0.0, 1.0, step)
+        columns.append(np.column_stack([np.full(len(z), x), np.zeros(len(z)), z]))
+        x += step
+    return np.concatenate(columns)
+
+
+def test_density_aware_outlier_filter_keeps_a_sparse_far_surface(rng):
+    """A wall whose sampling thins out from 2 cm to 10 cm (a range sensor's far wall) with isolated points
+    0.1-0.5 m off it and a loose cloud of 300 points metres away: the local test keeps the far part of the
+    wall and removes every isolated and far point; eq 5.1's global test removes the far part. (Either
+    test trims some of the wall's top and bottom rows: a border of a regular grid has r ~ 1.3.)"""
+    wall = _range_sampled_wall()
+    wall = wall + rng.normal(0, 0.002, wall.shape)
+    base = wall[rng.choice(len(wall), 200, replace=False)]
+    isolated = base + np.column_stack(
+        [np.zeros(200), rng.choice([-1, 1], 200) * rng.uniform(0.1, 0.5, 200), np.zeros(200)]
+    )
+    far = rng.uniform(-5, 5, (300, 3)) + np.array([3.0, 12.0, 0.0])
+    points = np.concatenate([wall, isolated, far])
+    n = len(wall)
+    x, z = wall[:, 0], wall[:, 2]
+    far_part = (x > 4.5) & (x < 5.8) & (z > 0.2) & (z < 0.8)  # 7-10 cm spacing, away from the borders
+    near_part = (x > 0.2) & (x < 1.5) & (z > 0.2) & (z < 0.8)
+    for ratio in (1.0, 2.0):
+        keep, stats = statistical_outliers(points, 20, ratio, "local")
+        assert keep[:n][far_part].mean() > 0.95 and keep[:n][near_part].mean() > 0.9, (ratio, stats)
+        assert not keep[n:].any(), (ratio, int(keep[n : n + 200].sum()), int(keep[n + 200 :].sum()))
+        assert stats["outlier_sparse_kept"] > 0  # the far part fails the global test but stays
+        global_keep, _ = statistical_outliers(points, 20, ratio, "global")
+        assert global_keep[:n][far_part].mean() < 0.1
+
+
+def test_density_aware_outlier_filter_on_plane_with_scattered_points(rng):
+    """The global test's case: a dense plane, points scattered in a 4 m cube and 30 points 50-100 m away.
+    The local test removes every scattered point too, and at 2σ keeps nearly all of the plane."""
+    plane = np.c_[rng.random((20000, 2)) * 2, rng.normal(0, 0.002, 20000)]
+    scattered = rng.uniform(-2, 2, (300, 3)) + np.array([1.0, 1.0, 0.0])
+    scattered = scattered[np.abs(scattered[:, 2]) > 0.2]
+    far = rng.normal(size=(30, 3))
+    far = far / np.linalg.norm(far, axis=1, keepdims=True) * rng.uniform(50, 100, (30, 1))
+    points = np.concatenate([plane, scattered, far])
+    keep, stats = statistical_outliers(points, 20, 2.0, "local")
+    assert not keep[len(plane) :].any()
+    assert keep[: len(plane)].mean() > 0.9
+    assert stats["outlier_reference"] == "local"
+    with pytest.raises(ValueError, match="reference"):
+        statistical_outliers(points, 20, 2.0, "nearby")  # type: ignore[arg-type]
+
+
 def _noisy_plane(rng, n=60_000, sigma=0.005, size=3.0):
     normal = np.array([0.1, 0.2, 1.0]) / np.linalg.norm([0.1, 0.2, 1.0])
     xy = rng.random((n, 2)) * size

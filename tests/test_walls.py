@@ -325,3 +325,42 @@ def test_a_slice_without_walls_gives_an_empty_model_with_a_warning(rng):
     assert model.metrics["warnings"] == ["no wall found in the slice"]
     assert model.mesh_vertices.shape == (0, 3) and model.mesh_triangles.shape == (0, 3)
     assert model.preview.ndim == 3
+
+
+def test_a_corner_unseen_over_more_than_the_extension_reach_is_closed(rng):
+    """The west wall's data stops 1.1 m short of the south-west corner (beyond lines.extend_m = 0.8 m), the
+    south wall's 0.1 m short: the wider fallback reach closes the corner where the two lines meet."""
+    c = [(0, 0), (4, 0), (4, 3), (0, 3)]
+    slice_points = np.concatenate(
+        [
+            wall_points((0.1, 0), c[1], 1.5, 2.5, rng, noise=0.003),
+            wall_points(c[1], c[2], 1.5, 2.5, rng, noise=0.003),
+            wall_points(c[2], c[3], 1.5, 2.5, rng, noise=0.003),
+            wall_points(c[3], (0, 1.1), 1.5, 2.5, rng, noise=0.003),
+        ]
+    )
+    model = model_walls(slice_points, 0.0, 2.7, CFG)
+    assert model.closed and model.polygon.area == pytest.approx(12.0, abs=0.05)
+    ev = evaluate_walls(model.walls, np.array([[0, 0, 4, 0], [4, 0, 4, 3], [4, 3, 0, 3], [0, 3, 0, 0.0]]))
+    assert ev["completeness"] == 1.0 and ev["corner_f1"] == 1.0, ev
+    assert model.metrics["bridged_gap_m"] == 1.2
+
+
+def test_the_wider_reach_makes_no_long_wall_without_data(rng):
+    """A partition stub 1.5 m long ends 1.5 m from the opposite wall; the room (with a pocket whose wall is
+    unseen) does not close. The wider fallback reach could close it by a 1.5 m perpendicular join from the
+    stub's end, with no data behind it: that model is refused."""
+    c = [(0, 0), (4, 0), (4, 3), (0, 3)]
+    slice_points = np.concatenate(
+        [
+            wall_points(c[0], c[1], 1.5, 2.5, rng, noise=0.003),
+            wall_points(c[1], c[2], 1.5, 2.5, rng, noise=0.003),
+            wall_points(c[2], (2.5, 3), 1.5, 2.5, rng, noise=0.003),  # the pocket's wall is not seen
+            wall_points((0, 1.5), c[0], 1.5, 2.5, rng, noise=0.003),
+            wall_points((0, 1.5), (2.5, 1.5), 1.5, 2.5, rng, noise=0.003),  # the stub's face
+        ]
+    )
+    model = model_walls(slice_points, 0.0, 2.7, CFG)
+    made = model.walls[model.origin != "observed"]
+    assert not (np.hypot(made[:, 2] - made[:, 0], made[:, 3] - made[:, 1]) > CFG.lines.extend_m).any()
+    assert model.support.min() > 0.5 or not model.closed
