@@ -331,6 +331,52 @@ def test_register_room_without_overlap_falls_back_or_fails(tmp_path, rng):
     assert set(res.poses["method"]) == {"track"}
 
 
+def test_register_room_maps_again_when_the_per_frame_scales_disagree(tmp_path, rng, monkeypatch):
+    """A reconstruction whose per-frame scales spread (a bent map) is made again with the next seed, and the
+    most consistent one is kept; a consistent one is kept at once."""
+    import tasks.register as reg
+    from tasks.scale import ScaleReport
+
+    cam = small_camera()
+    poses, track = corridor_walk(4)
+    grey = np.full((120, 160, 3), 128, np.uint8)
+    frames = [(int(track[k, 0]), box_hits(cam, T, CORRIDOR)[0], grey) for k, T in enumerate(poses)]
+    path = write_frames(tmp_path / "frames.parquet", frames)
+    spreads = {0: 0.008, 1: 0.001}
+    seeds: list[int] = []
+
+    class FakeSfm:
+        def __init__(self, seed: int) -> None:
+            self.seed = seed
+            self.registered = np.ones(4, bool)
+            self.metrics = {"seed": seed}
+
+    def fake_sfm(images, camera, cfg, workdir):
+        seeds.append(cfg.random_seed)
+        return FakeSfm(cfg.random_seed)
+
+    def fake_scale(sfm, depths, calib, cfg):
+        for _ in depths:
+            pass
+        return ScaleReport(1.0, spreads[sfm.seed], spreads[sfm.seed], spreads[sfm.seed], [])
+
+    def fake_apply(sfm, scale, calib):
+        return {f"{k:06d}.png": T for k, T in enumerate(poses)}
+
+    monkeypatch.setattr(reg, "run_sfm", fake_sfm)
+    monkeypatch.setattr(reg, "estimate_scale", fake_scale)
+    monkeypatch.setattr(reg, "apply_scale", fake_apply)
+    res = register_room(path, camera_info(cam), None, RegisterConfig(), SfmConfig(), tmp_path / "w")
+    assert seeds == [0, 1]
+    assert res.metrics["sfm"] == {"seed": 1}
+    assert [a["relative_spread"] for a in res.metrics["sfm_attempts"]] == [0.008, 0.001]
+    seeds.clear()
+    res = register_room(
+        path, camera_info(cam), None, RegisterConfig(), SfmConfig(random_seed=1), tmp_path / "w2"
+    )
+    assert seeds == [1]
+
+
 def test_calibration_from_camera_info_uses_the_profile_pose_only_for_sensor_intrinsics():
     cam = small_camera()
     info = camera_info(cam)
@@ -509,7 +555,10 @@ def test_real_7scenes_registered_accurate_and_metric(realdata, tmp_path):
     length_ratio = (
         np.linalg.norm(np.diff(A, axis=0), axis=1).sum() / np.linalg.norm(np.diff(B, axis=0), axis=1).sum()
     )
-    print(f"7-Scenes: {len(ids)} of 100 registered, ATE {ate * 100:.2f} cm, length ratio {length_ratio:.4f}")
+    print(
+        f"7-Scenes: {len(ids)} of 100 registered, ATE {ate * 100:.2f} cm, length ratio {length_ratio:.4f}, "
+        f"SfM attempts {res.metrics['sfm_attempts']}"
+    )
     assert len(ids) >= 90
     assert ate <= 0.05
     assert abs(length_ratio - 1) <= 0.02
