@@ -10,21 +10,13 @@ import pytest
 from tasks.calibration import CameraModel
 from tasks.cloud import DegenerateInputError
 from tasks.sfm import SfmConfig, _loop_pairs, run_sfm
+from tests.test_register import ate_after_similarity
 from tests.test_scale import look_pose, render
 
 
 def sim3_rmse(A: np.ndarray, B: np.ndarray) -> float:
     """RMS distance after the best similarity mapping A onto B."""
-    mx, my = A.mean(0), B.mean(0)
-    Xc, Yc = A - mx, B - my
-    U, S, Vt = np.linalg.svd(Yc.T @ Xc / len(A))
-    D = np.eye(3)
-    if np.linalg.det(U @ Vt) < 0:
-        D[2, 2] = -1
-    R = U @ D @ Vt
-    s = np.trace(np.diag(S) @ D) / Xc.var(0).sum()
-    e = np.linalg.norm(s * A @ R.T + (my - s * R @ mx) - B, axis=1)
-    return float(np.sqrt((e**2).mean()))
+    return ate_after_similarity(A, B)[0]
 
 
 def rendered_views(n: int) -> tuple[list[tuple[str, np.ndarray]], list[np.ndarray], CameraModel]:
