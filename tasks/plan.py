@@ -55,6 +55,21 @@ class PlanConfig:
     """Hue range (degrees, wrapping) of red symbols (fire equipment)."""
     blue_hue_deg: tuple[float, float] = (200.0, 260.0)
     """Hue range (degrees) of blue symbols (mandatory / information signs). Cyan (180°) is not a symbol."""
+    symbol_min_width_m: float = 0.06
+    """Coloured ink is a symbol only where it is at least this wide (filled signs, arrows, swatches):
+    thinner coloured strokes are the line work of a drawing whose layers are coloured (CAD) and stay ink."""
+    layer_min_saturation: int = 40
+    """HSV saturation (0-255) from which ink belongs to a coloured drawing layer (pale rims included)."""
+    layer_min_share: float = 0.01
+    """Share of the ink a colour layer must hold to be considered as a wall layer."""
+    wall_layer_share: float = 0.8
+    """Colour layers with at least this share of the best layer's wall evidence are wall layers."""
+    wall_face_min_m: float = 0.5
+    """Straight lines at least this long can be wall faces when colour layers are scored."""
+    wall_layer_grid_m: float = 0.03
+    """Cell size (metres) of the coarse grid on which colour layers are scored."""
+    symbol_solid_share: float = 0.8
+    """A connected piece of a symbol colour with at least this share of solid core is a symbol whole."""
     symbol_grow_m: float = 0.06
     """Symbol masks are grown by this to swallow their anti-aliased rims."""
     pen_colour_share: float = 0.5
@@ -229,22 +244,112 @@ def symbol_mask(image: NDArray[np.uint8], cfg: PlanConfig) -> dict[str, NDArray[
     }
 
 
+def _solid_symbols(
+    mask: NDArray[np.bool_], hole_px: int, core_kernel: NDArray[np.uint8], solid_share: float
+) -> NDArray[np.bool_]:
+    """The symbols among one colour's pixels: filled signs and arrows, not the thin strokes of a drawing
+    whose line work is coloured (CAD layers). The solid core survives an opening as wide as a symbol's
+    narrowest part once white details narrower than hole_px (pictograms) are closed; a connected piece
+    of the colour that is mostly core is a symbol whole (its thin tips and rims too), elsewhere only the
+    core is."""
+    m8 = mask.astype(np.uint8)
+    filled = _close(m8, np.ones((hole_px, hole_px), np.uint8))
+    core = cv2.morphologyEx(filled, cv2.MORPH_OPEN, core_kernel).astype(bool) & mask
+    if not core.any():
+        return core
+    n, lab = cv2.connectedComponents(m8, connectivity=8)
+    share = np.bincount(lab[core], minlength=n) / np.maximum(np.bincount(lab.ravel(), minlength=n), 1)
+    whole = share >= solid_share
+    whole[0] = False
+    return core | whole[lab]
+
+
 def _close(mask: NDArray[np.uint8], kernel: NDArray[np.uint8]) -> NDArray[np.uint8]:
     """Closing with paper (0) outside the image: the default border would join strokes to the edge."""
     return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
 
 
-def _fill_outline_walls(ink: NDArray[np.bool_], max_width_px: float) -> NDArray[np.bool_]:
+def _fill_outline_walls(
+    ink: NDArray[np.bool_],
+    max_width_px: float,
+    faces: NDArray[np.bool_] | None = None,
+    min_width_px: float = 0.0,
+    one_face_percentile: float = 90.0,
+) -> NDArray[np.bool_]:
     """Fill the space between facing ink lines closer than max_width_px (outline-drawn walls, CAD style)
-    with horizontal and vertical closings. A disc or diagonal closing would also round every room
-    corner; walls drawn at other angles than 0/90 degrees as outlines are therefore not filled."""
+    along rows and columns: a run of paper is filled when ink bounds it on both sides within the width
+    (a closing with a 1 x L and an L x 1 segment). With `faces` (the lines of a drawing's wall layers),
+    a run is filled when both of its ink ends are wall faces, or when one is and the run is no wider than
+    the walls drawn with two faces (their one_face_percentile of widths from min_width_px up): where
+    furniture or a window abuts a wall its face may be drawn in another layer, but two lines of other
+    layers never make a wall, and neither does furniture standing farther from a wall than a wall is
+    thick. A disc or diagonal closing would also round every room corner; walls drawn at other angles
+    than 0/90 degrees as outlines are therefore not filled."""
     L = int(max_width_px) | 1
     if L < 3:
         return ink
-    i8 = ink.astype(np.uint8)
-    h = _close(i8, np.ones((1, L), np.uint8))
-    v = _close(i8, np.ones((L, 1), np.uint8))
-    return (h | v).astype(bool)
+    runs = []
+    for m, f in ((ink, faces), (ink.T, None if faces is None else faces.T)):
+        h, w = m.shape
+        idx = np.arange(w, dtype=np.int32)
+        left = np.maximum.accumulate(np.where(m, idx, -1), axis=1)
+        right = np.minimum.accumulate(np.where(m, idx, w)[:, ::-1], axis=1)[:, ::-1]
+        width = right - left - 1
+        fill = (left >= 0) & (right < w) & (width < L)
+        n_faces = None
+        if f is not None:
+            rows = np.arange(h)[:, None]
+            n_faces = f[rows, np.clip(left, 0, w - 1)].astype(np.uint8) + f[rows, np.clip(right, 0, w - 1)]
+        runs.append((fill, width, n_faces))
+    if faces is not None:
+        both = np.concatenate([wd[fl & (nf == 2) & (wd >= min_width_px)] for fl, wd, nf in runs])
+        one_max = float(np.percentile(both, one_face_percentile)) if len(both) else -1.0
+        runs = [(fl & ((nf == 2) | ((nf == 1) & (wd <= one_max))), wd, nf) for fl, wd, nf in runs]
+    return ink | runs[0][0] | runs[1][0].T
+
+
+def _ink_layers(image: NDArray[np.uint8], ink: NDArray[np.bool_], cfg: PlanConfig) -> NDArray[np.uint8]:
+    """Drawing layer of every ink pixel, by colour: 0 for black and grey ink, 1-12 for coloured ink by hue
+    (30 degree bins centred on 0, 30, ... 330 degrees: the pens of a CAD drawing's layers). Pale
+    anti-aliased rims keep the hue of their line."""
+    hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)
+    hue_bin = ((hsv[..., 0].astype(np.int32) * 2 + 15) // 30) % 12 + 1
+    return np.where(ink & (hsv[..., 1] >= cfg.layer_min_saturation), hue_bin, 0).astype(np.uint8)
+
+
+def _wall_layers(
+    ink: NDArray[np.bool_], layers: NDArray[np.uint8], px: float, cfg: PlanConfig
+) -> tuple[list[int], dict[int, float]]:
+    """Layers that draw walls, and every layer's wall evidence (metres of wall face). A drawing in one
+    colour has one layer. In a drawing with coloured layers (walls, windows, furniture, text, axes each in
+    their pen), the wall layer is the one whose long straight lines most often pair up at wall spacing
+    (min_wall_thickness_m to max_outline_width_m) into bands; furniture is drawn in shorter or wider-spaced
+    lines. Layers with at least wall_layer_share of the best evidence are wall layers too. Scored on a
+    grid about wall_layer_grid_m coarse (max-pooled masks keep thin lines) to stay quick."""
+    n_ink = max(int(ink.sum()), 1)
+    counts = np.bincount(layers[ink], minlength=13)
+    cand = [int(c) for c in np.flatnonzero(counts >= cfg.layer_min_share * n_ink)]
+    if len(cand) <= 1:
+        return cand, {}
+    c = max(1, round(cfg.wall_layer_grid_m * px))
+    cpx = px / c
+    line = max(3, round(cfg.wall_face_min_m * cpx) | 1)
+    k = max(1, round(cfg.min_wall_thickness_m * cpx)) | 1
+    evidence: dict[int, float] = {}
+    for lay in cand:
+        m = cv2.dilate(((layers == lay) & ink).astype(np.uint8), np.ones((c, c), np.uint8), anchor=(0, 0))[
+            ::c, ::c
+        ]
+        long_h = cv2.morphologyEx(m, cv2.MORPH_OPEN, np.ones((1, line), np.uint8))
+        long_v = cv2.morphologyEx(m, cv2.MORPH_OPEN, np.ones((line, 1), np.uint8))
+        faces = 0
+        for lines_m in (long_h, long_v):
+            band = _fill_outline_walls(lines_m.astype(bool), cfg.max_outline_width_m * cpx).astype(np.uint8)
+            band = cv2.morphologyEx(band, cv2.MORPH_OPEN, np.ones((k, k), np.uint8))
+            faces += int((lines_m & cv2.dilate(band, np.ones((3, 3), np.uint8))).sum())
+        evidence[lay] = faces / cpx
+    best = max(evidence.values())
+    return [lay for lay in cand if best > 0 and evidence[lay] >= cfg.wall_layer_share * best], evidence
 
 
 def _remove_small_components(mask: NDArray[np.bool_], max_size_px: float) -> tuple[NDArray, NDArray]:
@@ -353,10 +458,16 @@ def _sample_mask(mask_f: NDArray[np.float32], pts: NDArray) -> NDArray[np.float3
     return cv2.remap(mask_f, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)[:, 0]
 
 
-def _thickness_px(seg: NDArray, mask_f: NDArray[np.float32], max_px: float) -> tuple[float, float]:
+def _thickness_px(
+    seg: NDArray, mask_f: NDArray[np.float32], max_px: float, lines_f: NDArray[np.float32] | None = None
+) -> tuple[float, float]:
     """(median width, median offset of the run's centre along the left normal) of the ink run across
     the centreline, sampled along the middle of the wall: the distance across the wall raster, and a
-    sub-pixel correction of the skeleton's position (thinning is biased by up to a pixel)."""
+    sub-pixel correction of the skeleton's position (thinning is biased by up to a pixel).
+
+    With `lines_f` (the drawn lines before outline walls were filled), a run that holds paper between
+    two lines is an outline-drawn wall: its width is the distance between the centres of its first and
+    last line (CAD draws a wall's faces as lines centred on the faces), not the outer width of the ink."""
     a, b = seg[:2], seg[2:]
     d = b - a
     L = float(np.hypot(*d))
@@ -367,11 +478,12 @@ def _thickness_px(seg: NDArray, mask_f: NDArray[np.float32], max_px: float) -> t
     ts = np.linspace(0.15, 0.85, max(3, min(40, int(L / 2))))
     step = 0.25
     offs = np.arange(-max_px, max_px + step, step)
-    pts = (a + ts[:, None, None] * d) + offs[None, :, None] * nrm
-    vals = _sample_mask(mask_f, pts.reshape(-1, 2)).reshape(len(ts), len(offs))
+    pts = ((a + ts[:, None, None] * d) + offs[None, :, None] * nrm).reshape(-1, 2)
+    vals = _sample_mask(mask_f, pts).reshape(len(ts), len(offs))
+    drawn = None if lines_f is None else _sample_mask(lines_f, pts).reshape(len(ts), len(offs))
     c = len(offs) // 2
     widths, centres = [], []
-    for row in vals:
+    for r, row in enumerate(vals):
         inside = row > 0.01  # down to the bilinear tails, so the run's mass is the full width
         if not inside[c - 4 : c + 5].any():
             continue
@@ -383,9 +495,32 @@ def _thickness_px(seg: NDArray, mask_f: NDArray[np.float32], max_px: float) -> t
         while hi < len(row) - 1 and inside[hi + 1]:
             hi += 1
         mass = row[lo : hi + 1]
-        widths.append(float(mass.sum()) * step)
+        width = float(mass.sum()) * step
+        if drawn is not None:
+            faces = _line_centres(drawn[r, lo : hi + 1], offs[lo : hi + 1])
+            if len(faces) >= 2:
+                width = faces[-1] - faces[0]
+        widths.append(width)
         centres.append(float((mass * offs[lo : hi + 1]).sum() / max(float(mass.sum()), 1e-9)))
     return (float(np.median(widths)), float(np.median(centres))) if widths else (0.0, 0.0)
+
+
+def _line_centres(profile: NDArray, offs: NDArray) -> list[float]:
+    """Centres (mass-weighted offsets) of the ink runs of a profile across a wall, separated by paper."""
+    ink = profile > 0.5
+    out = []
+    k = 0
+    while k < len(ink):
+        if not ink[k]:
+            k += 1
+            continue
+        e = k
+        while e + 1 < len(ink) and ink[e + 1]:
+            e += 1
+        w = profile[k : e + 1]
+        out.append(float((w * offs[k : e + 1]).sum() / max(float(w.sum()), 1e-9)))
+        k = e + 1
+    return out
 
 
 def _centre_and_measure(segs: NDArray, mask_f: NDArray[np.float32], max_px: float) -> tuple[NDArray, NDArray]:
@@ -631,14 +766,18 @@ def parse_plan(
     # a colour carrying most of the line work is the drawing's pen (a one-colour CAD rendering), not symbols
     pen = [c for c, m in syms.items() if (m & dark).sum() > cfg.pen_colour_share * n_dark]
     sym_union = np.zeros(dark.shape, bool)
+    hole = max(3, round(cfg.symbol_hole_m * px) | 1)
+    solid_k = cv2.getStructuringElement(
+        cv2.MORPH_ELLIPSE, (max(3, round(cfg.symbol_min_width_m * px) | 1),) * 2
+    )
     for c, m in syms.items():
         if c not in pen:
-            sym_union |= m
+            syms[c] = _solid_symbols(m, hole, solid_k, cfg.symbol_solid_share)
+            sym_union |= syms[c]
     grow = max(1, round(cfg.symbol_grow_m * px))
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
     sym_any = cv2.dilate(sym_union.astype(np.uint8), kernel)
     # white pictograms inside a sign belong to the sign
-    hole = max(3, round(cfg.symbol_hole_m * px) | 1)
     sym_any = _close(sym_any, np.ones((hole, hole), np.uint8)).astype(bool)
     ink = dark & ~sym_any
     timings["clean_s"] = time.perf_counter() - t
@@ -647,7 +786,21 @@ def parse_plan(
     # letters first, while they are still separate components; then outline walls are filled and thin
     # strokes (hatching, furniture, dimension lines) are opened away
     ink, text_px = _remove_small_components(ink, cfg.text_max_size_m * px)
-    ink = _fill_outline_walls(ink, cfg.max_outline_width_m * px)
+    layers = _ink_layers(img, ink, cfg)
+    wall_layers, layer_evidence = _wall_layers(ink, layers, px, cfg)
+    faces = None
+    if layer_evidence:  # several colour layers hold line work
+        # a drawing in coloured layers: only the wall layers' lines (rims included) are wall faces, and
+        # where another layer's line is drawn over a face (a bath tub's rim, a window sill) the face runs on
+        w8 = cv2.dilate((np.isin(layers, wall_layers) & ink).astype(np.uint8), np.ones((3, 3), np.uint8))
+        span, run = int(cfg.bridge_max_m * px) | 1, max(3, round(cfg.min_wall_thickness_m * px) | 1)
+        for ker_run, ker_span in (((1, run), (1, span)), ((run, 1), (span, 1))):
+            # along the line only: a closing of the lines themselves, not of the space between two of them
+            along = cv2.morphologyEx(w8, cv2.MORPH_OPEN, np.ones(ker_run, np.uint8))
+            w8 |= _close(along, np.ones(ker_span, np.uint8))
+        faces = w8.astype(bool) & ink
+    lines_f = ink.astype(np.float32)  # the drawn lines: outline walls measure between their faces
+    ink = _fill_outline_walls(ink, cfg.max_outline_width_m * px, faces, cfg.min_wall_thickness_m * px)
     k = max(1, round(cfg.min_wall_thickness_m * px)) | 1  # odd: an even kernel shifts by a pixel
     walls_r = cv2.morphologyEx(ink.astype(np.uint8), cv2.MORPH_OPEN, np.ones((k, k), np.uint8)).astype(bool)
     walls_r, more_text = _remove_small_components(walls_r, cfg.text_max_size_m * px)
@@ -709,13 +862,15 @@ def parse_plan(
         segs, _ = lines.connect(segs, lcfg, support_fn)
     max_t = cfg.max_outline_width_m * px
     thick = np.array([_thickness_px(sg, mask_f, max_t)[0] for sg in segs])
+    # reported thickness: between the face lines of outline-drawn walls (the raster width elsewhere)
+    thick_faces = np.array([_thickness_px(sg, mask_f, max_t, lines_f)[0] for sg in segs])
     keep = (
         (lines.lengths(segs) >= cfg.min_wall_length_ratio * thick) & (thick > 0)
         if len(segs)
         else np.zeros(0, bool)
     )
     keep &= _spur_free(segs, keep, cfg.short_wall_length_ratio * thick)
-    segs, thick = segs[keep], thick[keep]
+    segs, thick, thick_faces = segs[keep], thick[keep], thick_faces[keep]
     # skeletons stop half a thickness short of a free wall end: prolong free ends to the wall face
     for i, e in _free_ends(segs, 1.0):
         a, b = segs[i, :2], segs[i, 2:]
@@ -761,6 +916,7 @@ def parse_plan(
             near = lines.point_segment_distances(doors[window][:, :2], segs).argmin(axis=1)
             segs = np.concatenate([segs, doors[window]])
             thick = np.concatenate([thick, thick[near]])
+            thick_faces = np.concatenate([thick_faces, thick_faces[near]])
             doors, n_windows = doors[~window], int(window.sum())
     closed = walls_r.astype(np.uint8)
     for sg, th in zip(segs, thick, strict=True):
@@ -812,6 +968,8 @@ def parse_plan(
         "ink_threshold": thr,
         "symbol_pixels": {k2: int(v.sum()) for k2, v in syms.items() if k2 not in pen},
         "pen_colours": pen,
+        "wall_layers": wall_layers,
+        "layer_evidence_m": {int(k2): round(v, 1) for k2, v in layer_evidence.items()},
         "text_components": len(text_px),
         "text_positions_m": _to_metres(np.asarray(text_px).reshape(-1, 2), f, s).tolist(),
         "hough_segments": len(raw),
@@ -825,7 +983,7 @@ def parse_plan(
     }
     return ParsedPlan(
         walls=_to_metres(segs, f, s).reshape(-1, 4),
-        thickness_m=thick * sp,
+        thickness_m=thick_faces * sp,
         rooms=rooms_m,
         doors=_to_metres(doors, f, s).reshape(-1, 4),
         preview=preview,

@@ -273,8 +273,59 @@ def test_run_parse_plan_writes_outputs(tmp_path):
     assert load_plan_image(out / "plan_preview.png").shape == (700, 1100, 3)
 
 
+def coloured_cad_plan() -> tuple[np.ndarray, np.ndarray]:
+    """A CAD-style plan in coloured layers at 2 cm/px: walls 0.2 m thick drawn as green outlines, magenta
+    furniture (a wardrobe whose two long lines are 0.3 m apart, a bed against a wall), blue windows as
+    double lines in the outer wall's openings, cyan room names. Returns (image, truth centrelines)."""
+    img = np.full((_px(10), _px(14), 3), 255, np.uint8)
+    green, magenta, blue, cyan = (0, 200, 0), (220, 0, 220), (0, 0, 255), (0, 190, 220)
+
+    def outline(x0, y0, x1, y1, colour):
+        cv2.rectangle(img, (_px(x0), _px(y0)), (_px(x1), _px(y1)), colour, 1)
+
+    t = 0.2
+    # outer walls as one ring (outer and inner face), an interior wall at x = 7 joining both long walls
+    outline(1 - t / 2, 1 - t / 2, 13 + t / 2, 9 + t / 2, green)
+    outline(1 + t / 2, 1 + t / 2, 13 - t / 2, 9 - t / 2, green)
+    img[_px(1 + t / 2) : _px(9 - t / 2) + 1, _px(7 - t / 2) + 1 : _px(7 + t / 2)] = 255
+    cv2.line(img, (_px(7 - t / 2), _px(1 + t / 2)), (_px(7 - t / 2), _px(9 - t / 2)), green, 1)
+    cv2.line(img, (_px(7 + t / 2), _px(1 + t / 2)), (_px(7 + t / 2), _px(9 - t / 2)), green, 1)
+    # a window: the outer wall's faces stop, blue double lines span the opening
+    img[_px(9 - t / 2) - 1 : _px(9 + t / 2) + 2, _px(3) : _px(4.5) + 1] = 255
+    for y in (9 - t / 2, 9 - 0.03, 9 + 0.03, 9 + t / 2):
+        cv2.line(img, (_px(3), _px(y)), (_px(4.5), _px(y)), blue, 1)
+    outline(3, 9 - t / 2, 4.5, 9 + t / 2, blue)
+    # furniture: a wardrobe 0.3 m deep with shelves, a bed against the interior wall, a table
+    outline(8, 2, 10.5, 2.3, magenta)
+    for x in np.arange(8.5, 10.5, 0.5):
+        cv2.line(img, (_px(x), _px(2)), (_px(x), _px(2.3)), magenta, 1)
+    outline(7.1 + 0.02, 5, 9.1, 6.6, magenta)
+    outline(3, 4, 4.2, 4.8, magenta)
+    for text, (x, y) in {"DORM": (10, 4), "ESTAR": (3.5, 3)}.items():
+        cv2.putText(img, text, (_px(x), _px(y)), cv2.FONT_HERSHEY_SIMPLEX, 0.6, cyan, 2, cv2.LINE_AA)
+    walls = [(1, 1, 13, 1), (13, 1, 13, 9), (1, 9, 3, 9), (4.5, 9, 13, 9), (1, 1, 1, 9), (7, 1, 7, 9)]
+    truth = np.array(walls, dtype=np.float64)
+    truth[:, 1::2] *= -1
+    return img, truth
+
+
+def test_coloured_cad_layers():
+    """Thin coloured line work is drawing, not symbols: the green wall layer is found among the layers,
+    furniture lines (another layer) never pair up into walls, and outline walls measure between their
+    face lines."""
+    image, truth = coloured_cad_plan()
+    res = parse_plan(image, PlanScale(m_per_px=S), PlanConfig())
+    assert res.metrics["wall_layers"] == [5]  # the 120 degree (green) hue bin
+    ev = evaluate_walls(res.walls, truth, tol_m=0.05)
+    assert ev["completeness"] >= 0.95, ev
+    assert ev["correctness"] >= 0.95, ev
+    assert (
+        np.median(thickness_errors(res.walls, res.thickness_m, truth, np.full(len(truth), 0.2), 0.05)) <= 0.02
+    )
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("floor", ["748", "966"])
+@pytest.mark.parametrize("floor", ["748", "848", "966", "1060"])
 def test_real_cad_plans(realdata, floor):
     """Real CAD plans (MLSTRUCT-FP, walls drawn as outlines): centrelines from the wall rectangles."""
     data = realdata("floorplans_mlstruct")
