@@ -736,7 +736,10 @@ def place_by_track(
                     shift = float(np.linalg.norm(T1[:2, 3] - p))
                     if n >= 10 and shift <= reach:
                         refitted += 1
-                        fit[f] = base[f]._replace(T=T1)
+                        turned = T1[:3, :3] @ base[f].T[:3, :3].T
+                        fit[f] = base[f]._replace(
+                            T=T1, angle=base[f].angle + np.arctan2(turned[1, 0], turned[0, 0])
+                        )
                         placed[k], info[k] = T1[:2, 3], _pinning(H, cfg.track_pin_length_m / cfg.line_cell_m)
                     else:
                         fit[f] = base[f]._replace(T=T0)
