@@ -311,16 +311,23 @@ def test_outlier_filter_is_eq_5_1(rng):
     assert keep2.sum() > keep.sum()
 
 
-def test_outlier_filter_on_plane_with_scattered_points(rng):
-    """A dense plane (mean-distance statistic near Gaussian) plus 300 points scattered in a 4 m cube and
-    30 points 50-100 m away: every scattered point goes, and about the one-tailed 1σ share (15.9 %) of
-    the plane."""
+def _plane_with_scattered_points(rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A dense 2 m plane (20 000 points), then points scattered in a 4 m cube off it and 30 points 50-100 m
+    away. Returns (plane, all points, plane first)."""
     plane = np.c_[rng.random((20000, 2)) * 2, rng.normal(0, 0.002, 20000)]
     scattered = rng.uniform(-2, 2, (300, 3)) + np.array([1.0, 1.0, 0.0])
     scattered = scattered[np.abs(scattered[:, 2]) > 0.2]
     far = rng.normal(size=(30, 3))
     far = far / np.linalg.norm(far, axis=1, keepdims=True) * rng.uniform(50, 100, (30, 1))
     points = np.concatenate([plane, scattered, far])
+    return plane, points
+
+
+def test_outlier_filter_on_plane_with_scattered_points(rng):
+    """A dense plane (mean-distance statistic near Gaussian) plus 300 points scattered in a 4 m cube and
+    30 points 50-100 m away: every scattered point goes, and about the one-tailed 1σ share (15.9 %) of
+    the plane."""
+    plane, points = _plane_with_scattered_points(rng)
     keep, _ = statistical_outliers(points, 20, 1.0)
     assert not keep[len(plane) :].any()
     removed_share = 1 - keep[: len(plane)].mean()
@@ -368,12 +375,7 @@ def test_density_aware_outlier_filter_keeps_a_sparse_far_surface(rng):
 def test_density_aware_outlier_filter_on_plane_with_scattered_points(rng):
     """The global test's case: a dense plane, points scattered in a 4 m cube and 30 points 50-100 m away.
     The local test removes every scattered point too, and at 2σ keeps nearly all of the plane."""
-    plane = np.c_[rng.random((20000, 2)) * 2, rng.normal(0, 0.002, 20000)]
-    scattered = rng.uniform(-2, 2, (300, 3)) + np.array([1.0, 1.0, 0.0])
-    scattered = scattered[np.abs(scattered[:, 2]) > 0.2]
-    far = rng.normal(size=(30, 3))
-    far = far / np.linalg.norm(far, axis=1, keepdims=True) * rng.uniform(50, 100, (30, 1))
-    points = np.concatenate([plane, scattered, far])
+    plane, points = _plane_with_scattered_points(rng)
     keep, stats = statistical_outliers(points, 20, 2.0, "local")
     assert not keep[len(plane) :].any()
     assert keep[: len(plane)].mean() > 0.9
