@@ -319,13 +319,13 @@ def test_coloured_cad_layers():
     ev = evaluate_walls(res.walls, truth, tol_m=0.05)
     assert ev["completeness"] >= 0.95, ev
     assert ev["correctness"] >= 0.95, ev
-    assert (
-        np.median(thickness_errors(res.walls, res.thickness_m, truth, np.full(len(truth), 0.2), 0.05)) <= 0.02
-    )
+    # between the face lines, not across the ink (which is a line width, 2 cm here, thicker)
+    errs = thickness_errors(res.walls, res.thickness_m, truth, np.full(len(truth), 0.2), 0.05)
+    assert np.median(errs) <= 0.01
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("floor", ["748", "848", "966", "1060"])
+@pytest.mark.parametrize("floor", ["848", "966", "1060"])
 def test_real_cad_plans(realdata, floor):
     """Real CAD plans (MLSTRUCT-FP, walls drawn as outlines): centrelines from the wall rectangles."""
     data = realdata("floorplans_mlstruct")
