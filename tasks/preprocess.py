@@ -426,10 +426,15 @@ def statistical_outliers(
     mu_r, sigma_r = _clipped_mean_std(ratio)
     ratio_threshold = mu_r + std_ratio * sigma_r
     regular = ratio <= ratio_threshold
-    # links between regular points no longer than the smaller mean neighbour distance of the two
-    rows = np.repeat(np.arange(n), neighbours)
-    cols = idx.ravel().astype(np.intp)
-    short = link.ravel() <= _LINK_RATIO * np.minimum(mean_dist[rows], mean_dist[cols])
+    # links between regular points no longer than the smaller mean neighbour distance of the two. The
+    # anchors (dense and regular) are kept whatever links them, so links between two anchors are left out:
+    # a chain from another point reaches its first anchor through links that all touch a non-anchor, and
+    # the graph shrinks to the sparse parts of the cloud (a few per cent of the links on a room).
+    anchor = dense & regular
+    entry = (~anchor)[:, None] | (~anchor)[idx]  # (n, K)
+    rows = np.nonzero(entry)[0]
+    cols = idx[entry].astype(np.intp)
+    short = link[entry] <= _LINK_RATIO * np.minimum(mean_dist[rows], mean_dist[cols])
     ok = short & regular[rows] & regular[cols]
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -437,7 +442,7 @@ def statistical_outliers(
     graph = coo_matrix((np.ones(int(ok.sum()), np.int8), (rows[ok], cols[ok])), shape=(n, n))
     _, component = connected_components(graph, directed=False)
     anchored = np.zeros(component.max() + 1, bool)
-    anchored[component[dense & regular]] = True
+    anchored[component[anchor]] = True
     keep = regular & anchored[component]
     stats.update(
         {
