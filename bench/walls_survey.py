@@ -9,7 +9,8 @@ Run from the repository root. Every seed is a whole building (`tasks.synth.build
 - RGB-D rooms (r1 rectangular with a partition stub, r2 with a 70° wall, r3 L-shaped, r4 with an alcove):
   the capture's walk (`tasks.synth.survey`'s own random streams, so seed 0 walks as data/mini does) is
   rendered as Kinect v1 depth frames (`render_depth_mm`: disparity noise, quantization, radial error) and
-  the frames are fused with the TRUE poses (`tasks.register.fuse_frames`, the register section of the
+  the frames are fused with the TRUE poses (`tasks.register.fuse_capture`: the radial depth error estimated
+  on the capture and taken out, as the register stage does; the register section of the
   default config), so registration error is excluded;
 - the TLS room (r5): the generator's registered two-station TLS cloud.
 
@@ -53,7 +54,7 @@ from tasks.config import PipelineConfig, load_config, load_sensor_profile  # noq
 from tasks.evaluate import evaluate_walls  # noqa: E402
 from tasks.lines import sample_segments  # noqa: E402
 from tasks.preprocess import preprocess  # noqa: E402
-from tasks.register import fuse_frames  # noqa: E402
+from tasks.register import fuse_capture  # noqa: E402
 from tasks.stages import levelled_to_input, segments_to_input  # noqa: E402
 from tasks.walls import model_walls  # noqa: E402
 
@@ -141,13 +142,11 @@ def room_cloud(
         ir = camera_model(profile, "ir", size)
         calib = Calibration(CalibCamera(ir.K, ir.dist, (ir.width, ir.height)), source="profile")
 
-        def frames():
-            for i, pose in enumerate(poses):
-                depth_mm = render_depth_mm(building.mesh, pose, profile, size, rng)
-                depth = np.where(depth_mm > 0, depth_mm / 1000.0, np.nan)
-                yield i, depth, None
-
-        fused = fuse_frames(frames(), dict(enumerate(poses)), calib, cfg.register)
+        rendered = []
+        for i, pose in enumerate(poses):
+            depth_mm = render_depth_mm(building.mesh, pose, profile, size, rng)
+            rendered.append((i, np.where(depth_mm > 0, depth_mm / 1000.0, np.nan), None))
+        fused, _ = fuse_capture(lambda: rendered, dict(enumerate(poses)), calib, cfg.register)
         points = fused.points
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)

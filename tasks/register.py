@@ -17,10 +17,11 @@ forward, z up); track placements are in the track's (plan) frame with z up from 
 from __future__ import annotations
 
 import logging
+import math
 import tempfile
 import time
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -59,6 +60,21 @@ class RegisterConfig:
     min_points_per_voxel: int = 1
     """Voxels hit by fewer depth points (over all frames) are dropped (outliers are the preprocess stage's
     job; more than 1 thins out far walls of low-resolution sensors)."""
+    radial_correction: bool = True
+    """Estimate the depth camera's radial error on the capture and take it out before fusing
+    (`RadialDepthError`; applied only when significant)."""
+    radial_frames: int = 30
+    """Frames sampled (evenly over the placed ones) for that estimate."""
+    radial_min_frames: int = 5
+    """Fewer usable frames than this: no estimate, nothing applied."""
+    radial_min_points: int = 500
+    """A frame is usable when its dominant plane has at least this many points."""
+    radial_plane_tol_inv_m: float = 0.01
+    """Plane inlier band in inverse depth (1/m): about 0.4 px of Kinect v1 disparity, 9 cm at 3 m."""
+    radial_normal_tol_deg: float = 20.0
+    """A plane point's local normal must lie within this of the plane's."""
+    radial_min_significance: float = 3.0
+    """The estimate is applied when it is at least this many standard errors from zero."""
     icp_refine: bool = False
     """Refine each frame against its predecessor with open3d point-to-plane ICP before fusing."""
     icp_voxel_m: float = 0.05
@@ -264,10 +280,11 @@ FrameData = tuple[int, NDArray[np.floating], NDArray[np.uint8] | None]
 
 
 def frame_points(
-    depth_m: NDArray[np.floating], calib: Calibration, cfg: RegisterConfig
+    depth_m: NDArray[np.floating], calib: Calibration, cfg: RegisterConfig, radial_k: float = 0.0
 ) -> NDArray[np.float64]:
     """(N, 3) depth-camera points of one frame (eq 3.13) within the depth range, every `pixel_stride`-th
-    pixel."""
+    pixel, with the radial inverse-depth error `radial_k` (1/m at the image corner, see
+    `RadialDepthError`) taken out."""
     d = np.asarray(depth_m, dtype=np.float64)
     s = max(int(cfg.pixel_stride), 1)
     if s > 1:
@@ -276,7 +293,155 @@ def frame_points(
         d = np.where(mask, d, np.nan)
     d = np.where((d >= cfg.min_depth_m) & (d <= cfg.max_depth_m), d, np.nan)
     pts, _ = depth_to_points(d, "m", calib.ir)
+    if radial_k and len(pts):
+        # 1/z' = 1/z - k rho: every point slides along its ray
+        denom = 1.0 - radial_k * radial_position(pts, calib.ir) * pts[:, 2]
+        ok = denom > 0.5
+        pts = pts[ok] / denom[ok, None]
     return pts
+
+
+def radial_position(pts: NDArray[np.float64], camera: CameraModel) -> NDArray[np.float64]:
+    """(N,) squared distance of each camera-frame point's image from the image centre, in normalized image
+    coordinates, 1 at the corners."""
+    K = np.asarray(camera.K, dtype=np.float64)
+    w, h = camera.size
+    cx, cy = ((w - 1) / 2.0 - K[0, 2]) / K[0, 0], ((h - 1) / 2.0 - K[1, 2]) / K[1, 1]
+    corner = ((w - 1) / 2.0 / K[0, 0]) ** 2 + ((h - 1) / 2.0 / K[1, 1]) ** 2
+    return ((pts[:, 0] / pts[:, 2] - cx) ** 2 + (pts[:, 1] / pts[:, 2] - cy) ** 2) / corner
+
+
+@dataclass(frozen=True)
+class RadialDepthError:
+    """The systematic radial error of a depth camera (thesis 6.1.2: it grows towards the image corners and
+    with the square of the range, as a disparity error does): measured inverse depth = true inverse depth +
+    k·ρ, ρ the squared image radius (1 at the corners). A Kinect v1's pulls the walls seen near the image
+    corners towards the camera, by about 1 cm at 3 m.
+
+    Estimated from the capture itself: in each sampled frame the dominant plane (a wall, the floor) is
+    found by RANSAC in (x/z, y/z, 1/z), where a plane is linear and disparity noise is even, keeping the points
+    whose local normal agrees with it; k is fitted with the plane by robust least squares, and the capture's
+    k is the median of its frames'. It is applied only when clearly above its standard error."""
+
+    k_inv_m: float
+    """Inverse-depth error at the image corners (1/m); 0 when not applied."""
+    estimate_inv_m: float
+    """The fitted value, applied or not."""
+    stderr_inv_m: float
+    frames: int
+    points: int
+    applied: bool
+
+
+def estimate_radial_depth_error(
+    frames: Iterable[FrameData], calib: Calibration, cfg: RegisterConfig
+) -> RadialDepthError:
+    """Fit `RadialDepthError` on the frames given (a sample of the capture; see its docstring)."""
+    rng = np.random.default_rng(0)
+    blocks: list[tuple[NDArray, NDArray, NDArray]] = []
+    cos_tol = math.cos(math.radians(cfg.radial_normal_tol_deg))
+    for _fid, depth, _rgb in frames:
+        pts, normals = _organized_points(depth, calib, cfg)
+        if len(pts) < cfg.radial_min_points:
+            continue
+        A = np.column_stack([pts[:, 0] / pts[:, 2], pts[:, 1] / pts[:, 2], np.ones(len(pts))])
+        w = 1.0 / pts[:, 2]
+        inl, p = _dominant_plane(A, w, rng, cfg.radial_plane_tol_inv_m)
+        # w = p·(x/z, y/z, 1) is the plane p·X = 1: points of another surface within the band (the next
+        # wall at a room corner, always nearer the camera and off the image centre) have other normals
+        inl &= np.abs(normals @ (p / max(float(np.linalg.norm(p)), 1e-12))) >= cos_tol
+        if inl.sum() >= cfg.radial_min_points:
+            blocks.append((A[inl], w[inl], radial_position(pts[inl], calib.ir)))
+    n_pts = sum(len(b[1]) for b in blocks)
+    if len(blocks) < cfg.radial_min_frames:
+        return RadialDepthError(0.0, 0.0, 0.0, len(blocks), n_pts, False)
+    per_frame = np.array([_plane_and_radial_fit(*b) for b in blocks])
+    # a frame whose plane band also holds a parallel surface (a cabinet's front before a far wall) is an
+    # outlier: the median of the frames, with the standard error of a median
+    k = float(np.median(per_frame))
+    stderr = float(1.2533 * 1.4826 * np.median(np.abs(per_frame - k)) / np.sqrt(len(per_frame)))
+    applied = abs(k) > cfg.radial_min_significance * stderr
+    return RadialDepthError(k if applied else 0.0, k, stderr, len(blocks), n_pts, bool(applied))
+
+
+def _plane_and_radial_fit(A: NDArray, w: NDArray, rho: NDArray, iterations: int = 4) -> float:
+    """k of w = A·p + k·rho fitted by least squares, reweighted (Cauchy, 2.5 robust σ)."""
+    wt = np.ones(len(w))
+    k = 0.0
+    X = np.column_stack([A, rho])
+    for _ in range(iterations):
+        sw = np.sqrt(wt)
+        coef = np.linalg.lstsq(X * sw[:, None], w * sw, rcond=None)[0]
+        k = float(coef[3])
+        r = w - X @ coef
+        scale = 2.5 * 1.4826 * float(np.median(np.abs(r)))
+        wt = 1.0 / (1.0 + (r / max(scale, 1e-12)) ** 2)
+    return k
+
+
+def _organized_points(
+    depth_m: NDArray[np.floating], calib: Calibration, cfg: RegisterConfig, reach_px: int = 6
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Valid points (N, 3) of a frame's every `pixel_stride`-th pixel (as `frame_points`) and their unit
+    normals (N, 3) from the neighbours `reach_px` pixels away on the image grid."""
+    d = np.asarray(depth_m, dtype=np.float64)
+    d = np.where((d >= cfg.min_depth_m) & (d <= cfg.max_depth_m), d, np.nan)
+    s = max(int(cfg.pixel_stride), 1)
+    rays = calib.ir.pixel_rays()[::s, ::s]
+    z = d[::s, ::s]
+    P = np.concatenate([rays * z[..., None], z[..., None]], axis=2)
+    k = max(1, reach_px // s)
+    du = np.full_like(P, np.nan)
+    dv = np.full_like(P, np.nan)
+    du[:, k:-k] = P[:, 2 * k :] - P[:, : -2 * k]
+    dv[k:-k] = P[2 * k :] - P[: -2 * k]
+    n = np.cross(du, dv)
+    norm = np.linalg.norm(n, axis=2)
+    ok = np.isfinite(z) & np.isfinite(norm) & (norm > 0)
+    return P[ok], n[ok] / norm[ok, None]
+
+
+def _dominant_plane(
+    A: NDArray, w: NDArray, rng: np.random.Generator, tol: float, trials: int = 200
+) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+    """Inliers (within `tol` in w) of the plane w = A·p with most of them (RANSAC on a subsample, then one
+    least-squares refit on the inliers), and p."""
+    n = len(w)
+    sub = rng.choice(n, size=min(n, 4000), replace=False)
+    best, best_count = None, -1
+    for _ in range(trials):
+        idx = rng.choice(sub, size=3, replace=False)
+        try:
+            p = np.linalg.solve(A[idx], w[idx])
+        except np.linalg.LinAlgError:
+            continue
+        count = int((np.abs(A[sub] @ p - w[sub]) <= tol).sum())
+        if count > best_count:
+            best, best_count = p, count
+    if best is None:
+        return np.zeros(n, dtype=bool), np.zeros(3)
+    inl = np.abs(A @ best - w) <= tol
+    p = np.linalg.lstsq(A[inl], w[inl], rcond=None)[0]
+    return np.abs(A @ p - w) <= tol, p
+
+
+def fuse_capture(
+    frames: Callable[[], Iterable[FrameData]],
+    poses: dict[int, NDArray[np.float64]],
+    calibration: Calibration,
+    cfg: RegisterConfig,
+    refined: dict[int, NDArray[np.float64]] | None = None,
+) -> tuple[FusedCloud, RadialDepthError | None]:
+    """`fuse_frames` after estimating the depth camera's radial error (`RadialDepthError`) on every n-th
+    placed frame (`radial_frames` of them) when `cfg.radial_correction`; `frames()` streams the capture
+    (called twice then)."""
+    radial = None
+    if cfg.radial_correction:
+        step = max(1, len(poses) // max(cfg.radial_frames, 1))
+        sample = (f for i, f in enumerate(x for x in frames() if int(x[0]) in poses) if i % step == 0)
+        radial = estimate_radial_depth_error(sample, calibration, cfg)
+    k = radial.k_inv_m if radial is not None else 0.0
+    return fuse_frames(frames(), poses, calibration, cfg, refined, k), radial
 
 
 def _transform(T: NDArray[np.float64], pts: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -289,8 +454,10 @@ def fuse_frames(
     calibration: Calibration,
     cfg: RegisterConfig,
     refined: dict[int, NDArray[np.float64]] | None = None,
+    radial_k: float = 0.0,
 ) -> FusedCloud:
-    """Stream frames into the voxel grid (3.1.3): depth points (eq 3.13) moved by the frame's pose
+    """Stream frames into the voxel grid (3.1.3): depth points (eq 3.13, without the radial error
+    `radial_k`, see `frame_points`) moved by the frame's pose
     (depth camera → room, (4, 4)), coloured with `colour_points` (eq 3.14-3.15) when the frame has a colour
     image and the calibration an RGB camera. Frames without a pose are skipped. With `cfg.icp_refine` each
     frame is first refined against the previous fused frame (point-to-plane ICP); the poses used are put in
@@ -303,7 +470,7 @@ def fuse_frames(
         T = poses.get(int(frame_id))
         if T is None or not np.isfinite(T).all():
             continue
-        pts = frame_points(depth, calibration, cfg)
+        pts = frame_points(depth, calibration, cfg, radial_k)
         if len(pts) == 0:
             continue
         if cfg.icp_refine:
@@ -1249,9 +1416,11 @@ def register_room(
                 continue
             yield fid, _decode_depth(r, depth_units_per_m), decode_rgb(r)
 
-    cloud = fuse_frames(fuse_stream(), poses, calib, cfg, used_poses)
+    cloud, radial = fuse_capture(fuse_stream, poses, calib, cfg, used_poses)
     poses.update(used_poses)
     metrics["fuse_s"] = round(time.perf_counter() - t0, 3)
+    if radial is not None:
+        metrics["radial_depth_error"] = asdict(radial)
     metrics.update(
         placed=len(poses),
         methods={m: sum(1 for f in frame_ids if methods.get(f, "none") == m) for m in METHODS},
