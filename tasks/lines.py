@@ -60,6 +60,10 @@ class LinesConfig:
     """Extension / trimming threshold: ends move at most this far to reach an intersection, and a free end
     is joined perpendicularly to a line at most this far away (the largest occlusion to close: thesis
     table 6.3 finds 0.5-1 m; a two-station TLS scan of an alcove leaves 0.65 m unseen)."""
+    trim_m: float | None = None
+    """Trimming threshold: an end is cut back to an intersection at most this far (None: `extend_m`, as in
+    the thesis). Observed data past a partition's face is wall, not overshoot: a T-junction must not cut
+    the wall it stands on back to it."""
     min_length_m: float = 0.0
     """Merged lines shorter than this are dropped."""
     min_overlap: float = 0.5
@@ -67,10 +71,13 @@ class LinesConfig:
 
     def scaled(self, units_per_metre: float) -> LinesConfig:
         """The same config with every length expressed in another unit (e.g. pixels: 1 / pixel size)."""
-        return replace(self, **{f: getattr(self, f) * units_per_metre for f in _LENGTH_FIELDS})
+        scaled = {
+            f: getattr(self, f) * units_per_metre for f in _LENGTH_FIELDS if getattr(self, f) is not None
+        }
+        return replace(self, **scaled)
 
 
-_LENGTH_FIELDS = ("offset_tol_m", "max_gap_m", "extend_m", "min_length_m")
+_LENGTH_FIELDS = ("offset_tol_m", "max_gap_m", "extend_m", "trim_m", "min_length_m")
 
 
 @dataclass(frozen=True)
@@ -478,17 +485,34 @@ class _Wall:
 
 
 def connect(
-    segments: Segments, cfg: LinesConfig, support_fn: SupportFn | None = None
+    segments: Segments,
+    cfg: LinesConfig,
+    support_fn: SupportFn | None = None,
+    interior_xy: NDArray | None = None,
 ) -> tuple[Segments, NDArray[np.str_]]:
     """Extend or trim ends to intersections within `cfg.extend_m`, join remaining free ends
     perpendicularly to a line within `cfg.extend_m`, and (with `support_fn`) remove pieces made by
-    extension whose data support is below `cfg.min_overlap`. Returns (segments, origin)."""
-    res = connect_detailed(segments, cfg, support_fn)
+    extension whose data support is below `cfg.min_overlap`. Returns (segments, origin).
+
+    `interior_xy` (2,), a point inside the room, decides which of two facing free ends places a join
+    (see `connect_detailed`); without it the ends are taken in input order."""
+    res = connect_detailed(segments, cfg, support_fn, interior_xy)
     return res.segments, res.origin
 
 
-def connect_detailed(segments: Segments, cfg: LinesConfig, support_fn: SupportFn | None = None) -> Connected:
+def connect_detailed(
+    segments: Segments,
+    cfg: LinesConfig,
+    support_fn: SupportFn | None = None,
+    interior_xy: NDArray | None = None,
+) -> Connected:
     """`connect` with the parent of every wall and the removed pieces.
+
+    Perpendicular joins: where two parallel walls end facing each other (an alcove, a recess, a chimney
+    breast) and the wall between them was not seen, the join goes at the end of the wall nearer the room's
+    interior (`interior_xy`) and the other wall is extended to it. That end is the room's reflex corner,
+    whose data runs up to it seen from anywhere in the room; the farther wall's data stops where the unseen
+    wall hides it from the room, short of its corner.
 
     Every wall is cut where other walls end on it and where its observed span ends, so that each
     extension is a piece of its own. With `support_fn`, a piece is removed when its support is below
@@ -509,31 +533,61 @@ def connect_detailed(segments: Segments, cfg: LinesConfig, support_fn: SupportFn
     eps = max(T, 1e-9) * 1e-6
     sin_tol = math.sin(math.radians(max(cfg.angle_tol_deg, 1e-3)))
 
-    _extend_and_trim(walls, T, sin_tol)
-    _join_free_ends(walls, T, eps, sin_tol, max(cfg.offset_tol_m, eps))
+    _extend_and_trim(walls, T, T if cfg.trim_m is None else min(T, float(cfg.trim_m)), sin_tol)
+    _join_free_ends(walls, T, eps, sin_tol, max(cfg.offset_tol_m, eps), interior_xy, support_fn)
     pieces, piece_parent, piece_wall, extended = _node_pieces(walls, eps)
 
     removed = np.zeros(len(pieces), dtype=bool)
-    judged = np.zeros(0, dtype=np.intp)
-    if len(pieces):
-        deg = _end_degrees(pieces, eps)
-        corner = (deg[:, 0] == 2) & (deg[:, 1] == 2)
-        junctions = (deg[:, 0] >= 3) & (deg[:, 1] >= 3)
-        # Need data: extensions in the original direction (not the perpendicular joins), unless they close
-        # a corner (both ends meet exactly one other piece: removing them would open the room), and spans
-        # bridged between two junctions (behind a column), whose removal leaves no free end.
-        judged = np.flatnonzero((piece_parent >= 0) & ((extended & ~corner) | junctions))
-    if support_fn is not None and len(judged):
-        support = np.asarray(support_fn(pieces[judged], piece_parent[judged]), dtype=np.float64)
-        removed[judged] = support < cfg.min_overlap
+    if support_fn is not None and len(pieces):
+        removed = _remove_unsupported(pieces, piece_parent, extended, support_fn, cfg.min_overlap, eps)
     out, origin, parent = _rejoin(pieces[~removed], piece_wall[~removed], extended[~removed], walls, eps)
     return Connected(out, origin, parent, pieces[removed])
 
 
-def _extend_and_trim(walls: list[_Wall], T: float, sin_tol: float) -> None:
-    """Move every end to the best intersection with a non-parallel line when the end moves at most T
-    and the intersection lies within T of the other segment (5.2.5.2, fig 5.14 a-c). All walls are
-    judged against the segments as they were before this step."""
+def _remove_unsupported(
+    pieces: Segments,
+    parent: NDArray[np.intp],
+    extended: NDArray[np.bool_],
+    support_fn: SupportFn,
+    min_overlap: float,
+    eps: float,
+) -> NDArray[np.bool_]:
+    """(P,) pieces removed for want of data. Candidates: pieces of input walls (not the perpendicular
+    joins) with support below `min_overlap`. A candidate goes when it is a span bridged between two
+    junctions (behind a column: its removal leaves no free end) or an extension in the original
+    direction that does not close a corner (both its ends meeting exactly one other piece: removing it
+    would open the room). Removals are made one at a time, spans between junctions first, then the
+    least supported, and each is judged on the pieces still there: two pieces meeting at one node
+    (the span of a wall between a partition's two faces, and one face's unseen root) must not both go,
+    which would leave the face and the wall with free ends."""
+    removed = np.zeros(len(pieces), dtype=bool)
+    candidates = np.flatnonzero(parent >= 0)
+    if len(candidates) == 0:
+        return removed
+    support = np.asarray(support_fn(pieces[candidates], parent[candidates]), dtype=np.float64)
+    weak = support < min_overlap
+    candidates, support = candidates[weak], support[weak]
+    if len(candidates) == 0:
+        return removed
+    node = _point_clusters(np.concatenate([pieces[:, :2], pieces[:, 2:]]), eps)
+    n = len(pieces)
+    ends = np.column_stack([node[:n], node[n:]])
+    deg = np.bincount(node)
+    initially_junction = (deg[ends[candidates, 0]] >= 3) & (deg[ends[candidates, 1]] >= 3)
+    for k in candidates[np.lexsort((support, ~initially_junction))]:
+        d0, d1 = deg[ends[k, 0]], deg[ends[k, 1]]
+        junction = d0 >= 3 and d1 >= 3
+        corner = d0 == 2 and d1 == 2
+        if junction or (extended[k] and not corner):
+            removed[k] = True
+            deg[ends[k]] -= 1
+    return removed
+
+
+def _extend_and_trim(walls: list[_Wall], T: float, trim: float, sin_tol: float) -> None:
+    """Move every end to the best intersection with a non-parallel line when the end moves out at most T
+    or back at most `trim`, and the intersection lies within T of the other segment (5.2.5.2, fig 5.14
+    a-c). All walls are judged against the segments as they were before this step."""
     if len(walls) < 2:
         return
     segs = np.array([w.as_segment() for w in walls])
@@ -554,7 +608,9 @@ def _extend_and_trim(walls: list[_Wall], T: float, sin_tol: float) -> None:
         new = {}
         for e, t_end, outward in ((0, w.t0, -1.0), (1, w.t1, 1.0)):
             move = (t - t_end) * outward  # > 0 extends, < 0 trims
-            valid = ok & (np.abs(move) <= T) & (beyond <= T) & ~((move < 0) & (-move > 0.5 * length))
+            valid = (
+                ok & (move <= T) & (-move <= trim) & (beyond <= T) & ~((move < 0) & (-move > 0.5 * length))
+            )
             if valid.any():
                 score = np.where(valid, np.abs(move) + beyond, np.inf)
                 new[e] = float(t[int(np.argmin(score))])
@@ -573,12 +629,28 @@ def _free_ends(walls: list[_Wall], eps: float) -> list[tuple[int, int]]:
     return [(int(owner[k]), int(which[k])) for k in np.flatnonzero(free)]
 
 
-def _join_free_ends(walls: list[_Wall], T: float, eps: float, sin_tol: float, offset_tol: float) -> None:
-    """Join each free end perpendicularly to the nearest line within T whose segment (lengthened by T at a
-    free end) it meets; that end of the other wall is moved to the foot when needed (fig 5.14 d-e)."""
+def _join_free_ends(
+    walls: list[_Wall],
+    T: float,
+    eps: float,
+    sin_tol: float,
+    offset_tol: float,
+    interior_xy: NDArray | None = None,
+    support_fn: SupportFn | None = None,
+) -> None:
+    """Join each free end perpendicularly to the nearest parallel line within T whose segment (lengthened by
+    T at a free end) it meets; that end of the other wall is moved to the foot when needed (fig 5.14 d-e,
+    a step between parallel walls). With `interior_xy`, the ends of walls whose lines pass nearer that point
+    go first; with `support_fn`, a join that could go anywhere between the two walls' ends goes where its
+    data is (at least 0.1 more support than at the first end)."""
     n_orig = len(walls)
     done: set[tuple[int, int]] = set()
-    for i, e in _free_ends(walls, eps):
+    ends = _free_ends(walls, eps)
+    if interior_xy is not None and len(ends) > 1:
+        c = np.asarray(interior_xy, dtype=np.float64).reshape(2)
+        dist = [abs(float((c - walls[i].a) @ np.array([-walls[i].u[1], walls[i].u[0]]))) for i, _ in ends]
+        ends = [ends[k] for k in np.argsort(dist, kind="stable")]
+    for i, e in ends:
         if (i, e) in done:
             continue
         w = walls[i]
@@ -589,8 +661,11 @@ def _join_free_ends(walls: list[_Wall], T: float, eps: float, sin_tol: float, of
             if j == i:
                 continue
             v = walls[j]
-            if abs(nrm[0] * v.u[1] - nrm[1] * v.u[0]) < sin_tol:
-                continue  # the other wall is perpendicular to ours: the ray along the normal never meets it
+            if abs(w.u[0] * v.u[1] - w.u[1] * v.u[0]) >= sin_tol:
+                # not parallel: a perpendicular wall is never met by the ray along the normal, and an oblique
+                # one meets it at the corner's intersection, where extension closes it (with the wider reach
+                # when needed); a join there would make a wall at neither direction
+                continue
             hit = line_intersection(np.concatenate([p, p + nrm]), v.as_segment())
             if hit is None:
                 continue
@@ -615,11 +690,27 @@ def _join_free_ends(walls: list[_Wall], T: float, eps: float, sin_tol: float, of
             continue
         _, j, x, tv = best
         v = walls[j]
-        if tv < v.t0:
-            v.t0 = tv
+        need = max(v.t0 - tv, tv - v.t1, 0.0)
+        if support_fn is not None and need > eps:
+            # the join may go anywhere between our end and the other wall's: where the data holds most of it
+            # (the unseen wall's own few points), else at our end (the interior side's, taken first)
+            out = w.u if e == 1 else -w.u
+            steps = np.linspace(0.0, need, int(np.clip(math.ceil(need / (offset_tol / 5)), 2, 50)) + 1)
+            cand = np.column_stack([p + steps[:, None] * out, x + steps[:, None] * out])
+            sup = np.asarray(support_fn(cand, np.full(len(cand), -1, dtype=np.intp)), dtype=np.float64)
+            if sup.max() > sup[0] + 0.1:
+                k = int(np.argmax(sup))
+                if e == 1:
+                    w.t1 += steps[k]
+                else:
+                    w.t0 -= steps[k]
+                p, x = cand[k, :2], cand[k, 2:]
+                tv = float((x - v.a) @ v.u)
+        if tv < v.t0 + eps:
+            v.t0 = min(v.t0, tv)
             done.add((j, 0))
-        elif tv > v.t1:
-            v.t1 = tv
+        elif tv > v.t1 - eps:
+            v.t1 = max(v.t1, tv)
             done.add((j, 1))
         d = x - p
         L = float(np.hypot(*d))
@@ -675,14 +766,6 @@ def _point_clusters(points: NDArray, tol: float) -> NDArray[np.intp]:
     pairs = cKDTree(points).query_pairs(max(tol, 0.0), output_type="ndarray")
     adj = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     return connected_components(adj, directed=False)[1].astype(np.intp)
-
-
-def _end_degrees(pieces: Segments, eps: float) -> NDArray[np.intp]:
-    """(P, 2) number of pieces meeting at each end of every piece (ends closer than eps are one node)."""
-    n = len(pieces)
-    label = _point_clusters(np.concatenate([pieces[:, :2], pieces[:, 2:]]), eps)
-    deg = np.bincount(label)[label]
-    return np.column_stack([deg[:n], deg[n:]])
 
 
 def _rejoin(

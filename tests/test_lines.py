@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -130,6 +131,57 @@ def test_over_extended_segment_without_data_is_removed():
     assert set(res.origin) == {OBSERVED}
 
 
+def test_a_partition_whose_root_was_not_seen_still_stands_on_its_wall():
+    """A partition stub 0.1 m thick stands on the west wall (x = 0). The wall's span between the stub's two
+    faces has no data (it is inside the partition), nor has the north face's first 0.3 m (hidden from the
+    camera). The span goes and the face reaches the wall: the pieces meeting at one node are judged one at
+    a time, so the face's root closes a corner once the span is gone."""
+    west = [0.0, 0.0, 0.0, 4.0]
+    south_face = [0.0, 2.0, 1.5, 2.0]
+    north_face = [0.3, 2.1, 1.5, 2.1]
+    end = [1.5, 2.0, 1.5, 2.1]
+    segs = np.array([west, south_face, north_face, end])
+    data = np.array([[0.0, 0.0, 0.0, 2.0], [0.0, 2.1, 0.0, 4.0], south_face, north_face, end])
+
+    def support(pieces, parent):
+        pts, owner = sample_segments(pieces, 0.01)
+        near = point_segment_distances(pts, data).min(axis=1) < 0.005
+        return np.bincount(owner, near, len(pieces)) / np.bincount(owner, minlength=len(pieces))
+
+    res = connect_detailed(segs, CFG, support)
+    north = res.segments[res.parent == 2]
+    assert len(north) == 1 and min(north[0, 0], north[0, 2]) == pytest.approx(0.0, abs=1e-9)
+    assert len(res.removed) == 1 and res.removed[0, [0, 2]] == pytest.approx([0.0, 0.0])
+    assert lengths(res.removed)[0] == pytest.approx(0.1)
+
+
+def test_a_wall_is_not_trimmed_back_to_a_partition_standing_on_it():
+    """The west wall's data runs 0.6 m past a partition's face that ends on it (a T-junction): with
+    `trim_m` 0.3 the wall keeps that length, while its 0.1 m overshoot past the south corner is cut; with
+    the thesis' trimming (as far as it extends) the 0.6 m go too."""
+    segs = np.array([[0.0, -0.1, 0.0, 2.6], [0.0, 0.0, 3.0, 0.0], [0.0, 2.0, 1.5, 2.0]])
+    walls, _ = connect(segs, replace(CFG, trim_m=0.3))
+    west = walls[np.abs(walls[:, 0] - walls[:, 2]) < 1e-9]
+    assert [west[:, [1, 3]].min(), west[:, [1, 3]].max()] == pytest.approx([0.0, 2.6])
+    thesis, _ = connect(segs, CFG)
+    west = thesis[np.abs(thesis[:, 0] - thesis[:, 2]) < 1e-9]
+    assert max(west[:, [1, 3]].max(axis=1)) == pytest.approx(2.0)
+
+
+def test_an_acute_corner_seen_short_of_both_walls_closes_at_their_intersection():
+    """A 70° corner at (5, 0): the north wall's data stops 1.0 m short of it, the slanted wall's 0.27 m. No
+    perpendicular join is made onto the oblique wall (it would be a wall at neither direction); with a
+    reach of 1.2 m both walls are extended to the corner."""
+    d = np.array([math.cos(math.radians(250)), math.sin(math.radians(250))])
+    corner = np.array([5.0, 0.0])
+    segs = np.array([[0.0, 0.0, 4.0, 0.0], [*(corner + 0.27 * d), *(corner + 4.0 * d)]])
+    walls, origin = connect(segs, CFG)
+    assert len(walls) == 2 and set(origin) == {OBSERVED}
+    walls, _ = connect(segs, replace(CFG, extend_m=1.2))
+    ends = walls.reshape(-1, 2)
+    assert (np.hypot(*(ends - corner).T) < 1e-9).sum() == 2
+
+
 def test_extension_trimming_and_perpendicular_join():
     # corner gap of 0.2 m, an overshoot of 0.1 m, and a step between two parallel walls 0.25 m apart
     segs = np.array(
@@ -147,6 +199,44 @@ def test_extension_trimming_and_perpendicular_join():
     assert EXTENDED in set(origin)  # the step joining the two top parts is new
     poly = room_polygons(walls)[0]
     assert poly.area == pytest.approx(4 * 3 + 2 * 0.25, abs=0.03)
+
+
+@pytest.mark.parametrize("order", [(0, 1), (1, 0)])
+def test_the_join_across_an_unseen_alcove_side_goes_at_the_room_side_end(order):
+    """An alcove 0.6 m deep whose west side was not seen: the room's south wall runs up to the alcove's
+    mouth at x = 2.0 (a reflex corner, seen from anywhere in the room), the alcove's back wall only from
+    x = 2.3 (hidden from the room behind the unseen side). With the room's interior given, the join goes
+    at x = 2.0 whatever the input order; without it, at the end taken first."""
+    south = [0.0, 0.0, 2.0, 0.0]
+    back = [2.3, -0.6, 3.5, -0.6]
+    segs = np.array([[south, back][k] for k in order])
+    walls, origin = connect(segs, CFG, interior_xy=np.array([1.5, 2.0]))
+    join = walls[origin == EXTENDED]
+    assert len(join) == 1
+    assert join[0, [0, 2]] == pytest.approx([2.0, 2.0], abs=1e-9)
+    assert sorted(np.round(np.abs(join[0, [1, 3]]), 9)) == pytest.approx([0.0, 0.6])
+    plain, plain_origin = connect(segs, CFG)
+    assert plain[plain_origin == EXTENDED][0, 0] == pytest.approx(2.3)
+
+
+def test_the_join_across_an_alcove_side_goes_where_its_few_points_are():
+    """The alcove of the test above, with 0.25 m of its west side (x = 2.3) seen at the back: the join goes
+    there, and the south wall is extended to it; with no point of the side, at the room side's end."""
+    south = [0.0, 0.0, 2.0, 0.0]
+    back = [2.3, -0.6, 3.5, -0.6]
+    segs = np.array([south, back])
+    for side, x_join in (([2.3, -0.6, 2.3, -0.35], 2.3), (None, 2.0)):
+        data = np.array([s for s in (south, back, side) if s is not None])
+
+        def support(pieces, parent, data=data):
+            pts, owner = sample_segments(pieces, 0.01)
+            near = point_segment_distances(pts, data).min(axis=1) < 0.02
+            return np.bincount(owner, near, len(pieces)) / np.bincount(owner, minlength=len(pieces))
+
+        walls, origin = connect(segs, CFG, support, interior_xy=np.array([1.5, 2.0]))
+        join = walls[origin == EXTENDED]
+        assert len(join) == 1 and join[0, [0, 2]] == pytest.approx([x_join, x_join], abs=0.01)
+        assert len(walls) == 3 and is_closed(wall_graph(np.vstack([walls, [[0, 0, 3.5, -0.6]]])))
 
 
 def test_explained_variance_elbow_finds_three_directions(rng):

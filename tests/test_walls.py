@@ -162,6 +162,110 @@ def test_a_lamp_hanging_from_the_ceiling_is_not_a_column(rng):
     assert model.polygon.area == pytest.approx(12.0 - 0.16, abs=0.05)
 
 
+def test_a_partition_seen_below_the_slice_top_stays_and_a_cabinet_goes(rng):
+    """A 1.5 m partition stub (0.1 m thick) from the west wall of a 4 m x 3 m room: its north face was seen
+    up to the slice top only near the wall, and beyond 0.5 m only up to 2.05 m (the camera's vertical
+    view). A 2.0 m cabinet stands against the south wall, with a few flying pixels of the wall behind it
+    at 2.4 m on its front. The stub is one wall over its whole length; the cabinet gives no wall."""
+
+    def face(a, b, z1):
+        return wall_points(a, b, 1.5, z1, rng, noise=0.003)
+
+    room = np.concatenate(
+        [
+            face((0, 0), (2.5, 0), 2.5),
+            wall_points((2.5, 0), (3.4, 0), 2.0, 2.5, rng, noise=0.003),  # the cabinet hides the rest
+            face((3.4, 0), (4, 0), 2.5),
+            face((4, 0), (4, 3), 2.5),
+            face((4, 3), (0, 3), 2.5),
+            face((0, 3), (0, 1.55), 2.5),
+            face((0, 1.45), (0, 0), 2.5),
+        ]
+    )
+    stub = np.concatenate(
+        [
+            face((0, 1.45), (1.5, 1.45), 2.5),  # south face, seen from afar
+            face((0, 1.55), (0.5, 1.55), 2.5),  # north face near the wall
+            face((0.5, 1.55), (1.5, 1.55), 2.05),  # ... and seen from close
+            face((1.5, 1.45), (1.5, 1.55), 2.05),
+        ]
+    )
+    cabinet = np.concatenate(
+        [
+            face((2.5, 0), (2.5, 0.45), 2.0),
+            face((2.5, 0.45), (3.4, 0.45), 2.0),
+            face((3.4, 0.45), (3.4, 0), 2.0),
+        ]
+    )
+    flying = np.column_stack([rng.uniform(2.5, 3.4, 30), np.full(30, 0.45), rng.uniform(2.3, 2.45, 30)])
+    model = model_walls(np.concatenate([room, stub, cabinet, flying]), 0.0, 2.7, CFG)
+    truth = np.array(
+        [[0, 0, 4, 0], [4, 0, 4, 3], [4, 3, 0, 3], [0, 3, 0, 1.55], [0, 1.55, 1.5, 1.55], [1.5, 1.55, 1.5, 1.45],
+         [1.5, 1.45, 0, 1.45], [0, 1.45, 0, 0]]
+    )  # fmt: skip
+    ev = evaluate_walls(model.walls, truth)
+    assert ev["completeness"] >= 0.97 and ev["correctness"] >= 0.99 and ev["corner_f1"] == 1.0, ev
+    north = model.walls[(np.abs(model.walls[:, 1] - 1.55) < 0.02) & (np.abs(model.walls[:, 3] - 1.55) < 0.02)]
+    assert len(north) == 1 and abs(north[0, 2] - north[0, 0]) == pytest.approx(1.5, abs=0.03)
+    assert model.metrics["lines_below_top"] >= 1  # the cabinet's faces
+
+
+def test_a_partition_face_seen_only_from_close_range_stays_and_thin_shelves_go(rng):
+    """A 1.5 m partition stub (0.1 m thick) from the west wall of a 5 m x 4 m room: its north face was seen
+    only from close range, up to 2.05 m over its whole length, below the slice top; its south face reaches
+    the top. Two 1.8 m shelves 0.25 m deep (thinner than a partition may be): one against the south wall,
+    which goes on past both its ends, one in the north-east corner, whose end the north wall closes. The
+    stub's north face stays (the other face of a thin wall whose faces end together at a free end); the
+    shelves' fronts go."""
+
+    def face(a, b, z1=2.5):
+        return wall_points(a, b, 1.5, z1, rng, noise=0.003)
+
+    room = np.concatenate(
+        [
+            face((0, 0), (5, 0)),
+            face((5, 0), (5, 4)),
+            face((5, 4), (0, 4)),
+            face((0, 4), (0, 2.1)),
+            face((0, 2.0), (0, 0)),
+            face((0, 2.0), (1.5, 2.0)),  # the stub's south face
+            face((0, 2.1), (1.5, 2.1), 2.05),  # its north face, seen from close range
+            face((1.5, 2.0), (1.5, 2.1), 2.05),
+            face((2.5, 0.25), (3.5, 0.25), 1.8),  # shelf against the south wall
+            face((2.5, 0.0), (2.5, 0.25), 1.8),
+            face((3.5, 0.0), (3.5, 0.25), 1.8),
+            face((4.75, 4.0), (4.75, 3.0), 1.8),  # shelf in the north-east corner
+            face((4.75, 3.0), (5.0, 3.0), 1.8),
+        ]
+    )
+    model = model_walls(room, 0.0, 2.7, CFG)
+    truth = np.array(
+        [[0, 0, 5, 0], [5, 0, 5, 4], [5, 4, 0, 4], [0, 4, 0, 2.1], [0, 2.1, 1.5, 2.1], [1.5, 2.1, 1.5, 2.0],
+         [1.5, 2.0, 0, 2.0], [0, 2.0, 0, 0]]
+    )  # fmt: skip
+    ev = evaluate_walls(model.walls, truth)
+    assert ev["completeness"] >= 0.97 and ev["correctness"] >= 0.99 and ev["corner_f1"] == 1.0, ev
+    assert model.metrics["lines_below_top"] >= 2  # the shelves' fronts
+
+
+def test_extend_to_data_moves_ends_to_where_the_data_ends():
+    """A row of wall pixels from x = 0.2 m to 1.8 m with a 3 cm hole at 1.5 m and a 10 cm hole at 0.5 m:
+    a line found from 0.8 m to 1.2 m reaches 1.8 m on one side (the small hole is bridged) and 0.6 m on
+    the other (the large one is not)."""
+    from tasks.walls import _Grid, extend_to_data
+
+    grid = _Grid(np.array([0.0, 0.0]), 0.01, (40, 220))
+    binary = np.zeros(grid.shape, dtype=bool)
+    binary[20, 20:180] = True  # cell centres x = 0.205 .. 1.795 at y = 0.205
+    binary[20, 150:153] = False
+    binary[20, 50:60] = False
+    line = np.array([[0.805, 0.205, 1.205, 0.205]])
+    out = extend_to_data(line, binary, grid, 0.02, 0.05, 0.8)
+    assert out[0, 2] == pytest.approx(1.795 + 0.02, abs=0.011)
+    assert out[0, 0] == pytest.approx(0.605 - 0.02, abs=0.011)
+    assert out[0, [1, 3]] == pytest.approx([0.205, 0.205])
+
+
 def test_every_alpha_setting_works(rng):
     pts = box_slice(rng, noise=0.005)
     fixed = model_walls(pts, 0.0, 2.7, WallsConfig(alpha=0.3))
