@@ -582,6 +582,74 @@ def _jamb(p: NDArray, u: NDArray, segs: NDArray, thick: NDArray, i: int, mask_f:
     return bool(_sample_mask(mask_f, (p + reach * u)[None])[0] > 0.5)
 
 
+def _regularize(segs: NDArray, band_px: NDArray, lcfg: lines.LinesConfig) -> NDArray[np.float64]:
+    """`lines.regularize`, except that walls its orientation clusters would turn by more than the angle
+    tolerance and more than their own angle is uncertain keep out of those clusters: a wing of the
+    building drawn a few degrees off the main axes would otherwise be snapped to them, and would pull the
+    main axes off by a fraction of a degree (0.3 degrees is 0.3 m over 60 m). The two sets are
+    regularized apart. A skeleton piece can tilt across its ink band (band_px (N,) wide) by up to
+    atan(band / length) and still lie in it: that is how uncertain its angle is."""
+    out, rot = lines.regularize(segs, lcfg)
+    uncertain = np.arctan2(np.maximum(band_px, 2.0), np.maximum(lines.lengths(segs), 1e-9))
+    off = np.abs(rot) > np.maximum(math.radians(lcfg.angle_tol_deg), uncertain)
+    if off.any() and not off.all():
+        out[~off] = lines.regularize(segs[~off], lcfg)[0]
+        out[off] = lines.regularize(segs[off], lcfg)[0]
+    return out
+
+
+def _join_hidden_junctions(
+    segs: NDArray, thick: NDArray, support: NDArray[np.float32], door_min_px: float
+) -> NDArray[np.float64]:
+    """Free wall ends whose prolongation meets another wall after a gap narrower than the smallest door
+    and drawn (ink or a removed symbol over all of it): the junction is hidden under a symbol, and the
+    wall is prolonged to the other wall's centreline. A gap of paper stays open."""
+    out = segs.copy()
+    for i, e in _free_ends(segs, 1.0, thick):
+        a, b = segs[i, :2], segs[i, 2:]
+        p, q = (b, a) if e else (a, b)
+        u = (p - q) / max(float(np.hypot(*(p - q))), 1e-9)
+        r = _first_wall_hit(p, u, segs, thick, i)
+        if not r < door_min_px:
+            continue
+        pts = p + np.linspace(0, r, max(2, int(r) + 1))[:, None] * u
+        if float((_sample_mask(support, pts) > 0.5).mean()) >= 0.99:
+            out[i, 2 * e : 2 * e + 2] = p + r * u
+    return out
+
+
+def _on_other_wall(p: NDArray, q: NDArray, segs: NDArray, i: int, jamb: tuple[int, int] | None) -> bool:
+    """Whether the middle of the gap p -> q (a quarter, half and three quarters along) lies on a wall
+    other than i and the jamb's wall (within a pixel): the wall runs on there, the gap is no opening."""
+    skip = [i] if jamb is None else [i, jamb[0]]
+    others = np.delete(segs, skip, axis=0)
+    probe = p + np.outer([0.25, 0.5, 0.75], q - p)
+    return bool(len(others) and lines.point_segment_distances(probe, others).min() <= 1.0)
+
+
+def _first_wall_hit(
+    p: NDArray, u: NDArray, segs: NDArray, thick: NDArray, i: int, skip: int | None = None
+) -> float:
+    """Distance (px) from the end p of wall i along the unit direction u to the first other wall the
+    prolongation meets (inf when none). A wall is met when the ray crosses its centreline within its
+    length, lengthened by half the thickness of wall i plus a pixel (a wall ending beside the ray still
+    blocks the gap's ink band). Walls crossing within their half thickness of p are the junction p sits
+    at (a jamb at a corner), not an obstacle; nor is wall `skip`."""
+    best = math.inf
+    for k in range(len(segs)):
+        if k == i or k == skip:
+            continue
+        t = segs[k]
+        hit = lines.line_intersection(np.concatenate([p, p + u]), t)
+        if hit is None:
+            continue
+        _x, s_ray, s_seg = hit
+        slack = (thick[i] / 2 + 1.0) / max(float(np.hypot(*(t[2:] - t[:2]))), 1e-9)
+        if s_ray > thick[k] / 2 + 1.0 and -slack <= s_seg <= 1 + slack:
+            best = min(best, s_ray)
+    return best
+
+
 def _find_doors(
     segs: NDArray, thick: NDArray, cfg_px: dict[str, float], mask_f: NDArray[np.float32] | None = None
 ) -> NDArray[np.float64]:
@@ -589,6 +657,8 @@ def _find_doors(
     crossing wall) after a gap between door_min and door_max."""
     doors: list[NDArray] = []
     used: set[tuple[int, int]] = set()
+    ang = lines.angles(segs) if len(segs) else np.zeros(0)
+    sin_tol = math.sin(math.radians(2.0))
     # an end inside another wall's ink is a junction the skeleton stopped short of, not a door jamb
     free = _free_ends(segs, 1.0, thick)
     for i, e in free:
@@ -598,18 +668,26 @@ def _find_doors(
         p = s[2:] if e else s[:2]
         q = s[:2] if e else s[2:]
         u = (p - q) / max(float(np.hypot(*(p - q))), 1e-9)
+        # a door is a gap in one wall: the prolongation stops at the first wall it meets, and a wall end
+        # beyond that (the same line on the far side of a corridor) is not the other jamb
+        reach = _first_wall_hit(p, u, segs, thick, i)
         best = None
         for j in range(len(segs)):
             if j == i:
                 continue
             t = segs[j]
-            for ej, pt in ((0, t[:2]), (1, t[2:])):
+            # the other jamb is the end of a wall on the same line: parallel (a crossing wall's end that
+            # lies on the line is a corner, met by the ray below) and within half a thickness of the line
+            parallel = abs(math.sin(float(lines.angle_difference(ang[i], ang[j])))) <= sin_tol
+            for ej, pt in ((0, t[:2]), (1, t[2:])) if parallel else ():
                 # collinear continuation: a facing end, free or at a corner (a door beside a T-junction)
                 if (j, ej) in used or float((t[2:] if ej == 0 else t[:2]) @ u - pt @ u) <= 0:
                     continue
                 v = pt - p
                 along = float(v @ u)
                 lateral = abs(float(v[0] * u[1] - v[1] * u[0]))
+                if along > reach + thick[j] / 2 + 1.0:
+                    continue
                 if cfg_px["door_min"] <= along <= cfg_px["door_max"] and lateral < max(thick[i], 2.0) / 2:
                     if best is None or along < best[0]:
                         best = (along, pt.copy(), (j, ej))
@@ -618,10 +696,16 @@ def _find_doors(
                 x, s_ray, s_seg = hit
                 # the wall's end may stop at the face of the wall the ray runs along (a door at a corner)
                 slack = (thick[i] / 2 + 1.0) / max(float(np.hypot(*(t[2:] - t[:2]))), 1e-9)
-                if -slack <= s_seg <= 1 + slack and cfg_px["door_min"] <= s_ray <= cfg_px["door_max"]:
+                if (
+                    -slack <= s_seg <= 1 + slack
+                    and cfg_px["door_min"] <= s_ray <= cfg_px["door_max"]
+                    and s_ray <= reach + 1e-6
+                ):
                     foot = x - u * thick[j] / 2  # stop at the face of the crossing wall
                     if best is None or s_ray < best[0]:
                         best = (s_ray, foot, None)
+        if best is not None and _on_other_wall(p, best[1], segs, i, best[2]):
+            best = None  # the gap runs along another wall: the wall goes on, no opening
         if best is not None:
             doors.append(np.concatenate([p, best[1]]))
             used.add((i, e))
@@ -629,9 +713,8 @@ def _find_doors(
                 used.add(best[2])
     # a door beside two junctions (both jambs trimmed to a crossing wall) has no free end: collinear
     # walls whose facing ends are a door width apart with nothing crossing the gap
-    ang = lines.angles(segs) if len(segs) else np.zeros(0)
     for i, j in itertools.combinations(range(len(segs)), 2):
-        if abs(math.sin(float(lines.angle_difference(ang[i], ang[j])))) > math.sin(math.radians(2.0)):
+        if abs(math.sin(float(lines.angle_difference(ang[i], ang[j])))) > sin_tol:
             continue
         for ei, ej in itertools.product((0, 1), (0, 1)):
             if (i, ei) in used or (j, ej) in used:
@@ -646,10 +729,10 @@ def _find_doors(
                 continue
             if lateral >= max(thick[i], 2.0) / 2:
                 continue
-            probe = p + np.outer([0.25, 0.5, 0.75], v)
-            others = np.delete(segs, [i, j], axis=0)
-            if len(others) and lines.point_segment_distances(probe, others).min() <= 1.0:
+            if _on_other_wall(p, q, segs, i, (j, ej)):
                 continue
+            if along > _first_wall_hit(p, u, segs, thick, i, j) + thick[j] / 2 + 1.0:
+                continue  # another wall crosses the gap: the two ends face each other across a room
             if mask_f is not None and not (
                 _jamb(p, u, segs, thick, i, mask_f) and _jamb(q, -u, segs, thick, j, mask_f)
             ):
@@ -780,6 +863,25 @@ def parse_plan(
     # white pictograms inside a sign belong to the sign
     sym_any = _close(sym_any, np.ones((hole, hole), np.uint8)).astype(bool)
     ink = dark & ~sym_any
+    # vivid ink of another hue in a symbol's rim: line work of another layer running past the symbol
+    # (a wall face past a window drawn in blue); given back below if it is the wall layer's
+    rim_other = np.zeros(dark.shape, bool)
+    rim_same = np.zeros(dark.shape, bool)
+    if sym_union.any():
+        hsv = cv2.cvtColor(img, cv2.COLOR_RGB2HSV)
+        hue = hsv[..., 0].astype(np.float32) * 2.0
+        vivid = dark & (hsv[..., 1] >= cfg.symbol_min_saturation) & (hsv[..., 2] >= cfg.symbol_min_value)
+        hues = {"green": cfg.green_hue_deg, "red": cfg.red_hue_deg, "blue": cfg.blue_hue_deg}
+        for c, m in syms.items():
+            if c in pen or not m.any():
+                continue
+            grown = _close(cv2.dilate(m.astype(np.uint8), kernel), np.ones((hole, hole), np.uint8)).astype(
+                bool
+            )
+            own_hue = _hue_mask(hue, hues[c])
+            rim_other |= grown & vivid & ~own_hue
+            rim_same |= grown & own_hue
+        rim_other &= ~rim_same & ~sym_union  # in the rim of a symbol of its own colour, it is that symbol
     timings["clean_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -790,6 +892,9 @@ def parse_plan(
     wall_layers, layer_evidence = _wall_layers(ink, layers, px, cfg)
     faces = None
     if layer_evidence:  # several colour layers hold line work
+        rim_layers = _ink_layers(img, rim_other, cfg)
+        ink |= rim_other & np.isin(rim_layers, wall_layers)
+        layers = _ink_layers(img, ink, cfg)
         # a drawing in coloured layers: only the wall layers' lines (rims included) are wall faces, and
         # where another layer's line is drawn over a face (a bath tub's rim, a window sill) the face runs on
         w8 = cv2.dilate((np.isin(layers, wall_layers) & ink).astype(np.uint8), np.ones((3, 3), np.uint8))
@@ -846,7 +951,8 @@ def parse_plan(
     segs = np.zeros((0, 4))
     if len(raw):
         segs = lines.merge_segments(raw, lcfg).segments
-        segs, _ = lines.regularize(segs, lcfg)
+        band = np.array([_thickness_px(sg, mask_f, cfg.max_outline_width_m * px)[0] for sg in segs])
+        segs = _regularize(segs, band, lcfg)
         segs = lines.merge_segments(segs, lcfg).segments
         segs, _ = _centre_and_measure(segs, mask_f, cfg.max_outline_width_m * px)
 
@@ -879,6 +985,7 @@ def parse_plan(
             segs[i, 2:] = b + u * thick[i] / 2
         else:
             segs[i, :2] = a - u * thick[i] / 2
+    segs = _join_hidden_junctions(segs, thick, support, cfg.door_min_m * px)
     timings["vectorize_s"] = time.perf_counter() - t
     if len(segs) < cfg.min_walls:
         raise ValueError(f"{name}: only {len(segs)} straight walls found, no floor plan in it")

@@ -4,6 +4,7 @@ inputs, the CLI-level writer, and the real MLSTRUCT-FP CAD plans."""
 from __future__ import annotations
 
 import json
+import math
 
 import cv2
 import numpy as np
@@ -16,6 +17,8 @@ from tasks.evaluate import evaluate_walls
 from tasks.plan import (
     PlanConfig,
     PlanScale,
+    _find_doors,
+    _regularize,
     load_plan_image,
     parse_plan,
     rectangle_centrelines,
@@ -168,6 +171,60 @@ def test_evacuation_plan_walls_rooms_doors():
     )
     assert m["text_components"] > 10
     assert res.preview.shape == (*evacuation_plan().shape[:2], 3)
+
+
+def test_door_gaps_stay_in_their_wall():
+    """Known answer in pixels (50 px/m, doors 0.5-2.2 m): a corridor 2 m wide between walls at v = 100
+    and v = 200. A partition stops 8 px short of the north corridor wall (its junction hidden) and the
+    wall on the far side of the corridor starts 2 px off its line: nearly collinear ends 1.9 m apart, but
+    across the corridor, not a door. The north wall's 0.9 m gap is the one door; a crossing wall whose
+    end lies on the line (the west wall, tilted by rounding) is a corner, not a jamb."""
+    segs = np.array(
+        [
+            [0.0, 100, 250, 100],  # north corridor wall, west of the door
+            [295, 100, 400, 100],  # north corridor wall, east of the door
+            [0, 200, 400, 200],  # south corridor wall
+            [150, 0, 150, 92],  # partition north of the corridor, free end short of its wall
+            [152, 208, 152, 300],  # partition south of the corridor, 2 px off that line
+            [0.3, 200, 0.0, 320],  # west wall south of the corridor, its end on the south wall's line
+            [340, 200, 340, 300],  # a T-junction on the south wall
+        ]
+    )
+    thick = np.full(len(segs), 7.0)
+    doors = _find_doors(segs, thick, {"door_min": 25.0, "door_max": 110.0})
+    assert doors.shape == (1, 4)
+    np.testing.assert_allclose(sorted(doors[0, ::2]), [250, 295], atol=0.5)
+    np.testing.assert_allclose(doors[0, 1::2], [100, 100], atol=0.5)
+
+
+def test_tilted_wing_keeps_its_angle():
+    """Known answer in pixels (50 px/m): a 60 m x 30 m block of walls on the axes and a wing of two 4 m
+    walls 0.2 m thick drawn 4 degrees off (floor 848 has such a wing). One orientation cluster for all
+    (what the variance criterion picks, the wing is too short to matter to it) snaps the wing onto the
+    axis and tilts the main walls by 0.075 degrees, 8 cm over 60 m; the wing must keep its angle and the
+    main walls stay on the axes. Without the wing, a 60 px skeleton piece tilted 3 degrees across its 16 px ink band
+    is as uncertain as that and goes with the main walls."""
+    px = 50.0
+    tilt = math.radians(4.0)
+    main = [[0, y * px, 60 * px, y * px] for y in (0, 10, 20, 30)]
+    main += [[x * px, 0, x * px, 30 * px] for x in (0, 12, 24, 36, 48, 60)]
+    wing = [
+        [x * px, 40 * px, x * px + 4 * px * math.cos(tilt), 40 * px + 4 * px * math.sin(tilt)] for x in (2, 8)
+    ]
+    lcfg = PlanConfig().lines.scaled(px)
+
+    def angles_deg(segs, band_px):
+        out = _regularize(np.array(segs, dtype=np.float64), np.full(len(segs), band_px), lcfg)
+        return np.degrees(np.arctan2(out[:, 3] - out[:, 1], out[:, 2] - out[:, 0]))
+
+    ang = angles_deg(main + wing, 10.0)  # walls 0.2 m thick
+    np.testing.assert_allclose(ang[:4], 0.0, atol=1e-6)
+    np.testing.assert_allclose(np.abs(ang[4:10]), 90.0, atol=1e-6)
+    np.testing.assert_allclose(ang[10:], 4.0, atol=1e-6)
+    piece = [[10 * px, 10 * px, 10 * px + 60, 10 * px + 60 * math.tan(math.radians(3.0))]]
+    ang = angles_deg(main + piece, 16.0)
+    np.testing.assert_allclose(ang[[1, 2, 3, 10]], ang[0], atol=1e-6)  # one cluster, its mean barely moved
+    assert abs(ang[0]) < 0.01
 
 
 def test_symbols_are_bridged():
@@ -324,6 +381,27 @@ def test_coloured_cad_layers():
     assert np.median(errs) <= 0.01
 
 
+def test_symbol_rims_keep_other_layers_faces():
+    """A blue sign and blue window-frame lines drawn close together (solid once closed, like a symbol)
+    against the inner face of the green north wall: the symbols' grown rims must not cut the wall face
+    of another colour layer, so the north wall stays whole (floor 302's corridor walls)."""
+    image, truth = coloured_cad_plan()
+    blue, t = (0, 0, 255), 0.2
+    for dy in (0.04, 0.08, 0.12):
+        cv2.line(image, (_px(9), _px(1 + t / 2 + dy)), (_px(11), _px(1 + t / 2 + dy)), blue, 1)
+    cv2.rectangle(image, (_px(3), _px(1 + t / 2 + 0.03)), (_px(3.4), _px(1.5)), blue, -1)
+    res = parse_plan(image, PlanScale(m_per_px=S), PlanConfig())
+    north = res.walls[np.abs(res.walls[:, 1] + 1) + np.abs(res.walls[:, 3] + 1) < 0.1]
+    xs = sorted((min(a, b), max(a, b)) for a, b in north[:, ::2])
+    reach = xs[0][1]
+    for a, b in xs[1:]:
+        assert a <= reach + 0.05, xs  # no gap along the north wall
+        reach = max(reach, b)
+    assert xs[0][0] <= 1.05 and reach >= 12.95, xs
+    ev = evaluate_walls(res.walls, truth, tol_m=0.05)
+    assert ev["completeness"] >= 0.98, ev
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("floor", ["848", "966", "1060"])
 def test_real_cad_plans(realdata, floor):
@@ -341,3 +419,25 @@ def test_real_cad_plans(realdata, floor):
     assert ev["correctness"] >= 0.90, ev
     assert np.median(thickness_errors(res.walls, res.thickness_m, truth, truth_t, tol_m=0.10)) <= 0.02
     assert res.metrics["timings"]["total_s"] < 30
+
+
+@pytest.mark.parametrize("seed", [8, 12])
+def test_generator_plans(seed):
+    """The generator's evacuation plans drawn straight from a building (no survey): seed 12 once put a door
+    across its hallway (a partition's junction hidden under a fire-extinguisher sign), seed 8 a door along
+    a wall. Issue 7 targets: walls at 0.05 m, every room found once with IoU >= 0.95."""
+    from tasks.synth.building import generate_building
+    from tasks.synth.plan_raster import PlanRasterConfig, render_plan
+    from tasks.synth.survey import planned_truth
+
+    building = generate_building(seed)
+    plan = render_plan(building, PlanRasterConfig())
+    truth, _, rooms = planned_truth(building)
+    res = parse_plan(plan.image, PlanScale(m_per_px=plan.m_per_px), PlanConfig())
+    ev = evaluate_walls(res.walls, truth, tol_m=0.05)
+    assert ev["completeness"] >= 0.95, ev
+    assert ev["correctness"] >= 0.95, ev
+    per_truth, per_pred = _room_scores(res.rooms, [shapely.geometry.shape(f["geometry"]) for f in rooms])
+    assert min(per_truth) >= 0.95, per_truth
+    assert min(per_pred) >= 0.95, per_pred
+    assert len(res.rooms) == len(rooms)
