@@ -85,13 +85,15 @@ class RegisterConfig:
     """An ICP correction moving the frame more than this (or turning it more than 5 degrees) is rejected."""
     sfm_attempts: int = 2
     """SfM runs (seeds random_seed, +1, ...) at most: another is made while the per-frame scales of the best so
-    far spread more than `sfm_max_scale_spread`; the one registering most frames, then with the smallest
-    spread, is kept."""
-    sfm_max_scale_spread: float = 0.003
-    """Relative spread (robust σ / scale) of the per-frame scales (eq 3.16) above which a reconstruction
-    may be bent: 0.15 % on a well-mapped synthetic room, 0.63 % on the same room mapped with an unlucky seed
-    (8 cm ATE; 0.3 cm with the next seed). Real Kinect v1 frames spread more anyway (7-Scenes: 1.3 % with
-    every seed, from depth noise and timing), so they always take the second run."""
+    far drift along the capture more than `sfm_max_scale_trend`; the one registering most frames, then with
+    the smallest drift, is kept."""
+    sfm_max_scale_trend: float = 0.015
+    """Change of the per-frame scales (eq 3.16) from the first frame to the last, relative to the scale
+    (`ScaleReport.relative_trend`), above which a reconstruction is bent: -5.5 % on a synthetic room mapped
+    with an unlucky seed (8 cm ATE; 0.1 % and 0.7 cm with the next seed), 0.1-0.3 % on well-mapped ones.
+    Real Kinect v1 frames spread more from depth noise and timing but without a trend (7-Scenes: 1.3 %
+    spread, -0.5 % trend with either seed), so they are mapped once; the spread was the old criterion and
+    sent every real capture through SfM twice."""
     fallback_min_registered_fraction: float = 0.5
     """Below this share of frames registered by SfM, the track-based fallback places the frames."""
     floor_angle_tol_deg: float = 45.0
@@ -1307,8 +1309,8 @@ def register_room(
     for attempt in range(max(cfg.sfm_attempts, 1)):
         # RANSAC in the mapper now and then bends a reconstruction (seen on a synthetic room: 8 cm ATE
         # with one seed, 0.3 cm with the next two); the bend shows as per-frame scales that drift along
-        # the capture, so a reconstruction whose scales disagree is made again with another seed and
-        # the most consistent one is kept
+        # the capture, so a reconstruction whose scales drift is made again with another seed and the
+        # straightest one is kept
         seeded = replace(sfm_cfg, random_seed=sfm_cfg.random_seed + attempt)
         try:
             if len(images) < sfm_cfg.min_frames:
@@ -1346,15 +1348,16 @@ def register_room(
                 "seed": seeded.random_seed,
                 "registered": n_reg,
                 "relative_spread": candidate_report.relative_spread,
+                "relative_trend": round(candidate_report.relative_trend, 5),
             }
         )
-        better = report is None or (n_reg, -candidate_report.relative_spread) > (
+        better = report is None or (n_reg, -abs(candidate_report.relative_trend)) > (
             int(sfm.registered.sum()),
-            -report.relative_spread,
+            -abs(report.relative_trend),
         )
         if better:
             sfm, report, sfm_error = candidate, candidate_report, ""
-        if report.relative_spread <= cfg.sfm_max_scale_spread:
+        if abs(report.relative_trend) <= cfg.sfm_max_scale_trend:
             break
     del images
     registered = 0 if sfm is None else int(sfm.registered.sum())

@@ -99,6 +99,10 @@ class ScaleReport:
     """mad / scale."""
     frames_used: list[str]
     frames: list[FrameScale] = field(default_factory=list)
+    relative_trend: float = 0.0
+    """Change of the per-frame scales from the first frame to the last (Theil-Sen line through them in
+    capture order) / scale: a reconstruction bent by the mapper drifts in scale along the capture, while
+    depth noise spreads the scales without a trend."""
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -106,6 +110,7 @@ class ScaleReport:
             "spread_mad": self.mad,
             "spread_iqr": self.iqr,
             "relative_spread": self.relative_spread,
+            "relative_trend": self.relative_trend,
             "frames_used": len(self.frames_used),
             "frame_names": self.frames_used,
             "per_frame": {
@@ -337,8 +342,19 @@ def combine_scales(frames: list[FrameScale], cfg: ScaleConfig) -> ScaleReport:
         value = med
     mad = float(1.4826 * np.median(np.abs(s - med)))
     q1, q3 = np.percentile(s, [25, 75])
+    trend = 0.0
+    if len(s) >= 3:
+        from scipy.stats import theilslopes
+
+        trend = float(theilslopes(s, np.linspace(0.0, 1.0, len(s)))[0])
     return ScaleReport(
-        value, mad, float(q3 - q1), mad / value if value else float("inf"), [f.name for f in frames], frames
+        value,
+        mad,
+        float(q3 - q1),
+        mad / value if value else float("inf"),
+        [f.name for f in frames],
+        frames,
+        trend / value if value else float("inf"),
     )
 
 

@@ -333,9 +333,9 @@ def test_register_room_without_overlap_falls_back_or_fails(tmp_path, rng):
     assert set(res.poses["method"]) == {"track"}
 
 
-def test_register_room_maps_again_when_the_per_frame_scales_disagree(tmp_path, rng, monkeypatch):
-    """A reconstruction whose per-frame scales spread (a bent map) is made again with the next seed, and the
-    most consistent one is kept; a consistent one is kept at once."""
+def test_register_room_maps_again_when_the_per_frame_scales_drift(tmp_path, rng, monkeypatch):
+    """A reconstruction whose per-frame scales drift along the capture (a bent map) is made again with the
+    next seed, and the straightest one is kept; a straight one is kept at once."""
     import tasks.register as reg
     from tasks.scale import ScaleReport
 
@@ -344,7 +344,7 @@ def test_register_room_maps_again_when_the_per_frame_scales_disagree(tmp_path, r
     grey = np.full((120, 160, 3), 128, np.uint8)
     frames = [(int(track[k, 0]), box_hits(cam, T, CORRIDOR)[0], grey) for k, T in enumerate(poses)]
     path = write_frames(tmp_path / "frames.parquet", frames)
-    spreads = {0: 0.008, 1: 0.001}
+    trends = {0: -0.05, 1: 0.002}
     seeds: list[int] = []
 
     class FakeSfm:
@@ -360,7 +360,7 @@ def test_register_room_maps_again_when_the_per_frame_scales_disagree(tmp_path, r
     def fake_scale(sfm, depths, calib, cfg):
         for _ in depths:
             pass
-        return ScaleReport(1.0, spreads[sfm.seed], spreads[sfm.seed], spreads[sfm.seed], [])
+        return ScaleReport(1.0, 0.01, 0.01, 0.01, [], relative_trend=trends[sfm.seed])
 
     def fake_apply(sfm, scale, calib):
         return {f"{k:06d}.png": T for k, T in enumerate(poses)}
@@ -371,7 +371,7 @@ def test_register_room_maps_again_when_the_per_frame_scales_disagree(tmp_path, r
     res = register_room(path, camera_info(cam), None, RegisterConfig(), SfmConfig(), tmp_path / "w")
     assert seeds == [0, 1]
     assert res.metrics["sfm"] == {"seed": 1}
-    assert [a["relative_spread"] for a in res.metrics["sfm_attempts"]] == [0.008, 0.001]
+    assert [a["relative_trend"] for a in res.metrics["sfm_attempts"]] == [-0.05, 0.002]
     seeds.clear()
     res = register_room(
         path, camera_info(cam), None, RegisterConfig(), SfmConfig(random_seed=1), tmp_path / "w2"
