@@ -58,6 +58,10 @@ class IngestConfig:
     """Stop after this many frames (0 = all)."""
     tum_depth_units_per_m: float = 5000.0
     """TUM RGB-D depth PNG units per metre."""
+    max_cloud_extent_m: float = 300.0
+    """A registered cloud spreading wider than this (1st to 99th percentile, x or y) is not in metres."""
+    max_cloud_height_m: float = 30.0
+    """...or higher than this (z roughly up: a room, a storey or a stairwell)."""
 
 
 @dataclass
@@ -109,6 +113,7 @@ def ingest_capture(
     started = time.perf_counter()
     if kind == "cloud":
         cloud = read_cloud(path)
+        check_cloud_units(cloud.points, path, cfg)
         write_cloud(out_dir / "cloud.ply", cloud)
         metrics: dict[str, Any] = {"points": len(cloud), "coloured": cloud.colors is not None}
     else:
@@ -118,6 +123,28 @@ def ingest_capture(
         metrics = write_frames(reader, out_dir, cfg, progress)
     metrics.update(capture_kind=kind, seconds=round(time.perf_counter() - started, 3))
     return metrics
+
+
+def check_cloud_units(points: NDArray[np.float64], path: Path, cfg: IngestConfig) -> None:
+    """Raise a one-line IngestError when a registered cloud's spread (1st to 99th percentile) cannot be a
+    room's in metres, naming the unit it looks like (from its height against a 2.7 m storey)."""
+    lo, hi = np.percentile(points, [1, 99], axis=0)
+    size = hi - lo
+    if size[:2].max() <= cfg.max_cloud_extent_m and size[2] <= cfg.max_cloud_height_m:
+        return
+    ratio = size[2] / 2.7
+    guess = next(
+        (
+            name
+            for name, k in (("millimetres", 1000.0), ("centimetres", 100.0), ("inches", 39.37))
+            if 0.4 < ratio / k < 2.5
+        ),
+        "another unit",
+    )
+    raise IngestError(
+        f"{path}: the cloud spans {size[0]:.4g} x {size[1]:.4g} x {size[2]:.4g} units (1-99 %), too large for a "
+        f"room in metres (it looks like {guess}); convert it to metres"
+    )
 
 
 def write_frames(

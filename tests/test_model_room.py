@@ -59,3 +59,16 @@ def test_model_room_degenerate_cloud_is_one_line(tmp_path, capsys, count):
     err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
     assert code == 2
     assert len(err) == 1 and "few.ply" in err[0]
+
+
+@pytest.mark.parametrize(("scale", "unit"), [(1000.0, "millimetres"), (100.0, "centimetres")])
+def test_model_room_cloud_in_the_wrong_unit_is_one_line(tmp_path, capsys, scale, unit):
+    """A 5 m x 3.5 m x 2.6 m room written in millimetres or centimetres: one line naming the file and the
+    unit it looks like, and nothing written."""
+    pts = box_room_points(np.random.default_rng(3), size_m=(5.0, 3.5, 2.6), spacing_m=0.1, noise_m=0.0)
+    write_ply_points(tmp_path / "room.ply", pts * scale)
+    code = main(["model-room", str(tmp_path / "room.ply"), "--out", str(tmp_path / "out")])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert code == 2
+    assert len(err) == 1 and "room.ply" in err[0] and unit in err[0], err
+    assert not (tmp_path / "out" / "walls.parquet").exists()
