@@ -32,8 +32,7 @@ def test_every_stage_of_every_room_completes(mini_run):
         for name in ("walls.parquet", "plan.geojson", "model.ply", "preview.png"):
             assert (work / "outputs" / "rooms" / room / name).is_file(), (room, name)
         walls = pq.read_table(work / "outputs" / "rooms" / room / "walls.parquet")
-        # the hallway is the hard case (SfM fails, the drifting track places it): a model, not a good one
-        assert walls.num_rows >= (1 if room == "hall" else 3), room
+        assert walls.num_rows >= 4, room
 
 
 def test_room_models_against_truth(mini_run):
@@ -46,9 +45,13 @@ def test_room_models_against_truth(mini_run):
     for room in ("r1", "r2", "r3", "r4"):  # Kinect v1 rooms registered by SfM + scale from depth
         assert rooms[room]["ate_2d_rmse_m"] < 0.10, room
         assert abs(rooms[room]["scale_error_pct"]) < 2.0, room
-        assert rooms[room]["correctness"] > 0.9, room
-        assert rooms[room]["accuracy_mean_m"] < 0.030, room  # the thesis: 30 mm on Kinect data
-    assert metrics["summary"]["mean_completeness"] > 0.5
+        assert rooms[room]["completeness"] > 0.95 and rooms[room]["correctness"] > 0.95, room
+        assert rooms[room]["corner_f1"] >= 0.9, room
+        assert rooms[room]["accuracy_mean_m"] < 0.015, room  # issue 4's target; the thesis: 30 mm
+    # the hallway: SfM fails and the drifting IMU track places its frames (issue 6's fallback); its walls
+    # are seen from a metre away and never reach the slice top
+    assert rooms["hall"]["completeness"] > 0.9 and rooms["hall"]["correctness"] > 0.9
+    assert metrics["summary"]["mean_completeness"] > 0.95
 
 
 def test_rerun_recomputes_nothing(mini_run, capsys):

@@ -248,6 +248,38 @@ def test_a_partition_face_seen_only_from_close_range_stays_and_thin_shelves_go(r
     assert model.metrics["lines_below_top"] >= 2  # the shelves' fronts
 
 
+def test_a_corridor_seen_from_close_range_keeps_its_walls_and_a_cabinet_still_goes(rng):
+    """A corridor 8 m x 2 m captured from a metre away: its walls hold data up to 2.05 m only (the camera's
+    vertical view), but the south wall is seen up to the slice top over its western 3 m and behind a
+    2.0 m cabinet (1.0 m wide, 0.45 m deep) standing against it at x = 5-6 m. The north wall and the end
+    walls reach the top nowhere; no top-reaching wall runs parallel and close behind them, so they stay;
+    the cabinet's front has the south wall 0.45 m behind it, and goes with its sides."""
+
+    def face(a, b, z1):
+        return wall_points(a, b, 1.5, z1, rng, noise=0.003)
+
+    pts = np.concatenate(
+        [
+            face((0, 0), (3, 0), 2.5),
+            face((3, 0), (5, 0), 2.05),
+            wall_points((5, 0), (6, 0), 2.0, 2.5, rng, noise=0.003),  # above the cabinet
+            face((6, 0), (8, 0), 2.05),
+            face((8, 0), (8, 2), 2.05),
+            face((8, 2), (0, 2), 2.05),
+            face((0, 2), (0, 0), 2.05),
+            face((5, 0), (5, 0.45), 2.0),
+            face((5, 0.45), (6, 0.45), 2.0),
+            face((6, 0.45), (6, 0), 2.0),
+        ]
+    )
+    model = model_walls(pts, 0.0, 2.7, CFG)
+    truth = np.array([[0, 0, 8, 0], [8, 0, 8, 2], [8, 2, 0, 2], [0, 2, 0, 0]])
+    ev = evaluate_walls(model.walls, truth)
+    assert model.closed and len(model.walls) == 4, model.walls
+    assert ev["completeness"] >= 0.99 and ev["correctness"] >= 0.99 and ev["corner_f1"] == 1.0, ev
+    assert model.metrics["lines_below_top"] >= 1  # the cabinet's front
+
+
 def test_extend_to_data_moves_ends_to_where_the_data_ends():
     """A row of wall pixels from x = 0.2 m to 1.8 m with a 3 cm hole at 1.5 m and a 10 cm hole at 0.5 m:
     a line found from 0.8 m to 1.2 m reaches 1.8 m on one side (the small hole is bridged) and 0.6 m on
