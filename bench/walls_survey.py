@@ -146,7 +146,12 @@ def room_cloud(
         for i, pose in enumerate(poses):
             depth_mm = render_depth_mm(building.mesh, pose, profile, size, rng)
             rendered.append((i, np.where(depth_mm > 0, depth_mm / 1000.0, np.nan), None))
-        fused, _ = fuse_capture(lambda: rendered, dict(enumerate(poses)), calib, cfg.register)
+        fused, _ = fuse_capture(
+            lambda ids: [f for f in rendered if ids is None or f[0] in ids],
+            dict(enumerate(poses)),
+            calib,
+            cfg.register,
+        )
         points = fused.points
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -428,22 +428,22 @@ def _dominant_plane(
 
 
 def fuse_capture(
-    frames: Callable[[], Iterable[FrameData]],
+    frames: Callable[[set[int] | None], Iterable[FrameData]],
     poses: dict[int, NDArray[np.float64]],
     calibration: Calibration,
     cfg: RegisterConfig,
     refined: dict[int, NDArray[np.float64]] | None = None,
 ) -> tuple[FusedCloud, RadialDepthError | None]:
     """`fuse_frames` after estimating the depth camera's radial error (`RadialDepthError`) on every n-th
-    placed frame (`radial_frames` of them) when `cfg.radial_correction`; `frames()` streams the capture
-    (called twice then)."""
+    placed frame (`radial_frames` of them) when `cfg.radial_correction`. `frames(ids)` streams the frames
+    whose id is in `ids` (None: all), so that only the sample is decoded for the estimate."""
     radial = None
     if cfg.radial_correction:
         step = max(1, len(poses) // max(cfg.radial_frames, 1))
-        sample = (f for i, f in enumerate(x for x in frames() if int(x[0]) in poses) if i % step == 0)
-        radial = estimate_radial_depth_error(sample, calibration, cfg)
+        sample = set(sorted(int(f) for f in poses)[::step])
+        radial = estimate_radial_depth_error(frames(sample), calibration, cfg)
     k = radial.k_inv_m if radial is not None else 0.0
-    return fuse_frames(frames(), poses, calibration, cfg, refined, k), radial
+    return fuse_frames(frames(None), poses, calibration, cfg, refined, k), radial
 
 
 def _transform(T: NDArray[np.float64], pts: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -1410,12 +1410,12 @@ def register_room(
     t0 = time.perf_counter()
     used_poses: dict[int, NDArray[np.float64]] = {}
 
-    def fuse_stream() -> Iterator[FrameData]:
+    def fuse_stream(only: set[int] | None) -> Iterator[FrameData]:
         from tasks.ingest import decode_rgb
 
         for r in iter_frames(frames_path, ["frame_id", "depth", "depth_kind", "depth_units_per_m", "rgb"]):
             fid = int(r["frame_id"])
-            if fid not in poses:
+            if fid not in poses or (only is not None and fid not in only):
                 continue
             yield fid, _decode_depth(r, depth_units_per_m), decode_rgb(r)
 
