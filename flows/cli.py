@@ -229,10 +229,10 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     if force_stage:
         if force_stage not in planning.STAGES:
             raise CliError(f"unknown stage {force_stage!r} (stages: {', '.join(planning.STAGES)})")
-        if force_stage in planning.BUILDING_STAGES:
-            force = [(planning.BUILDING, force_stage)]
-        else:
+        if planning.STAGES[force_stage].partition == "room":
             force = [(r, force_stage) for r in (rooms or survey.room_ids)]
+        else:
+            force = [(planning.BUILDING, force_stage)]
     work = args.work.resolve()
     argv = ["indoor-survey", *sys.argv[1:]]
     saved = planning.save_resolved_config(work, cfg, argv)
@@ -247,6 +247,9 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     started = time.perf_counter()
     rows = planning.all_current(req)
     if rows is None:
+        from flows import prefect_env
+
+        prefect_env.apply()
         from flows import pipeline  # starts Prefect only when there is work
 
         rows = pipeline.run_survey(req)

@@ -1,53 +1,46 @@
 """Prefect flows over the artefact store.
 
-`room_flow` runs every stage that applies to one room; `building_flow` maps the rooms concurrently (a room
-is a partition: rooms are independent until fusion). Each stage is one Prefect task whose cache key is
-the content address of its run (input content hashes + its own config section + its code version), with
-results persisted under the work dir, so Prefect's logs and UI show cache hits. The artefact store stays
-the source of truth: a key whose artefact folder is missing or fails its hashes has its Prefect record
-dropped and recomputes.
+`building_flow` runs the building's stages that the rooms read (calibrate, plan), maps `room_flow` over
+the rooms concurrently (a room is a partition: rooms are independent until fusion), then runs the
+building-after stages (fan-in) on every room's results, a failed room passed to them as failed. Each
+stage is one Prefect task whose cache key is the content address of its run (input content hashes + its
+config sections + its code version), with results persisted under the work dir, so Prefect's logs and
+UI show cache hits. The artefact store stays the source of truth: a key whose artefact folder is missing
+or fails its hashes has its Prefect record dropped and recomputes.
+
+Prefect's settings (offline, quiet, patient start-up) are the caller's: `flows.prefect_env.apply()`
+before this module is imported (the CLI does it).
 """
 
 from __future__ import annotations
 
 import logging
-import os
 from pathlib import Path
 from typing import Any
 
-for _name, _value in {
-    # Offline, quiet and patient: the embedded server needs more than the default 20 s to start here.
-    "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "120",
-    "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
-    "DO_NOT_TRACK": "1",
-    # Stage failures are reported by the run summary in one line each; Prefect's own copy of them is a
-    # traceback. PREFECT_LOGGING_LEVEL=ERROR in the environment brings those back for debugging.
-    "PREFECT_LOGGING_LEVEL": "CRITICAL",
-    # The embedded server is stopped when a run ends; its event writer's cancellation is not an error.
-    "PREFECT_SERVER_LOGGING_LEVEL": "CRITICAL",
-    "PREFECT_LOGGING_TO_API_ENABLED": "false",
-    "PREFECT_RESULTS_PERSIST_BY_DEFAULT": "true",
-}.items():
-    os.environ.setdefault(_name, _value)
+from prefect import allow_failure, flow, task
+from prefect.cache_policies import NO_CACHE
+from prefect.futures import PrefectFuture, wait
+from prefect.task_runners import ThreadPoolTaskRunner
 
-from prefect import flow, task  # noqa: E402
-from prefect.futures import PrefectFuture, wait  # noqa: E402
-from prefect.task_runners import ThreadPoolTaskRunner  # noqa: E402
-
-from flows.planning import (  # noqa: E402
+from flows.planning import (
+    Executed,
+    FanIn,
+    PlannedStage,
     RunRequest,
     StageCall,
     StageOutcome,
-    _outcomes,
-    breadth_first,
     cache_key,
+    current_results,
     execute,
+    fan_in_for,
     plan_survey,
     publish_deliverables,
+    room_failures,
     store_for,
 )
-from tasks import config as cfgmod  # noqa: E402
-from tasks.artefacts import StageResult  # noqa: E402
+from tasks import config as cfgmod
+from tasks.artefacts import BUILDING, StageResult
 
 log = logging.getLogger("indoor_survey")
 
@@ -57,13 +50,18 @@ PREFECT_RESULTS = "prefect-results"
 # ----------------------------------------------------------------------------------------- stage calls
 
 
+def _results(upstream: dict[str, Any]) -> dict[str, StageResult]:
+    """Upstream values as results; an optional upstream that failed arrives as its exception and is left
+    out (the stage runs without it)."""
+    return {name: value.result for name, value in upstream.items() if isinstance(value, Executed)}
+
+
 def _prefect_cache_key(context: Any, parameters: dict[str, Any]) -> str | None:
     """Prefect's cache key is the content key; a record whose artefact is gone is dropped first."""
     call: StageCall = parameters["call"]
     if call.force:
         return None
-    upstream: dict[str, StageResult] = parameters.get("upstream") or {}
-    key = cache_key(call, upstream)
+    key = cache_key(call, _results(parameters.get("upstream") or {}), parameters.get("fan_in"))
     store = store_for(call.work)
     # The record holds a StageResult naming the room's folder, so rooms with identical inputs must
     # not share one: the room and stage prefix the content key.
@@ -76,80 +74,125 @@ def _prefect_cache_key(context: Any, parameters: dict[str, Any]) -> str | None:
 
 
 @task(cache_key_fn=_prefect_cache_key, persist_result=True, task_run_name="{call.stage}[{call.room}]")
-def stage_task(call: StageCall, upstream: dict[str, StageResult]) -> StageResult:
+def stage_task(call: StageCall, upstream: dict[str, Any], fan_in: FanIn | None = None) -> Executed:
     """One stage for one room (or for the building)."""
-    return execute(call, upstream)
+    results = _results(upstream)
+    for name in sorted(set(upstream) - set(results)):
+        log.warning("[%s] %s: runs without %s, which failed", call.room, call.stage, name)
+    return execute(call, results, fan_in)
 
 
-# -------------------------------------------------------------------------------------------- routing
+def _submit(item: PlannedStage, upstream: dict[str, Any], fan_in: FanIn | None = None) -> PrefectFuture:
+    storage = Path(item.call.work) / PREFECT_RESULTS
+    task_ = stage_task.with_options(result_storage=storage, refresh_cache=item.call.force or None)
+    return task_.submit(item.call, upstream, fan_in)
 
 
-def _run(req: RunRequest) -> list[StageOutcome]:
-    cfg = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets))
-    survey = cfgmod.load_survey(Path(req.survey))
-    profile = cfgmod.load_sensor_profile(survey.sensor)
-    results = Path(req.work).resolve() / PREFECT_RESULTS
-    futures: dict[tuple[str, str], PrefectFuture] = {}
-    for item in breadth_first(plan_survey(req, cfg, survey, profile)):
-        call = item.call
-        upstream = {name: futures[ref] for name, ref in item.upstream.items()}
-        futures[(call.room, call.stage)] = stage_task.with_options(
-            result_storage=results, refresh_cache=call.force or None
-        ).submit(call, upstream)
-    wait(list(futures.values()))
-    store = store_for(req.work)
-    store.save_memo()
-    rows = outcomes(futures)
-    publish_deliverables(store, rows)
-    return rows
+# ----------------------------------------------------------------------------------------------- flows
 
 
 @flow(name="room", log_prints=False, validate_parameters=False, persist_result=False)
-def room_flow(req: RunRequest) -> list[StageOutcome]:
-    """Every stage that applies to the one room in `req.rooms`."""
-    return _run(req)
+def room_flow(chain: list[PlannedStage], building: dict[str, Executed]) -> list[StageOutcome]:
+    """Every stage of one room, given the building stages' results it may read. Never raises: a stage
+    that fails is reported, and the stages after it are skipped."""
+    futures: dict[tuple[str, str], PrefectFuture] = {}
+    rows: list[StageOutcome] = []
+    for item in chain:
+        upstream: dict[str, Any] = {}
+        missing = []
+        for name, ref in item.upstream.items():
+            if ref[0] == BUILDING:
+                if name in building:
+                    upstream[name] = building[name]
+                elif name not in item.optional:
+                    missing.append(name)
+            elif ref not in futures:
+                missing.append(name)
+            else:
+                future = futures[ref]
+                upstream[name] = allow_failure(future) if name in item.optional else future
+        if missing:
+            rows.append(StageOutcome(item.call.room, item.call.stage, "skipped", 0.0, f"{missing[0]} failed"))
+            continue
+        futures[item.ref] = _submit(item, upstream)
+    wait(list(futures.values()))
+    return outcomes(futures) + rows
 
 
-@flow(
-    name="building",
-    log_prints=False,
-    validate_parameters=False,
-    persist_result=False,
-)
+@task(name="room", task_run_name="room[{chain[0].call.room}]", cache_policy=NO_CACHE, persist_result=False)
+def room_task(chain: list[PlannedStage], building: dict[str, Executed]) -> list[StageOutcome]:
+    """A room's subflow as a task, so the task runner runs rooms concurrently (threads, or Dask)."""
+    return room_flow(chain, building)
+
+
+@flow(name="building", log_prints=False, validate_parameters=False, persist_result=False)
 def building_flow(req: RunRequest) -> list[StageOutcome]:
-    """All rooms of a survey (or those in `req.rooms`), concurrently."""
-    return _run(req)
+    """All rooms of a survey (or those in `req.rooms`): the building's stages before the rooms, the rooms
+    concurrently, then the building-after stages over every room."""
+    cfg = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets))
+    survey = cfgmod.load_survey(Path(req.survey))
+    profile = cfgmod.load_sensor_profile(survey.sensor)
+    plan = plan_survey(req, cfg, survey, profile)
+    before = {item.ref: _submit(item, {}) for item in plan.before}
+    wait(list(before.values()))
+    rows = outcomes(before)
+    building = {ref[1]: f.result() for ref, f in before.items() if f.state.is_completed()}
+    rooms = {room: room_task.submit(chain, building) for room, chain in plan.rooms.items() if chain}
+    wait(list(rooms.values()))
+    for room, future in rooms.items():
+        if future.state.is_completed():
+            rows += future.result()
+        else:  # the subflow itself broke (not a stage): every stage of the room is reported failed
+            message = _message(future)
+            rows += [StageOutcome(room, i.call.stage, "failed", 0.0, message) for i in plan.rooms[room]]
+    results = {(r.room, r.stage): r.result for r in rows if r.result is not None}
+    results.update(current_results(plan, plan.others))  # rooms outside the request: read, never run
+    failures = room_failures(rows)
+    finished = {ref[1]: Executed(result, "stored", 0.0) for ref, result in results.items() if ref[0] == BUILDING}
+    for item in plan.after:
+        fan_in = fan_in_for(item, results, failures, survey.room_ids)
+        upstream = {name: finished[name] for name in item.upstream if name in finished}
+        future = _submit(item, upstream, fan_in)
+        future.wait()
+        [row] = outcomes({item.ref: future})
+        rows.append(row)
+        if row.result is not None:
+            results[item.ref] = row.result
+            finished[item.call.stage] = Executed(row.result, "stored", 0.0)
+    store = store_for(req.work)
+    store.save_memo()
+    publish_deliverables(store, rows)
+    return rows
 
 
 # ---------------------------------------------------------------------------------------------- outcome
 
 
+def _message(future: PrefectFuture) -> str:
+    exc = future.state.result(raise_on_failure=False)
+    if isinstance(exc, BaseException):
+        return " ".join(str(exc).split())
+    return future.state.message or future.state.name
+
+
 def outcomes(futures: dict[tuple[str, str], PrefectFuture]) -> list[StageOutcome]:
-    """What happened to every stage of a run, for the summary and the exit code."""
+    """What happened to every stage call, for the summary and the exit code."""
     rows = []
     for (room, stage), future in futures.items():
         state = future.state
         if state.is_completed():
-            result = state.result()
-            kind, seconds = _outcomes.get((room, stage), ("cached", 0.0))
-            rows.append(
-                StageOutcome(room, stage, kind if state.name != "Cached" else "cached", seconds, "", result)
-            )
+            done: Executed = state.result()
+            how = "cached" if state.name == "Cached" else done.how
+            rows.append(StageOutcome(room, stage, how, done.seconds if how == "computed" else 0.0, "", done.result))
         elif state.is_failed() or state.is_crashed():
-            exc = state.result(raise_on_failure=False)
-            message = (
-                " ".join(str(exc).split()) if isinstance(exc, BaseException) else state.message or state.name
-            )
-            rows.append(StageOutcome(room, stage, "failed", 0.0, message))
+            rows.append(StageOutcome(room, stage, "failed", 0.0, _message(future)))
         else:  # never ran: an upstream stage failed
             rows.append(StageOutcome(room, stage, "skipped", 0.0, "an earlier stage failed"))
     return rows
 
 
 def run_survey(req: RunRequest) -> list[StageOutcome]:
-    """Run the building flow (or the room flow for one room) and report every stage's outcome."""
+    """Run the building flow and report every stage's outcome."""
     workers = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets)).flow.max_workers
-    runner = room_flow if len(req.rooms) == 1 else building_flow
     store_for(req.work).sweep_temporaries()
-    _outcomes.clear()
-    return runner.with_options(task_runner=ThreadPoolTaskRunner(max_workers=max(1, workers)))(req)
+    return building_flow.with_options(task_runner=ThreadPoolTaskRunner(max_workers=max(1, workers)))(req)

@@ -10,7 +10,7 @@ import logging
 import threading
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -25,8 +25,9 @@ from tasks.artefacts import (
     write_json,
 )
 from tasks.cloud import DegenerateInputError
-from tasks.ingest import capture_kind
-from tasks.stages import BUILDING_DELIVERABLES, ROOM_DELIVERABLES, STAGES, StageContext
+from tasks.context import StageContext
+from tasks.ingest.capture import capture_kind
+from tasks.stages import STAGES, downstream_of, load_class, stages_of
 
 log = logging.getLogger("indoor_survey")
 
@@ -47,10 +48,28 @@ class StageCall:
     extra_config: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class Executed:
+    """What one stage call returned: its result, and whether this call computed it or found it in the
+    store (a Prefect cache hit returns the record of the call that made it: flows tell that apart)."""
+
+    result: StageResult
+    how: str
+    """"computed" or "stored"."""
+    seconds: float
+
+
+@dataclass(frozen=True)
+class FanIn:
+    """A building-after stage's view of the rooms: each room's results of the stages it reads, and the
+    rooms without them, with the reason."""
+
+    rooms: dict[str, dict[str, StageResult]] = field(default_factory=dict)
+    failed: dict[str, str] = field(default_factory=dict)
+
+
 _stores: dict[str, ArtefactStore] = {}
 _stores_lock = threading.Lock()
-_outcomes: dict[tuple[str, str], tuple[str, float]] = {}
-"""(room, stage) -> ("computed" | "stored", seconds) for the runs whose task body executed."""
 
 
 def store_for(work: str | Path) -> ArtefactStore:
@@ -62,7 +81,7 @@ def store_for(work: str | Path) -> ArtefactStore:
         return _stores[key]
 
 
-def cache_key(call: StageCall, upstream: dict[str, StageResult]) -> str:
+def cache_key(call: StageCall, upstream: dict[str, StageResult], fan_in: FanIn | None = None) -> str:
     store = store_for(call.work)
     stage = STAGES[call.stage]
     inputs = {name: result.content_hash for name, result in upstream.items()}
@@ -71,33 +90,47 @@ def cache_key(call: StageCall, upstream: dict[str, StageResult]) -> str:
         inputs["params"] = hash_json(call.params)
     if stage.uses_profile:  # e.g. how to read a capture (topics, depth convention), fallback intrinsics
         inputs["sensor_profile"] = cfgmod.hash_profile(call.profile)
+    if fan_in is not None:
+        inputs["rooms"] = hash_json(
+            {room: {s: r.content_hash for s, r in results.items()} for room, results in fan_in.rooms.items()}
+        )
+        inputs["failed_rooms"] = hash_json(fan_in.failed)
     config = {stage.section: call.config, **call.extra_config} if call.extra_config else call.config
     return store.cache_key(stage.name, stage.code_version(), config, inputs)
 
 
-def execute(call: StageCall, upstream: dict[str, StageResult]) -> StageResult:
+def execute(call: StageCall, upstream: dict[str, StageResult], fan_in: FanIn | None = None) -> Executed:
     """Load-or-compute one stage: a verified store hit returns at once; otherwise the stage runs into a
     private folder that the store renames into place."""
     store = store_for(call.work)
     stage = STAGES[call.stage]
-    key = cache_key(call, upstream)
+    key = cache_key(call, upstream, fan_in)
     started = time.perf_counter()
     if not call.force:
         hit = store.lookup(call.room, call.stage, key)
         if hit is not None:
-            _outcomes[(call.room, call.stage)] = ("stored", time.perf_counter() - started)
-            return hit
-    defaults = cfgmod.PipelineConfig()
-    cfg = cfgmod.build_section(type(getattr(defaults, stage.section)), call.config)
+            return Executed(hit, "stored", time.perf_counter() - started)
+    cfg = cfgmod.build_section(load_class(stage.config), call.config)
     extra = {
-        name: cfgmod.build_section(type(getattr(defaults, name)), call.extra_config[name])
-        for name in stage.extra_sections
+        name: cfgmod.build_section(load_class(target), call.extra_config[name])
+        for name, target in stage.extra_sections
     }
 
     def progress(message: str) -> None:
         log.info("[%s] %s: %s", call.room, call.stage, message)
 
-    ctx = StageContext(call.room, upstream, call.raw_inputs, call.profile, progress, extra, call.params)
+    fan_in = fan_in or FanIn()
+    ctx = StageContext(
+        call.room,
+        upstream,
+        call.raw_inputs,
+        call.profile,
+        progress,
+        extra,
+        call.params,
+        fan_in.rooms,
+        fan_in.failed,
+    )
     log.info("[%s] %s: computing", call.room, call.stage)
     manifest = {
         "inputs": {name: r.content_hash for name, r in upstream.items()},
@@ -108,35 +141,27 @@ def execute(call: StageCall, upstream: dict[str, StageResult]) -> StageResult:
         "extra_config": call.extra_config,
         "code_version": stage.code_version(),
     }
+    if fan_in.rooms or fan_in.failed:
+        manifest["rooms"] = {room: sorted(results) for room, results in fan_in.rooms.items()}
+        manifest["failed_rooms"] = fan_in.failed
+    run = stage.runner()
 
     def write(out: Path) -> dict[str, Any]:
         t0 = time.perf_counter()
-        report = stage.run(ctx, cfg, out)  # {"metrics": {...}, other manifest entries...}
+        report = run(ctx, cfg, out)  # {"metrics": {...}, other manifest entries...}
         return {**report, "compute_seconds": round(time.perf_counter() - t0, 3)}
 
     result = store.commit(call.room, call.stage, key, write, manifest)
     seconds = time.perf_counter() - started
-    _outcomes[(call.room, call.stage)] = ("computed", seconds)
     log.info("[%s] %s: done in %.1f s", call.room, call.stage, seconds)
-    return result
+    return Executed(result, "computed", seconds)
 
 
 def room_stages(capture: Path) -> list[str]:
-    """The stages that apply to a room, given what its capture is: a registered cloud needs no
-    registration."""
-    if capture_kind(capture) == "cloud":
-        return ["ingest", "preprocess", "walls"]
-    return ["ingest", "register", "preprocess", "walls"]
-
-
-UPSTREAM: dict[str, tuple[str, ...]] = {
-    "register": ("ingest", "calibrate", "plan"),
-    "preprocess": ("register", "ingest"),
-    "walls": ("preprocess",),
-}
-"""Stage -> the stages whose results it reads (those that apply to the room, or the building's)."""
-
-BUILDING_STAGES = ("calibrate", "plan")
+    """The room stages that apply to a room, given what its capture is (a registered cloud needs no
+    registration), in table order."""
+    kind = capture_kind(capture)
+    return [s.name for s in stages_of("room") if s.applies(kind)]
 
 
 @dataclass(frozen=True)
@@ -156,29 +181,42 @@ def survey_inputs(
     survey: cfgmod.Survey | None, room: cfgmod.RoomSpec | None, stage_name: str
 ) -> dict[str, str]:
     """The raw survey files a stage reads (their content hashes enter its cache key)."""
-    if stage_name == "ingest" and room is not None:
-        return {"capture": str(room.capture)}
-    if survey is None:
-        return {}
-    if stage_name == "calibrate" and survey.calibration is not None and survey.calibration.is_dir():
-        return {"calibration": str(survey.calibration)}
-    if stage_name == "plan" and survey.plan is not None:
-        return {"plan": str(survey.plan.image)}
-    if stage_name == "register" and survey.track is not None and survey.track.is_file():
-        return {"track": str(survey.track)}
-    return {}
+    found: dict[str, str] = {}
+    for name in STAGES[stage_name].raw_inputs:
+        if name == "capture" and room is not None:
+            found[name] = str(room.capture)
+        elif survey is None:
+            continue
+        elif name == "calibration" and survey.calibration is not None and survey.calibration.is_dir():
+            found[name] = str(survey.calibration)
+        elif name == "plan" and survey.plan is not None:
+            found[name] = str(survey.plan.image)
+        elif name == "track" and survey.track is not None and survey.track.is_file():
+            found[name] = str(survey.track)
+    return found
+
+
+REQUIRED_RAW_INPUTS = {"capture", "plan"}
+"""Raw inputs without which a stage cannot run (the others have a fallback: the sensor profile's
+calibration, registration without a track)."""
 
 
 def survey_params(survey: cfgmod.Survey | None, stage_name: str) -> dict[str, Any]:
-    """Values from survey.yaml a stage needs (the plan's scale)."""
-    if stage_name == "plan" and survey is not None and survey.plan is not None:
-        plan = survey.plan
-        return {
-            "m_per_px": plan.m_per_px,
-            "known_distance": list(plan.known_distance) if plan.known_distance else None,
-            "outline_length_m": plan.outline_length_m,
-        }
-    return {}
+    """Values from survey.yaml a stage needs: the plan's scale, the survey's rooms."""
+    params: dict[str, Any] = {}
+    if survey is None:
+        return params
+    for name in STAGES[stage_name].params:
+        if name == "plan_scale" and survey.plan is not None:
+            plan = survey.plan
+            params.update(
+                m_per_px=plan.m_per_px,
+                known_distance=list(plan.known_distance) if plan.known_distance else None,
+                outline_length_m=plan.outline_length_m,
+            )
+        elif name == "rooms":
+            params["rooms"] = [{"id": r.id, "plan_room": r.plan_room} for r in survey.rooms]
+    return params
 
 
 def make_call(
@@ -190,14 +228,15 @@ def make_call(
     force: bool = False,
     survey: cfgmod.Survey | None = None,
 ) -> StageCall:
-    """The call for one stage of one room (room None: of the building): its config section and the raw
+    """The call for one stage of one room (room None: of the building): its config sections and the raw
     survey files it reads."""
+    stage = STAGES[stage_name]
     return StageCall(
         stage=stage_name,
         room=room.id if room is not None else BUILDING,
         work=str(Path(work).resolve()),
-        config=cfgmod.section(cfg, STAGES[stage_name].section),
-        extra_config={name: cfgmod.section(cfg, name) for name in STAGES[stage_name].extra_sections},
+        config=cfgmod.section(cfg, stage.section),
+        extra_config={name: cfgmod.section(cfg, name) for name, _ in stage.extra_sections},
         profile=profile,
         raw_inputs=survey_inputs(survey, room, stage_name),
         params=survey_params(survey, stage_name),
@@ -210,52 +249,111 @@ class PlannedStage:
     call: StageCall
     upstream: dict[str, tuple[str, str]]
     """Input name -> (room, stage) of the run that provides it."""
+    room_upstream: tuple[str, ...] = ()
+    """Building-after stages: the room stages it reads of every room."""
+
+    @property
+    def ref(self) -> tuple[str, str]:
+        return (self.call.room, self.call.stage)
+
+    @property
+    def optional(self) -> tuple[str, ...]:
+        return STAGES[self.call.stage].optional
+
+
+@dataclass(frozen=True)
+class SurveyPlan:
+    """Every stage run a request implies: the building's stages before the rooms, each requested room's
+    chain, the building's stages after the rooms, and the chains of the survey's other rooms (not run:
+    a building-after stage reads their current results)."""
+
+    before: list[PlannedStage]
+    rooms: dict[str, list[PlannedStage]]
+    after: list[PlannedStage]
+    others: dict[str, list[PlannedStage]] = field(default_factory=dict)
+
+    def items(self) -> list[PlannedStage]:
+        """The stage runs of the request, in dependency order."""
+        return [*self.before, *(i for chain in self.rooms.values() for i in chain), *self.after]
 
 
 def plan_survey(
     req: RunRequest, cfg: cfgmod.PipelineConfig, survey: cfgmod.Survey, profile: dict[str, Any]
-) -> list[PlannedStage]:
-    """Every stage run a request implies, in dependency order: the building's stages the rooms need,
-    then each room's chain. Forcing a stage forces what follows it in that room."""
-    rooms = [survey.room(r) for r in (req.rooms or survey.room_ids)]
-    chains = {room.id: room_stages(room.capture) for room in rooms}
-    needed = {up for chain in chains.values() for s in chain for up in UPSTREAM.get(s, ())}
-    planned: list[PlannedStage] = []
-    available: set[str] = set()
-    for stage_name in BUILDING_STAGES:
-        if (
-            stage_name in STAGES
-            and stage_name in needed
-            and (stage_name != "plan" or survey.plan is not None)
-        ):
-            force = (BUILDING, stage_name) in req.force
-            planned.append(
-                PlannedStage(make_call(req.work, cfg, profile, None, stage_name, force, survey), {})
-            )
-            available.add(stage_name)
-    for room in rooms:
-        forced = False
+) -> SurveyPlan:
+    """Every stage run a request implies. Forcing a room stage forces what follows it in that room and
+    the building-after stages that read it."""
+    requested = set(req.rooms or survey.room_ids)
+    chains = {room.id: room_stages(room.capture) for room in survey.rooms}
+    after_stages = stages_of("after")
+    readers = [s for chain in chains.values() for s in chain] + [s.name for s in after_stages]
+    needed = {up for name in readers for up in STAGES[name].upstream}
+    before: list[PlannedStage] = []
+    for stage in stages_of("before"):
+        raw = survey_inputs(survey, None, stage.name)
+        missing = [n for n in stage.raw_inputs if n in REQUIRED_RAW_INPUTS and n not in raw]
+        if missing or not (stage.name in needed or stage.deliverables):
+            continue
+        force = (BUILDING, stage.name) in req.force
+        before.append(PlannedStage(make_call(req.work, cfg, profile, None, stage.name, force, survey), {}))
+    available = {item.call.stage for item in before}
+    forced_after: set[str] = set()
+    rooms: dict[str, list[PlannedStage]] = {}
+    others: dict[str, list[PlannedStage]] = {}
+    for room in survey.rooms:
+        chain, forced = [], False
         for stage_name in chains[room.id]:
-            forced = forced or (room.id, stage_name) in req.force
+            if (room.id, stage_name) in req.force:
+                forced = True
+                forced_after |= downstream_of(stage_name)
             upstream = {}
-            for name in UPSTREAM.get(stage_name, ()):
+            for name in STAGES[stage_name].upstream:
                 if name in chains[room.id][: chains[room.id].index(stage_name)]:
                     upstream[name] = (room.id, name)
                 elif name in available:
                     upstream[name] = (BUILDING, name)
             call = make_call(req.work, cfg, profile, room, stage_name, forced, survey)
-            planned.append(PlannedStage(call, upstream))
-    return planned
+            chain.append(PlannedStage(call, upstream))
+        (rooms if room.id in requested else others)[room.id] = chain
+    after = []
+    for stage in after_stages:
+        force = stage.name in forced_after or (BUILDING, stage.name) in req.force
+        call = make_call(req.work, cfg, profile, None, stage.name, force, survey)
+        upstream = {name: (BUILDING, name) for name in stage.upstream if name in available}
+        after.append(PlannedStage(call, upstream, stage.room_upstream))
+        available.add(stage.name)
+    return SurveyPlan(before, rooms, after, others)
 
 
-def breadth_first(planned: list[PlannedStage]) -> list[PlannedStage]:
-    """Stage runs ordered by their depth in the dependency graph: a worker thread waiting for an upstream
-    result is a worker lost, so every room's first stage is submitted before any room's second."""
-    depth: dict[tuple[str, str], int] = {}
-    for item in planned:
-        refs = item.upstream.values()
-        depth[(item.call.room, item.call.stage)] = 1 + max((depth[ref] for ref in refs), default=-1)
-    return sorted(planned, key=lambda item: depth[(item.call.room, item.call.stage)])
+def fan_in_for(
+    item: PlannedStage, results: dict[tuple[str, str], StageResult], failures: dict[str, str], room_ids: list[str]
+) -> FanIn:
+    """A building-after stage's rooms: each room's results of the stages it reads; a room whose chain did
+    not finish is failed, with its first error."""
+    fan = FanIn()
+    for room in room_ids:
+        got = {s: results[(room, s)] for s in item.room_upstream if (room, s) in results}
+        if room in failures:
+            fan.failed[room] = failures[room]
+        elif got:
+            fan.rooms[room] = got
+        else:
+            fan.failed[room] = "no result"
+    return fan
+
+
+def current_results(plan: SurveyPlan, chains: dict[str, list[PlannedStage]]) -> dict[tuple[str, str], StageResult]:
+    """The results of `chains` that are current for today's inputs, config and code, from the store alone
+    (building-before results as the plan's own, when they are current)."""
+    found: dict[tuple[str, str], StageResult] = {}
+    for item in [*plan.before, *(i for chain in chains.values() for i in chain)]:
+        call = item.call
+        if any(ref not in found for ref in item.upstream.values()):
+            continue
+        store = store_for(call.work)
+        hit = store.lookup(call.room, call.stage, cache_key(call, {n: found[r] for n, r in item.upstream.items()}))
+        if hit is not None:
+            found[item.ref] = hit
+    return found
 
 
 @dataclass(frozen=True)
@@ -269,16 +367,22 @@ class StageOutcome:
     result: StageResult | None = None
 
 
+def room_failures(rows: list[StageOutcome]) -> dict[str, str]:
+    """Room -> the first error of a room whose chain did not finish."""
+    failures: dict[str, str] = {}
+    for row in rows:
+        if row.room != BUILDING and row.state in ("failed", "skipped") and row.room not in failures:
+            failures[row.room] = f"{row.stage}: {row.error}"
+    return failures
+
+
 def publish_deliverables(store: ArtefactStore, rows: list[StageOutcome]) -> None:
     """Copy finished deliverables to outputs/ (rooms' to outputs/rooms/<id>/), only what changed."""
     for row in rows:
         if row.result is None:
             continue
-        if row.room == BUILDING:
-            names, folder = BUILDING_DELIVERABLES.get(row.stage, ()), ()
-        else:
-            names, folder = ROOM_DELIVERABLES.get(row.stage, ()), ("rooms", row.room)
-        for name in names:
+        folder = () if row.room == BUILDING else ("rooms", row.room)
+        for name in STAGES[row.stage].deliverables:
             dest = store.outputs.joinpath(*folder, name)
             digest = row.result.files.get(name)
             if digest and not (dest.is_file() and sha256_file(dest) == digest):
@@ -294,29 +398,54 @@ def save_resolved_config(work: Path, cfg: cfgmod.PipelineConfig, argv: Iterable[
     return path
 
 
+def run_chain(
+    work: str | Path,
+    cfg: cfgmod.PipelineConfig,
+    profile: dict[str, Any],
+    stage_names: list[str],
+    room: cfgmod.RoomSpec | None = None,
+    raw_inputs: dict[str, str] | None = None,
+    params: dict[str, Any] | None = None,
+) -> dict[str, StageResult]:
+    """Stages run in order through load-or-compute without Prefect (the one-off CLI verbs), each reading
+    the earlier ones' results: the same stage code and cache as `run`. `raw_inputs` and `params` give
+    what a survey would (a plan image and its scale, a calibration folder)."""
+    results: dict[str, StageResult] = {}
+    for name in stage_names:
+        call = make_call(work, cfg, profile, room, name)
+        stage = STAGES[name]
+        given = {k: v for k, v in (raw_inputs or {}).items() if k in stage.raw_inputs}
+        call = replace(call, raw_inputs={**call.raw_inputs, **given}, params={**call.params, **(params or {})})
+        upstream = {n: results[n] for n in stage.upstream if n in results}
+        results[name] = execute(call, upstream).result
+    store_for(work).save_memo()
+    return results
+
+
+def export(result: StageResult, names: Iterable[str], out_dir: Path) -> list[Path]:
+    """Copy a stage's files to a user's folder, each atomically."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name in names:
+        with atomic_path(out_dir / name) as tmp:
+            tmp.write_bytes(result.file(name).read_bytes())
+        written.append(out_dir / name)
+    return written
+
+
 def model_room(cloud: Path, out_dir: Path, cfg: cfgmod.PipelineConfig, work: Path) -> dict[str, Any]:
     """ingest -> preprocess -> walls on one registered cloud, without Prefect (a one-off tool), through
     the same cached stages; the room's deliverables and its levelling transform are copied to `out_dir`."""
     room = cfgmod.RoomSpec("room", Path(cloud).resolve())
     profile = cfgmod.load_sensor_profile("tls")
-    results: dict[str, StageResult] = {}
-    for stage_name in room_stages(room.capture):
-        call = make_call(work, cfg, profile, room, stage_name)
-        upstream = {n: results[n] for n in UPSTREAM.get(stage_name, ()) if n in results}
-        try:
-            results[stage_name] = execute(call, upstream)
-        except ValueError as exc:  # bad input (DegenerateInputError, IngestError...): name the file
-            message = " ".join(str(exc).split())
-            raise DegenerateInputError(message if str(cloud) in message else f"{cloud}: {message}") from exc
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    store = store_for(work)
-    for name in ROOM_DELIVERABLES["walls"]:
-        with atomic_path(out_dir / name) as tmp:
-            tmp.write_bytes(results["walls"].file(name).read_bytes())
-    with atomic_path(out_dir / "levelling.json") as tmp:
-        tmp.write_bytes(results["preprocess"].file("levelling.json").read_bytes())
-    store.save_memo()
+    try:
+        results = run_chain(work, cfg, profile, room_stages(room.capture), room)
+    except ValueError as exc:  # bad input (DegenerateInputError, IngestError...): name the file
+        message = " ".join(str(exc).split())
+        raise DegenerateInputError(message if str(cloud) in message else f"{cloud}: {message}") from exc
+    export(results["walls"], STAGES["walls"].deliverables, out_dir)
+    export(results["preprocess"], ["levelling.json"], out_dir)
     return {
         "preprocess": results["preprocess"].manifest.get("metrics", {}),
         "walls": results["walls"].manifest.get("metrics", {}),
@@ -339,20 +468,27 @@ def survey_state(req: RunRequest) -> list[StageState]:
     survey = cfgmod.load_survey(Path(req.survey))
     profile = cfgmod.load_sensor_profile(survey.sensor)
     store = store_for(req.work)
-    done: dict[tuple[str, str], StageResult] = {}
+    plan = plan_survey(req, cfg, survey, profile)
+    done = current_results(plan, plan.others)  # rooms outside the request: read, never run
     states = []
-    for item in plan_survey(req, cfg, survey, profile):
+    for item in plan.items():
         call = item.call
         previous = store.latest(call.room, call.stage)
         waiting = sorted({ref[1] for ref in item.upstream.values() if ref not in done})
+        if item.room_upstream:
+            chains = {**plan.rooms, **plan.others}
+            waiting += sorted(
+                {r for r, chain in chains.items() for i in chain if i.call.stage in item.room_upstream and i.ref not in done}
+            )
         if waiting:
             status = "stale" if previous else "missing"
             states.append(StageState(item, status, None, f"waits for {', '.join(waiting)}"))
             continue
-        key = cache_key(call, {name: done[ref] for name, ref in item.upstream.items()})
+        fan_in = fan_in_for(item, done, {}, survey.room_ids) if item.room_upstream else None
+        key = cache_key(call, {name: done[ref] for name, ref in item.upstream.items()}, fan_in)
         hit = None if call.force else store.lookup(call.room, call.stage, key)
         if hit:
-            done[(call.room, call.stage)] = hit
+            done[item.ref] = hit
             states.append(StageState(item, "done", hit, f"{key[:12]} at {_when(hit)}"))
         elif previous:
             states.append(

@@ -18,14 +18,7 @@ from typing import Any
 import yaml
 
 from tasks.artefacts import check_room_id
-from tasks.calibration import CalibrateConfig
-from tasks.ingest import IngestConfig
-from tasks.plan import PlanConfig
-from tasks.preprocess import PreprocessConfig
-from tasks.register import RegisterConfig
-from tasks.scale import ScaleConfig
-from tasks.sfm import SfmConfig
-from tasks.walls import WallsConfig
+from tasks.stages import config_sections, load_class
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 DEFAULT_YAML = CONFIG_DIR / "default.yaml"
@@ -44,20 +37,17 @@ class FlowConfig:
     """Stage runs (of different rooms) processed at once by the thread-pool task runner."""
 
 
-@dataclass(frozen=True)
-class PipelineConfig:
-    """The whole configuration: one section per stage."""
+def _pipeline_config_class() -> type:
+    """The whole configuration: `flow`, then one section per config section of the stage table (a
+    stage's own, and the extra ones a stage reads), each the stage's frozen dataclass."""
+    fields: list[tuple[str, type, Any]] = [("flow", FlowConfig, field(default_factory=FlowConfig))]
+    for name, target in config_sections().items():
+        cls = load_class(target)
+        fields.append((name, cls, field(default_factory=cls)))
+    return dataclasses.make_dataclass("PipelineConfig", fields, frozen=True, module=__name__)
 
-    flow: FlowConfig = field(default_factory=FlowConfig)
-    calibrate: CalibrateConfig = field(default_factory=CalibrateConfig)
-    plan: PlanConfig = field(default_factory=PlanConfig)
-    ingest: IngestConfig = field(default_factory=IngestConfig)
-    sfm: SfmConfig = field(default_factory=SfmConfig)
-    scale: ScaleConfig = field(default_factory=ScaleConfig)
-    register: RegisterConfig = field(default_factory=RegisterConfig)
-    preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
-    walls: WallsConfig = field(default_factory=WallsConfig)
 
+PipelineConfig = _pipeline_config_class()
 
 STAGE_SECTIONS = tuple(f.name for f in dataclasses.fields(PipelineConfig) if f.name != "flow")
 

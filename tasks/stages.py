@@ -1,333 +1,255 @@
-"""The stage table: for each stage, what it reads, which config section it owns and how its outputs are
-loaded and saved. Each `run_*` here is the thin shell around a pure stage function: load the inputs from
-the artefact store, call, write the outputs into the folder the store commits. Orchestration (Prefect)
-lives in flows/; formats live in tasks/artefacts.py; the computation lives in each stage's module.
+"""The stage table: the one registry of stages.
+
+Each stage declares its partition (a building stage that runs before the rooms, a room stage, or a
+building stage that runs after every room: a fan-in), the stages whose results it reads, the raw survey
+files it reads, its config section and its deliverables. Its computation lives in one entry module with
+`run(ctx, cfg, out)` (tasks.context); its config in a small dataclass module. Orchestration (flows/) is
+generic over this table: adding a stage means its module, one entry here and its config section.
+
+This module imports no stage computation: entry modules and config classes are named, and loaded when
+used.
 """
 
 from __future__ import annotations
 
+import ast
 import functools
 import hashlib
 import importlib
-import inspect
-import sys
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Literal
 
-import numpy as np
-from numpy.typing import NDArray
+if TYPE_CHECKING:  # the table loads no stage code, nor the artefact store
+    from tasks.context import StageRun
 
-from tasks import artefacts as art
-from tasks.artefacts import StageResult
+Partition = Literal["before", "room", "after"]
+""""before": a building stage the rooms may read (calibrate, plan); "room": runs once per room;
+"after": a building stage over every room's results (fan-in)."""
 
-ProgressFn = Callable[[str], None]
-
-
-@dataclass(frozen=True)
-class StageContext:
-    """What a stage run gets besides its config: its upstream results, raw input files, the survey's
-    sensor profile, and a progress callback."""
-
-    room: str
-    upstream: dict[str, StageResult]
-    raw_inputs: dict[str, str]
-    """Name -> path of raw survey files this stage reads (their content hashes are in the key)."""
-    profile: dict[str, Any]
-    progress: ProgressFn
-    extra_config: dict[str, Any] = field(default_factory=dict)
-    """Section name -> config of the stage's `extra_sections`."""
-    params: dict[str, Any] = field(default_factory=dict)
-    """Survey-given values (the plan's scale)."""
+REPO_ROOT = Path(__file__).resolve().parents[1]
+PROJECT_PACKAGES = ("tasks", "flows")
 
 
 @dataclass(frozen=True)
 class Stage:
     name: str
-    section: str
-    """Config section the stage owns (its config in the cache key)."""
+    partition: Partition
     module: str
-    """The module holding the stage's computation (its source is part of the code version)."""
-    run: Callable[[StageContext, Any, Path], dict[str, Any]]
-    """(context, config section, output folder) -> metrics; writes its files into the folder."""
+    """The entry module: defines `run(ctx, cfg, out)`."""
+    config: str
+    """"module:Class" of the stage's config section (named like the stage)."""
+    upstream: tuple[str, ...] = ()
+    """Stages whose results it reads. For a room stage: the room's own stages (those that apply to the
+    room) or the building's "before" stages; for an "after" stage: the building's stages."""
+    optional: tuple[str, ...] = ()
+    """Upstream stages it can run without when they failed (it is then told so, and says so)."""
+    room_upstream: tuple[str, ...] = ()
+    """"after" stages only: every room's results of these stages."""
+    raw_inputs: tuple[str, ...] = ()
+    """Raw survey files it reads (their content hashes enter its key): capture, calibration, plan, track."""
+    params: tuple[str, ...] = ()
+    """Survey values it reads (in its key): plan_scale, rooms."""
     uses_profile: bool = False
     """Whether the survey's sensor profile is an input (then its content is part of the cache key)."""
-    extra_sections: tuple[str, ...] = ()
-    """Further config sections the stage reads (a stage that runs several methods: register reads sfm
-    and scale); they enter its cache key too and reach `run` as `ctx.extra_config`."""
+    extra_sections: tuple[tuple[str, str], ...] = ()
+    """Further (section, "module:Class") config sections it reads: register runs SfM and scale."""
+    applies_to: Literal["any", "frames", "cloud"] = "any"
+    """Room stages: the captures it applies to ("frames": RGB-D recordings, "cloud": registered clouds)."""
+    deliverables: tuple[str, ...] = ()
+    """Files published to outputs/ (a room stage's to outputs/rooms/<id>/)."""
+
+    @property
+    def section(self) -> str:
+        return self.name
+
+    @property
+    def sections(self) -> tuple[str, ...]:
+        """Every config section in the stage's key: its own, then its extra ones."""
+        return (self.name, *(name for name, _ in self.extra_sections))
+
+    def runner(self) -> StageRun:
+        return importlib.import_module(self.module).run
 
     def code_version(self) -> str:
-        """Hash of the computation's module source and of this stage's shell, so editing either
-        invalidates the stage (and, through content hashes, what depends on it). Read once per process."""
-        return _code_version(self.module, self.run)
+        """Hash of the entry module and every project module it imports, transitively: editing any code
+        the stage runs invalidates it (and, through content hashes, what depends on it)."""
+        return code_version(self.module)
 
-
-@functools.cache
-def _code_version(module_name: str, run: Callable[..., Any]) -> str:
-    module = sys.modules.get(module_name) or importlib.import_module(module_name)
-    digest = hashlib.sha256(Path(inspect.getfile(module)).read_bytes())
-    digest.update(inspect.getsource(run).encode())
-    return digest.hexdigest()[:16]
-
-
-# ------------------------------------------------------------------------------------------------ shells
-
-
-def run_calibrate(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
-    """The survey's calibration from its target images, else the sensor profile's values (said so)."""
-    from tasks.calibration import calibrate_folder, profile_calibration, write_calibration
-
-    folder = ctx.raw_inputs.get("calibration")
-    if folder:
-        ctx.progress(f"calibrating from {folder}")
-        calib = calibrate_folder(Path(folder), cfg)
-    else:
-        ctx.progress(f"no calibration data: using the {ctx.profile.get('name')} profile's values")
-        calib = profile_calibration(ctx.profile)
-    write_calibration(calib, out)
-    data = calib.to_json()
-    return {"metrics": {"source": calib.source, **_calibration_figures(data)}}
-
-
-def _calibration_figures(data: dict[str, Any]) -> dict[str, Any]:
-    figures: dict[str, Any] = {}
-    for cam in ("ir", "rgb"):
-        if data.get(cam):
-            figures[f"{cam}_rms_px"] = data[cam].get("rms_px")
-            figures[f"{cam}_fx_px"] = data[cam]["K"][0][0]
-    if data.get("ir_to_rgb"):
-        figures["baseline_mm"] = 1000.0 * float(np.linalg.norm(data["ir_to_rgb"]["t_m"]))
-    figures["stereo_rms_px"] = data.get("stereo_rms_px")
-    return figures
-
-
-def run_plan(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
-    """The coarse plan raster as metric walls (centrelines + thickness) and rooms (thesis 4.2.3)."""
-    from tasks.plan import PlanScale, run_parse_plan
-
-    known = ctx.params.get("known_distance")
-    scale = PlanScale(
-        m_per_px=ctx.params.get("m_per_px"),
-        known_distance=tuple(known) if known else None,
-        outline_length_m=ctx.params.get("outline_length_m"),
-    )
-    metrics = run_parse_plan(Path(ctx.raw_inputs["plan"]), out, scale, cfg)
-    metrics.pop("outputs", None)
-    return {"metrics": metrics}
-
-
-def run_ingest(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
-    from tasks.ingest import ingest_capture
-
-    return {"metrics": ingest_capture(Path(ctx.raw_inputs["capture"]), out, ctx.profile, cfg, ctx.progress)}
-
-
-def read_track(path: Path) -> NDArray[np.float64]:
-    """(K, 3) t_ns, x, y of a foot-mounted IMU track CSV (header line allowed)."""
-    try:
-        data = np.loadtxt(path, delimiter=",", ndmin=2, skiprows=1 if not _starts_numeric(path) else 0)
-    except ValueError as exc:
-        raise art.ArtefactError(f"{path}: not a track CSV of t_ns,x,y ({exc})") from exc
-    if data.shape[1] < 3:
-        raise art.ArtefactError(f"{path}: a track needs three columns t_ns,x,y")
-    return data[:, :3]
-
-
-def _starts_numeric(path: Path) -> bool:
-    with open(path) as fh:
-        first = fh.readline().split(",")[0].strip()
-    try:
-        float(first)
-    except ValueError:
-        return False
-    return True
-
-
-def run_register(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
-    """SfM -> metric scale -> fused coloured cloud, or the track-based fallback (thesis 3.2)."""
-    import tempfile
-
-    from tasks.calibration import Calibration
-    from tasks.register import register_room
-
-    ingest = ctx.upstream["ingest"]
-    camera_info = art.read_json(ingest.file("camera_info.json"))
-    calibration = None
-    if "calibrate" in ctx.upstream:
-        calibration = Calibration.from_json(art.read_json(ctx.upstream["calibrate"].file("calibration.json")))
-    track = read_track(Path(ctx.raw_inputs["track"])) if "track" in ctx.raw_inputs else None
-    plan_walls = None
-    if "plan" in ctx.upstream:
-        segments, table = art.read_segments(ctx.upstream["plan"].file("plan_walls.parquet"))
-        # (M, 5): the thickness lets the fallback put frames against the walls' faces, not centrelines
-        plan_walls = np.column_stack([segments, table["thickness_m"].to_numpy()])
-    with tempfile.TemporaryDirectory(prefix="sfm-") as workdir:
-        result = register_room(
-            ingest.file("frames.parquet"),
-            camera_info,
-            calibration,
-            cfg,
-            ctx.extra_config["sfm"],
-            Path(workdir),
-            track=track,
-            plan_walls=plan_walls,
-            progress=ctx.progress,
-            scale_cfg=ctx.extra_config["scale"],
-            profile=ctx.profile,
-        )
-    art.write_table(out / "poses.parquet", result.poses, art.POSES_SCHEMA)
-    art.write_ply_points(out / "cloud.ply", result.cloud.points, result.cloud.colors)
-    art.write_json(out / "scale.json", result.scale)
-    return {"metrics": {**result.metrics, "frame": result.frame}}
-
-
-def room_cloud(ctx: StageContext) -> tuple[art.Cloud, str]:
-    """The room's registered cloud and where it came from: "register" (frames placed by this pipeline,
-    in an arbitrary room frame) or "capture" (a cloud given in its own, meaningful frame)."""
-    for stage, source in (("register", "register"), ("ingest", "capture")):
-        result = ctx.upstream.get(stage)
-        if result is not None and result.has("cloud.ply"):
-            return art.read_cloud(result.file("cloud.ply")), source
-    raise art.ArtefactError(f"room {ctx.room}: no registered cloud to preprocess (capture has frames only)")
-
-
-def run_preprocess(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
-    from tasks.preprocess import preprocess
-
-    cloud, source = room_cloud(ctx)
-    result = preprocess(cloud, cfg)
-    art.write_cloud(out / "levelled.ply", result.cloud)
-    art.write_cloud(out / "slice.ply", result.slice)
-    art.write_png(out / "height_histogram.png", result.histogram_png)
-    edges, counts = result.histogram
-    art.write_table(
-        out / "height_histogram.parquet", {"z_low_m": edges[:-1], "z_high_m": edges[1:], "count": counts}
-    )
-    art.write_json(
-        out / "levelling.json",
-        {
-            "transform": np.asarray(result.levelling).tolist(),
-            "floor_z_m": result.floor_z_m,
-            "ceiling_z_m": result.ceiling_z_m,
-            "height_m": result.height_m,
-            "pivot_m": result.metrics.get("levelling_pivot_m"),
-            "source": source,
-        },
-    )
-    return {"metrics": result.metrics}
-
-
-def levelled_to_input(levelling: dict[str, Any]) -> tuple[NDArray[np.float64], float]:
-    """The inverse levelling transform (levelled -> input frame, 4x4) and the height at which wall
-    lines are carried back: the levelling pivot's, where the rotation moves nothing."""
-    back = np.linalg.inv(np.asarray(levelling["transform"], dtype=np.float64))
-    pivot = levelling.get("pivot_m")
-    return back, float(pivot[2]) if pivot else 0.0
-
-
-def segments_to_input(walls: NDArray[np.float64], back: NDArray[np.float64], z: float) -> NDArray[np.float64]:
-    """(M, 4) levelled-frame wall lines as (M, 4) lines of the input cloud's own x-y frame."""
-    ends = np.concatenate([walls[:, :2], walls[:, 2:]], axis=0)
-    pts = np.column_stack([ends, np.full(len(ends), z)]) @ back[:3, :3].T + back[:3, 3]
-    half = len(walls)
-    return np.column_stack([pts[:half, :2], pts[half:, :2]])
-
-
-def wall_features(
-    walls: NDArray[np.float64], origin: Any, support: Any, polygon: Any, room: str
-) -> list[dict]:
-    """GeoJSON features: one LineString per wall, and the room Polygon when the walls close it."""
-    import shapely.geometry
-
-    features = [
-        {
-            "type": "Feature",
-            "geometry": {"type": "LineString", "coordinates": [[w[0], w[1]], [w[2], w[3]]]},
-            "properties": {"room_id": room, "kind": "wall", "origin": str(o), "support": float(s)},
-        }
-        for w, o, s in zip(walls.tolist(), origin, support, strict=True)
-    ]
-    if polygon is not None:
-        features.append(
-            {
-                "type": "Feature",
-                "geometry": shapely.geometry.mapping(polygon),
-                "properties": {"room_id": room, "kind": "room", "area_m2": float(polygon.area)},
-            }
-        )
-    return features
-
-
-def run_walls(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
-    import shapely.affinity
-
-    from tasks.walls import model_walls
-
-    pre = ctx.upstream["preprocess"]
-    levelling = art.read_json(pre.file("levelling.json"))
-    slice_cloud = art.read_cloud(pre.file("slice.ply"))
-    model = model_walls(slice_cloud.points, levelling["floor_z_m"], levelling["ceiling_z_m"], cfg)
-    # A given cloud's frame means something (a TLS survey's, the user's): walls go back into it. A frame
-    # made by registration is arbitrary and maybe tilted: walls stay in the levelled (z up) room frame.
-    if levelling.get("source") == "register":
-        back, z, frame = np.eye(4), 0.0, "levelled room frame (m)"
-    else:
-        back, z = levelled_to_input(levelling)
-        frame = "input cloud x-y (m)"
-    walls = segments_to_input(model.walls, back, z)
-    polygon = model.polygon
-    if polygon is not None:
-        polygon = shapely.affinity.affine_transform(
-            polygon,
-            [
-                back[0, 0],
-                back[0, 1],
-                back[1, 0],
-                back[1, 1],
-                back[0, 3] + back[0, 2] * z,
-                back[1, 3] + back[1, 2] * z,
-            ],
-        )
-    art.write_table(
-        out / "walls.parquet",
-        art.segments_table(
-            walls,
-            height=np.full(len(walls), model.height_m),
-            origin=model.origin.astype(str),
-            support=model.support,
-        ),
-        art.WALLS_SCHEMA,
-    )
-    art.write_geojson(
-        out / "plan.geojson",
-        wall_features(walls, model.origin, model.support, polygon, ctx.room),
-        frame,
-    )
-    vertices = model.mesh_vertices @ back[:3, :3].T + back[:3, 3]
-    art.write_ply_mesh(out / "model.ply", vertices, model.mesh_triangles)
-    art.write_png(out / "preview.png", model.preview)
-    return {
-        "frame": frame,
-        "metrics": {**model.metrics, "walls": len(walls), "closed": model.closed, "alpha": model.alpha},
-    }
-
-
-ROOM_DELIVERABLES = {"walls": ("walls.parquet", "plan.geojson", "model.ply", "preview.png")}
-"""Stage -> files published to outputs/rooms/<id>/ (PIPELINE.md "Deliverables")."""
-
-BUILDING_DELIVERABLES = {"plan": ("plan_walls.parquet", "rooms.geojson", "plan_preview.png")}
-"""Stage -> files published to outputs/ (PIPELINE.md "Deliverables")."""
+    def applies(self, capture_kind: str) -> bool:
+        return self.applies_to == "any" or self.applies_to == capture_kind
 
 
 STAGES: dict[str, Stage] = {
     stage.name: stage
     for stage in (
-        Stage("calibrate", "calibrate", "tasks.calibration", run_calibrate, uses_profile=True),
-        Stage("plan", "plan", "tasks.plan", run_plan),
-        Stage("ingest", "ingest", "tasks.ingest", run_ingest, uses_profile=True),
-        Stage("register", "register", "tasks.register", run_register, True, ("sfm", "scale")),
-        Stage("preprocess", "preprocess", "tasks.preprocess", run_preprocess),
-        Stage("walls", "walls", "tasks.walls", run_walls),
+        Stage(
+            "calibrate",
+            "before",
+            "tasks.calibrate.stage",
+            "tasks.calibrate.config:CalibrateConfig",
+            raw_inputs=("calibration",),
+            uses_profile=True,
+        ),
+        Stage(
+            "plan",
+            "before",
+            "tasks.plan.stage",
+            "tasks.plan.config:PlanConfig",
+            raw_inputs=("plan",),
+            params=("plan_scale",),
+            deliverables=("plan_walls.parquet", "rooms.geojson", "plan_preview.png"),
+        ),
+        Stage(
+            "ingest",
+            "room",
+            "tasks.ingest.stage",
+            "tasks.ingest.config:IngestConfig",
+            raw_inputs=("capture",),
+            uses_profile=True,
+        ),
+        Stage(
+            "register",
+            "room",
+            "tasks.register.stage",
+            "tasks.register.config:RegisterConfig",
+            upstream=("ingest", "calibrate", "plan"),
+            optional=("calibrate", "plan"),
+            raw_inputs=("track",),
+            uses_profile=True,
+            extra_sections=(
+                ("sfm", "tasks.register.config:SfmConfig"),
+                ("scale", "tasks.register.config:ScaleConfig"),
+            ),
+            applies_to="frames",
+        ),
+        Stage(
+            "preprocess",
+            "room",
+            "tasks.preprocess.stage",
+            "tasks.preprocess.config:PreprocessConfig",
+            upstream=("register", "ingest"),
+        ),
+        Stage(
+            "walls",
+            "room",
+            "tasks.walls.stage",
+            "tasks.walls.config:WallsConfig",
+            upstream=("preprocess",),
+            deliverables=("walls.parquet", "plan.geojson", "model.ply", "preview.png"),
+        ),
+        Stage(
+            "floor_index",
+            "after",
+            "tasks.floor_index.stage",
+            "tasks.floor_index.config:FloorIndexConfig",
+            room_upstream=("ingest", "register", "preprocess", "walls"),
+            params=("rooms",),
+            deliverables=("rooms.parquet",),
+        ),
     )
 }
+"""Every stage, in an order where each comes after the stages it reads."""
+
+
+def config_sections() -> dict[str, str]:
+    """Config section name -> "module:Class", in table order (the config tree's sections)."""
+    sections: dict[str, str] = {}
+    for stage in STAGES.values():
+        for name, target in ((stage.name, stage.config), *stage.extra_sections):
+            sections.setdefault(name, target)
+    return sections
+
+
+def load_class(target: str) -> type:
+    """The class named by "module:Class"."""
+    module, _, name = target.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def stages_of(partition: Partition) -> list[Stage]:
+    return [s for s in STAGES.values() if s.partition == partition]
+
+
+def downstream_of(name: str) -> set[str]:
+    """Every stage that reads `name`'s results, directly or through others (room stages read each other
+    within a room, "after" stages read every room's)."""
+    found: set[str] = set()
+    frontier = [name]
+    while frontier:
+        current = frontier.pop()
+        for stage in STAGES.values():
+            if stage.name not in found and current in (*stage.upstream, *stage.room_upstream):
+                found.add(stage.name)
+                frontier.append(stage.name)
+    return found
+
+
+# --------------------------------------------------------------------------------------- code versions
+
+
+def module_file(name: str) -> Path | None:
+    """The source file of a project module (a package's __init__.py), or None when it is not one."""
+    if name.split(".")[0] not in PROJECT_PACKAGES:
+        return None
+    base = REPO_ROOT.joinpath(*name.split("."))
+    for path in (base.with_suffix(".py"), base / "__init__.py"):
+        if path.is_file():
+            return path
+    return None
+
+
+@functools.cache
+def project_imports(name: str) -> tuple[str, ...]:
+    """The project modules `name` imports anywhere in its source (also inside functions: a lazy import
+    runs too), with the packages that hold them."""
+    path = module_file(name)
+    if path is None:
+        return ()
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_bytes(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            candidates = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                source = ".".join([*base, node.module] if node.module else base)
+            else:
+                source = node.module or ""
+            # `from tasks.walls import image` imports the submodule tasks.walls.image
+            candidates = [source, *(f"{source}.{alias.name}" for alias in node.names)]
+        else:
+            continue
+        for candidate in candidates:
+            parts = candidate.split(".")
+            for k in range(1, len(parts) + 1):  # importing a.b.c runs a and a.b first
+                if module_file(".".join(parts[:k])) is not None:
+                    found.add(".".join(parts[:k]))
+    found.discard(name)
+    return tuple(sorted(found))
+
+
+def module_closure(name: str) -> list[str]:
+    """`name` and every project module it imports, transitively, sorted."""
+    seen = {name}
+    frontier = [name]
+    while frontier:
+        for dep in project_imports(frontier.pop()):
+            if dep not in seen:
+                seen.add(dep)
+                frontier.append(dep)
+    return sorted(m for m in seen if module_file(m) is not None)
+
+
+@functools.cache
+def code_version(module: str) -> str:
+    """Hash of the source of `module` and of every project module it imports (not third-party code).
+    Read once per process."""
+    digest = hashlib.sha256()
+    for name in module_closure(module):
+        path = module_file(name)
+        assert path is not None
+        digest.update(name.encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()[:16]
+

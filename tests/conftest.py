@@ -8,6 +8,10 @@ from pathlib import Path
 
 import pytest
 
+from flows import prefect_env
+
+prefect_env.apply()  # the test session is an entry point, like the CLI
+
 REPO = Path(__file__).resolve().parents[1]
 REALDATA = Path(os.environ.get("INDOOR_SURVEY_REALDATA", REPO.parent / "shared" / "realdata"))
 
@@ -33,3 +37,12 @@ def rng():
     import numpy as np
 
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def prefect_harness():
+    """One temporary Prefect server and database for the whole session (its start-up costs ~10-20 s)."""
+    from prefect.testing.utilities import prefect_test_harness
+
+    with prefect_test_harness(server_startup_timeout=120):
+        yield

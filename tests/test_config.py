@@ -8,13 +8,37 @@ from tasks.config import ConfigError, load_config, load_survey, parse_set
 from tests.captures import write_survey
 
 
-def test_defaults_and_default_yaml_agree_on_keys():
+def _leaves(data: dict, prefix: str = "") -> dict[str, object]:
+    out: dict[str, object] = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            out.update(_leaves(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def test_code_defaults_are_the_production_values_of_default_yaml():
+    """configs/default.yaml documents values (thesis table 6.3 with its selection criteria); the dataclass
+    defaults are what runs, so the unit tests run the pipeline's configuration: every key must agree."""
+    data = yaml.safe_load(cfgmod.DEFAULT_YAML.read_text())
+    assert set(data) <= {"flow", *cfgmod.STAGE_SECTIONS}
+    code = cfgmod.to_yaml(cfgmod.PipelineConfig())
+    defaults = _leaves(yaml.safe_load(code))
+    for key, value in _leaves(data).items():
+        assert key in defaults, key
+        assert defaults[key] == value, f"{key}: code default {defaults[key]!r}, default.yaml {value!r}"
     cfg = load_config()
     assert cfg.preprocess.outlier_neighbours == 20  # thesis table 6.3
     assert cfg.preprocess.slice_min_m == 1.5 and cfg.preprocess.slice_max_m == 2.5
-    # every key in default.yaml is a real field: loading it would have raised otherwise
-    data = yaml.safe_load(cfgmod.DEFAULT_YAML.read_text())
-    assert set(data) <= {"flow", *cfgmod.STAGE_SECTIONS}
+
+
+def test_config_sections_come_from_the_stage_table():
+    from tasks.stages import STAGES, config_sections
+
+    assert list(cfgmod.STAGE_SECTIONS) == list(config_sections())
+    for stage in STAGES.values():
+        assert stage.name in cfgmod.STAGE_SECTIONS
 
 
 def test_set_overrides_file_overrides_default(tmp_path):

@@ -16,12 +16,9 @@ MINI = Path(__file__).resolve().parents[1] / "data" / "mini"
 
 
 @pytest.fixture(scope="module")
-def mini_run(tmp_path_factory):
-    from prefect.testing.utilities import prefect_test_harness
-
+def mini_run(tmp_path_factory, prefect_harness):
     work = tmp_path_factory.mktemp("mini-work")
-    with prefect_test_harness(server_startup_timeout=120):
-        code = main(["-q", "run", str(MINI), "--work", str(work)])
+    code = main(["-q", "run", str(MINI), "--work", str(work)])
     return code, work
 
 
@@ -66,3 +63,28 @@ def test_rerun_recomputes_nothing(mini_run, capsys):
     shutil.rmtree(work / "outputs" / "rooms" / "r1")  # a deleted deliverable comes back from the cache
     assert main(["-q", "run", str(MINI), "--work", str(work)]) == 0
     assert (work / "outputs" / "rooms" / "r1" / "walls.parquet").is_file()
+
+
+def test_floor_index_fans_in_every_room_and_follows_a_targeted_rerun(mini_run, capsys):
+    """The building-after stage reads every room: rooms.parquet lists all of them; `rerun --stage walls
+    --room r2` recomputes r2's walls and the index, and nothing of r1."""
+    _, work = mini_run
+    rooms = pq.read_table(work / "outputs" / "rooms.parquet").to_pylist()
+    assert [r["room_id"] for r in rooms] == ["r1", "r2", "r3", "r4", "r5", "hall"]
+    for row in rooms:
+        assert row["walls"] >= 4 and row["error"] is None, row
+        assert "walls" in row["stages_done"] and row["frame"]
+    assert rooms[0]["closed"] and rooms[0]["area_m2"] > 5
+    capsys.readouterr()
+    assert main(["rerun", str(MINI), "--work", str(work), "--stage", "walls", "--room", "r2"]) == 0
+    states = {
+        tuple(line.split()[:2]): line.split()[2]
+        for line in capsys.readouterr().out.splitlines()
+        if len(line.split()) >= 3 and line.split()[0] in ("r1", "r2", "_building")
+    }
+    assert states[("r2", "walls")] == "computed"
+    assert states[("_building", "floor_index")] == "computed"
+    assert states.get(("r1", "walls"), "not run") != "computed"
+    assert len([p for p in (work / "cache" / "r1" / "walls").iterdir() if not p.name.startswith(".")]) == 1
+    rerun = pq.read_table(work / "outputs" / "rooms.parquet").to_pylist()
+    assert [r["room_id"] for r in rerun] == [r["room_id"] for r in rooms]

@@ -17,13 +17,10 @@ from tests.captures import tiny_survey, write_box_room_ply, write_survey
 pytestmark = pytest.mark.slow
 
 
-@pytest.fixture(scope="module")
-def prefect_home(tmp_path_factory):
-    """One Prefect home (its SQLite database) for the module: the in-process flows and the subprocess."""
-    from prefect.testing.utilities import prefect_test_harness
-
-    with prefect_test_harness(server_startup_timeout=120):
-        yield
+@pytest.fixture
+def prefect_home(prefect_harness):
+    """The session's Prefect harness (the in-process flows and the subprocess share its server)."""
+    yield
 
 
 def run(capsys, *argv):
