@@ -25,7 +25,7 @@ from tasks.preprocess import PreprocessConfig
 from tasks.register import RegisterConfig
 from tasks.scale import ScaleConfig
 from tasks.sfm import SfmConfig
-from tasks.walls import WallsConfig
+from tasks.walls.config import WallsConfig
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 DEFAULT_YAML = CONFIG_DIR / "default.yaml"
