@@ -21,7 +21,7 @@ from tasks.artefacts import check_room_id
 from tasks.calibration import CalibrateConfig
 from tasks.ingest import IngestConfig
 from tasks.plan import PlanConfig
-from tasks.preprocess import PreprocessConfig
+from tasks.preprocess.config import PreprocessConfig
 from tasks.register import RegisterConfig
 from tasks.scale import ScaleConfig
 from tasks.sfm import SfmConfig
