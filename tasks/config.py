@@ -20,7 +20,7 @@ import yaml
 from tasks.artefacts import check_room_id
 from tasks.calibration import CalibrateConfig
 from tasks.ingest import IngestConfig
-from tasks.plan import PlanConfig
+from tasks.plan.config import PlanConfig
 from tasks.preprocess.config import PreprocessConfig
 from tasks.register import RegisterConfig
 from tasks.scale import ScaleConfig

@@ -104,17 +104,9 @@ def _calibration_figures(data: dict[str, Any]) -> dict[str, Any]:
 
 def run_plan(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
     """The coarse plan raster as metric walls (centrelines + thickness) and rooms (thesis 4.2.3)."""
-    from tasks.plan import PlanScale, run_parse_plan
+    from tasks.plan.stage import run
 
-    known = ctx.params.get("known_distance")
-    scale = PlanScale(
-        m_per_px=ctx.params.get("m_per_px"),
-        known_distance=tuple(known) if known else None,
-        outline_length_m=ctx.params.get("outline_length_m"),
-    )
-    metrics = run_parse_plan(Path(ctx.raw_inputs["plan"]), out, scale, cfg)
-    metrics.pop("outputs", None)
-    return {"metrics": metrics}
+    return run(ctx, cfg, out)
 
 
 def run_ingest(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
