@@ -1,6 +1,6 @@
 """The vector side of plan parsing: skeleton and Hough segments, straight walls from the line code shared
-with the walls stage (`tasks.lines`: clustering, regularization, extension and trimming), each wall
-centred on its ink band and its thickness measured across it."""
+with the walls stage (`tasks.lines`: clustering, regularization; `tasks.connect`: extension and trimming),
+each wall centred on its ink band and its thickness measured across it."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 from skimage.morphology import skeletonize
 
 from tasks import lines
+from tasks.connect import connect
 from tasks.plan.config import PlanConfig
 
 
@@ -247,7 +248,7 @@ def vector_walls(
                 out[n] = float((sample_mask(support, pts) > 0.5).mean())
             return out
 
-        segs, _ = lines.connect(segs, lcfg, support_fn)
+        segs, _ = connect(segs, lcfg, support_fn)
     max_t = cfg.max_outline_width_m * px
     thick = np.array([_thickness_px(sg, mask_f, max_t)[0] for sg in segs])
     # reported thickness: between the face lines of outline-drawn walls (the raster width elsewhere)

@@ -22,7 +22,7 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
 6. regularization (5.2.5.1, eq 5.9, `tasks.lines.regularize`); each wall's offset is refined to the median
    of the slice points near it (the skeleton is only good to a pixel), and its ends are moved out along it
    as far as its data goes (`extend_to_data`: the skeleton stops short of a band's end);
-7. topology (5.2.5.2, `tasks.lines.connect_detailed`; `topology`): extension and trimming (trimming only
+7. topology (5.2.5.2, `tasks.connect.connect_detailed`; `topology`): extension and trimming (trimming only
    overshoot, not a wall's observed data), perpendicular joins of free ends onto parallel walls, removal
    of extensions with less than `min_overlap` of data, one at a time and judged with the regularization
    rotation undone. A join across an unseen wall goes where the data holds it, else at the end of the wall

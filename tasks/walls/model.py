@@ -13,7 +13,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from tasks.cloud import DegenerateInputError
-from tasks.lines import OBSERVED, angles, is_closed, transform_segments, wall_graph
+from tasks.connect import OBSERVED
+from tasks.lines import angles, is_closed, transform_segments, wall_graph
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import support_sampler
 from tasks.walls.image import Grid, projection_image

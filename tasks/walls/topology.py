@@ -12,10 +12,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from tasks.connect import OBSERVED, connect_detailed
 from tasks.lines import (
-    OBSERVED,
     LinesConfig,
-    connect_detailed,
     lengths,
     merge_segments,
     point_segment_distances,
