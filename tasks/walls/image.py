@@ -16,6 +16,8 @@ from tasks.walls.config import WallsConfig
 
 @dataclass(frozen=True)
 class Grid:
+    """The projection image's raster: square cells of `size` metres, pixel (col, row) <-> x, y."""
+
     origin: NDArray  # x, y of the lower-left corner of pixel (row 0, col 0)
     size: float
     shape: tuple[int, int]  # rows (y), cols (x)

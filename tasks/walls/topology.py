@@ -37,6 +37,8 @@ from tasks.walls.image import Grid, Projection, binarize, hough_segments, skelet
 
 @dataclass(frozen=True)
 class Candidate:
+    """The model one α gives (steps 2-7): what the choice of α compares."""
+
     alpha: float | None
     walls: NDArray
     origin: NDArray
