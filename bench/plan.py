@@ -18,14 +18,10 @@ import numpy as np
 import shapely
 
 from tasks.evaluate import evaluate_walls
-from tasks.plan import (
-    PlanConfig,
-    PlanScale,
-    load_plan_image,
-    parse_plan,
-    rectangle_centrelines,
-    thickness_errors,
-)
+from tasks.plan.config import PlanConfig, PlanScale
+from tasks.plan.parse import parse_plan
+from tasks.plan.raster import load_plan_image
+from tasks.plan.truth import rectangle_centrelines, thickness_errors
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "floorplans_mlstruct"
 

@@ -19,14 +19,10 @@ from dataclasses import replace
 import numpy as np
 
 from tasks.cloud import Cloud
-from tasks.preprocess import (
-    PreprocessConfig,
-    level_by_normals,
-    mls_smooth,
-    preprocess,
-    statistical_outliers,
-    voxel_grid,
-)
+from tasks.preprocess.config import PreprocessConfig
+from tasks.preprocess.filters import mls_smooth, statistical_outliers, voxel_grid
+from tasks.preprocess.levelling import level_by_normals
+from tasks.preprocess.pipeline import preprocess
 from tests.test_preprocess import (
     FAR_M,
     residual_tilt_deg,

@@ -28,7 +28,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))  # the room generator lives with the tests (tests/rooms.py)
 
 from tasks.evaluate import evaluate_walls  # noqa: E402
-from tasks.walls import WallsConfig, model_walls  # noqa: E402
+from tasks.walls.config import WallsConfig  # noqa: E402
+from tasks.walls.model import model_walls  # noqa: E402
 from tests.rooms import furniture_slice, make_room, sample_room, truth_walls  # noqa: E402
 
 ROOMS = ("square10", "rectangle", "l_shape", "wall70", "alcove_column")

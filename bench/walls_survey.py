@@ -53,10 +53,10 @@ from tasks.cloud import Cloud  # noqa: E402
 from tasks.config import PipelineConfig, load_config, load_sensor_profile  # noqa: E402
 from tasks.evaluate import evaluate_walls  # noqa: E402
 from tasks.lines import sample_segments  # noqa: E402
-from tasks.preprocess import preprocess  # noqa: E402
+from tasks.preprocess.pipeline import preprocess  # noqa: E402
 from tasks.register import fuse_capture  # noqa: E402
-from tasks.stages import levelled_to_input, segments_to_input  # noqa: E402
-from tasks.walls import model_walls  # noqa: E402
+from tasks.walls.model import model_walls  # noqa: E402
+from tasks.walls.stage import levelled_to_input, segments_to_input  # noqa: E402
 
 SPLITS = {"tune": (0, 1, 2, 3, 4, 5), "heldout": (101, 102, 103, 104, 105, 106)}
 """Buildings tuned on, and buildings only reported (never looked at while tuning)."""

@@ -380,7 +380,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 def cmd_parse_plan(args: argparse.Namespace) -> int:
     import json
 
-    from tasks.plan import PlanScale, run_parse_plan
+    from tasks.plan.config import PlanScale
+    from tasks.plan.stage import run_parse_plan
 
     known = None
     if args.known_distance:

@@ -8,13 +8,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from tasks.connect import EXTENDED, OBSERVED, connect, connect_detailed
 from tasks.lines import (
-    EXTENDED,
-    OBSERVED,
     LinesConfig,
     angles,
-    connect,
-    connect_detailed,
     explained_variance,
     fit_line,
     is_closed,

@@ -14,17 +14,13 @@ from shapely.geometry import box
 
 from tasks.artefacts import read_table
 from tasks.evaluate import evaluate_walls
-from tasks.plan import (
-    PlanConfig,
-    PlanScale,
-    _find_doors,
-    _regularize,
-    load_plan_image,
-    parse_plan,
-    rectangle_centrelines,
-    run_parse_plan,
-    thickness_errors,
-)
+from tasks.plan.config import PlanConfig, PlanScale
+from tasks.plan.doors import _find_doors
+from tasks.plan.parse import parse_plan
+from tasks.plan.raster import load_plan_image
+from tasks.plan.stage import run_parse_plan
+from tasks.plan.truth import rectangle_centrelines, thickness_errors
+from tasks.plan.vectorize import _regularize
 
 S = 0.02  # metres per pixel of the drawn plans
 OUTER_T, INNER_T = 0.30, 0.14  # odd pixel widths (15, 7) keep the centreline on a pixel centre

@@ -13,7 +13,9 @@ from shapely.geometry import shape
 
 from tasks.artefacts import read_table
 from tasks.evaluate import evaluate_walls
-from tasks.plan import PlanConfig, PlanScale, load_plan_image, parse_plan
+from tasks.plan.config import PlanConfig, PlanScale
+from tasks.plan.parse import parse_plan
+from tasks.plan.raster import load_plan_image
 from tasks.synth.survey import SurveyConfig, generate_survey
 
 # the plan draws the whole building whatever is surveyed: one room and few frames keep this quick

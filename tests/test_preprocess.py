@@ -14,16 +14,10 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from tasks.cloud import Cloud, DegenerateInputError
-from tasks.preprocess import (
-    PreprocessConfig,
-    floor_and_ceiling,
-    height_histogram,
-    level_by_normals,
-    mls_smooth,
-    preprocess,
-    statistical_outliers,
-    voxel_grid,
-)
+from tasks.preprocess.config import PreprocessConfig
+from tasks.preprocess.filters import mls_smooth, statistical_outliers, voxel_grid
+from tasks.preprocess.levelling import floor_and_ceiling, height_histogram, level_by_normals
+from tasks.preprocess.pipeline import preprocess
 
 # ------------------------------------------------------------------------------- synthetic room
 

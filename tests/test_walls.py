@@ -12,18 +12,11 @@ import pytest
 from tasks.cloud import DegenerateInputError
 from tasks.evaluate import evaluate_walls
 from tasks.lines import angles
-from tasks.walls import (
-    WallsConfig,
-    binarize,
-    choose_alpha,
-    extrude,
-    hough_segments,
-    model_walls,
-    projection_image,
-    refine_offsets,
-    same_walls,
-    skeleton,
-)
+from tasks.walls.config import WallsConfig
+from tasks.walls.evidence import refine_offsets
+from tasks.walls.image import binarize, hough_segments, projection_image, skeleton
+from tasks.walls.model import extrude, model_walls
+from tasks.walls.topology import choose_alpha, same_walls
 from tests.rooms import KINDS, furniture_slice, make_room, sample_room, truth_walls
 
 CFG = WallsConfig()
@@ -88,9 +81,9 @@ def test_skeleton_of_a_thick_band_is_one_pixel_wide(rng):
 
 
 def test_hough_parameters_are_metres(rng):
-    from tasks.walls import _Grid
+    from tasks.walls.image import Grid
 
-    grid = _Grid(np.array([10.0, 20.0]), 0.01, (100, 300))
+    grid = Grid(np.array([10.0, 20.0]), 0.01, (100, 300))
     sk = np.zeros(grid.shape, dtype=bool)
     sk[50, 20:280] = True  # 2.6 m line
     sk[10, 20:30] = True  # 10 cm: shorter than beta2 = 15 cm
@@ -284,9 +277,10 @@ def test_extend_to_data_moves_ends_to_where_the_data_ends():
     """A row of wall pixels from x = 0.2 m to 1.8 m with a 3 cm hole at 1.5 m and a 10 cm hole at 0.5 m:
     a line found from 0.8 m to 1.2 m reaches 1.8 m on one side (the small hole is bridged) and 0.6 m on
     the other (the large one is not)."""
-    from tasks.walls import _Grid, extend_to_data
+    from tasks.walls.evidence import extend_to_data
+    from tasks.walls.image import Grid
 
-    grid = _Grid(np.array([0.0, 0.0]), 0.01, (40, 220))
+    grid = Grid(np.array([0.0, 0.0]), 0.01, (40, 220))
     binary = np.zeros(grid.shape, dtype=bool)
     binary[20, 20:180] = True  # cell centres x = 0.205 .. 1.795 at y = 0.205
     binary[20, 150:153] = False
@@ -313,7 +307,7 @@ def test_every_alpha_setting_works(rng):
 def test_alpha_choice_prefers_the_longest_stable_closed_run():
     from shapely.geometry import Polygon
 
-    from tasks.walls import _Candidate
+    from tasks.walls.topology import Candidate
 
     box = np.array([[0, 0, 4, 0], [4, 0, 4, 3], [4, 3, 0, 3], [0, 3, 0, 0.0]])
     clutter = np.concatenate([box, [[1, 1, 2, 1.0]]])
@@ -322,7 +316,7 @@ def test_alpha_choice_prefers_the_longest_stable_closed_run():
     room = Polygon([(0, 0), (4, 0), (4, 3), (0, 3)])
 
     def cand(alpha, walls, closed):
-        return _Candidate(
+        return Candidate(
             alpha, walls, np.array(["observed"] * len(walls)), {}, None, room if closed else None
         )
 

@@ -1,0 +1,159 @@
+"""Doors in a parsed plan: gaps in a wall between a free wall end and the wall's continuation or a
+crossing wall, a door's width apart; gaps spanned by a thin line are windows and become walls."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from tasks import lines
+from tasks.plan.config import PlanConfig
+from tasks.plan.raster import InkMasks
+from tasks.plan.vectorize import first_wall_hit, free_ends, sample_mask
+
+
+def _jamb(p: NDArray, u: NDArray, segs: NDArray, thick: NDArray, i: int, mask_f: NDArray[np.float32]) -> bool:
+    """Whether wall ink runs on from the junction p along u past the face of the wall crossing there."""
+    d = lines.point_segment_distances(p[None], segs)[0]
+    d[i] = np.inf
+    reach = thick[int(np.argmin(d))] / 2 + 2.0
+    return bool(sample_mask(mask_f, (p + reach * u)[None])[0] > 0.5)
+
+
+def _on_other_wall(p: NDArray, q: NDArray, segs: NDArray, i: int, jamb: tuple[int, int] | None) -> bool:
+    """Whether the middle of the gap p -> q (a quarter, half and three quarters along) lies on a wall
+    other than i and the jamb's wall (within a pixel): the wall runs on there, the gap is no opening."""
+    skip = [i] if jamb is None else [i, jamb[0]]
+    others = np.delete(segs, skip, axis=0)
+    probe = p + np.outer([0.25, 0.5, 0.75], q - p)
+    return bool(len(others) and lines.point_segment_distances(probe, others).min() <= 1.0)
+
+
+def _find_doors(
+    segs: NDArray, thick: NDArray, cfg_px: dict[str, float], mask_f: NDArray[np.float32] | None = None
+) -> NDArray[np.float64]:
+    """Door gaps: a free wall end whose prolongation meets another wall (its collinear continuation or a
+    crossing wall) after a gap between door_min and door_max."""
+    doors: list[NDArray] = []
+    used: set[tuple[int, int]] = set()
+    ang = lines.angles(segs) if len(segs) else np.zeros(0)
+    sin_tol = math.sin(math.radians(2.0))
+    # an end inside another wall's ink is a junction the skeleton stopped short of, not a door jamb
+    free = free_ends(segs, 1.0, thick)
+    for i, e in free:
+        if (i, e) in used:
+            continue
+        s = segs[i]
+        p = s[2:] if e else s[:2]
+        q = s[:2] if e else s[2:]
+        u = (p - q) / max(float(np.hypot(*(p - q))), 1e-9)
+        # a door is a gap in one wall: the prolongation stops at the first wall it meets, and a wall end
+        # beyond that (the same line on the far side of a corridor) is not the other jamb
+        reach = first_wall_hit(p, u, segs, thick, i)
+        best = None
+        for j in range(len(segs)):
+            if j == i:
+                continue
+            t = segs[j]
+            # the other jamb is the end of a wall on the same line: parallel (a crossing wall's end that
+            # lies on the line is a corner, met by the ray below) and within half a thickness of the line
+            parallel = abs(math.sin(float(lines.angle_difference(ang[i], ang[j])))) <= sin_tol
+            for ej, pt in ((0, t[:2]), (1, t[2:])) if parallel else ():
+                # collinear continuation: a facing end, free or at a corner (a door beside a T-junction)
+                if (j, ej) in used or float((t[2:] if ej == 0 else t[:2]) @ u - pt @ u) <= 0:
+                    continue
+                v = pt - p
+                along = float(v @ u)
+                lateral = abs(float(v[0] * u[1] - v[1] * u[0]))
+                if along > reach + thick[j] / 2 + 1.0:
+                    continue
+                if cfg_px["door_min"] <= along <= cfg_px["door_max"] and lateral < max(thick[i], 2.0) / 2:
+                    if best is None or along < best[0]:
+                        best = (along, pt.copy(), (j, ej))
+            hit = lines.line_intersection(np.concatenate([p, p + u]), t)
+            if hit is not None:
+                x, s_ray, s_seg = hit
+                # the wall's end may stop at the face of the wall the ray runs along (a door at a corner)
+                slack = (thick[i] / 2 + 1.0) / max(float(np.hypot(*(t[2:] - t[:2]))), 1e-9)
+                if (
+                    -slack <= s_seg <= 1 + slack
+                    and cfg_px["door_min"] <= s_ray <= cfg_px["door_max"]
+                    and s_ray <= reach + 1e-6
+                ):
+                    foot = x - u * thick[j] / 2  # stop at the face of the crossing wall
+                    if best is None or s_ray < best[0]:
+                        best = (s_ray, foot, None)
+        if best is not None and _on_other_wall(p, best[1], segs, i, best[2]):
+            best = None  # the gap runs along another wall: the wall goes on, no opening
+        if best is not None:
+            doors.append(np.concatenate([p, best[1]]))
+            used.add((i, e))
+            if best[2] is not None:
+                used.add(best[2])
+    # a door beside two junctions (both jambs trimmed to a crossing wall) has no free end: collinear
+    # walls whose facing ends are a door width apart with nothing crossing the gap
+    for i, j in itertools.combinations(range(len(segs)), 2):
+        if abs(math.sin(float(lines.angle_difference(ang[i], ang[j])))) > sin_tol:
+            continue
+        for ei, ej in itertools.product((0, 1), (0, 1)):
+            if (i, ei) in used or (j, ej) in used:
+                continue
+            p, q = segs[i].reshape(2, 2)[ei], segs[j].reshape(2, 2)[ej]
+            u = segs[i].reshape(2, 2)[ei] - segs[i].reshape(2, 2)[1 - ei]
+            u /= max(float(np.hypot(*u)), 1e-9)
+            v = q - p
+            along, lateral = float(v @ u), abs(float(v[0] * u[1] - v[1] * u[0]))
+            facing = float((segs[j].reshape(2, 2)[1 - ej] - q) @ u) > 0
+            if not (facing and cfg_px["door_min"] <= along <= cfg_px["door_max"]):
+                continue
+            if lateral >= max(thick[i], 2.0) / 2:
+                continue
+            if _on_other_wall(p, q, segs, i, (j, ej)):
+                continue
+            if along > first_wall_hit(p, u, segs, thick, i, j) + thick[j] / 2 + 1.0:
+                continue  # another wall crosses the gap: the two ends face each other across a room
+            if mask_f is not None and not (
+                _jamb(p, u, segs, thick, i, mask_f) and _jamb(q, -u, segs, thick, j, mask_f)
+            ):
+                continue  # the walls turn at both ends (an alcove's mouth), no wall runs on into the gap
+            doors.append(np.concatenate([p, q]))
+            used.update({(i, ei), (j, ej)})
+    return np.array(doors, dtype=np.float64).reshape(-1, 4)
+
+
+def doors_and_windows(
+    segs: NDArray[np.float64],
+    thick: NDArray[np.float64],
+    thick_faces: NDArray[np.float64],
+    mask_f: NDArray[np.float32],
+    found: InkMasks,
+    px: float,
+    cfg: PlanConfig,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], int]:
+    """The door gaps (D, 4) between the walls (M, 4), and the gaps spanned by a thin line turned into walls
+    (windows). Returns the walls, their two thicknesses and the doors (all in working pixels), and the
+    number of windows."""
+    dark, sym_any = found.dark, found.symbols_any
+    doors = _find_doors(
+        segs, thick, {"door_min": cfg.door_min_m * px, "door_max": cfg.door_max_m * px}, mask_f
+    )
+    n_windows = 0
+    if len(doors) and cfg.window_ink_share <= 1.0:
+        # a gap spanned by a thin line is a window drawn in its wall: the wall goes on through it
+        thin = cv2.dilate((dark & ~sym_any).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
+        window = np.zeros(len(doors), bool)
+        for n, dr in enumerate(doors):
+            L = float(np.hypot(*(dr[2:] - dr[:2])))
+            pts = dr[:2] + np.linspace(0, 1, max(2, int(L) + 1))[:, None] * (dr[2:] - dr[:2])
+            window[n] = float((sample_mask(thin, pts) > 0.5).mean()) >= cfg.window_ink_share
+        if window.any():
+            near = lines.point_segment_distances(doors[window][:, :2], segs).argmin(axis=1)
+            segs = np.concatenate([segs, doors[window]])
+            thick = np.concatenate([thick, thick[near]])
+            thick_faces = np.concatenate([thick_faces, thick_faces[near]])
+            doors, n_windows = doors[~window], int(window.sum())
+    return segs, thick, thick_faces, doors, n_windows

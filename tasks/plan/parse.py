@@ -1,0 +1,228 @@
+"""Coarse floor-plan raster -> metric wall centrelines, thicknesses, rooms and doors (thesis 4.2.3).
+
+The thesis (after Peter et al. 2010, 2013b) turns a photographed evacuation plan into a floor model:
+white balance and Wallis filtering, perspective rectification from the building outline, removal of
+symbols by colour segmentation, binarization, skeleton vectorization, bridging of the lines occluded by
+symbols by prolonging free ends, and room polygons. The same steps serve CAD renderings (thin outline
+walls are filled first). `parse_plan` runs them in order: the raster side in `tasks.plan.raster`, the
+vectors in `tasks.plan.vectorize` (straight walls from the line code shared with the walls stage,
+`tasks.lines`, never from a copy of it), doors in `tasks.plan.doors`, scale and rooms in
+`tasks.plan.rooms`.
+
+Frames: the plan frame maps pixel (u, v) of the input image (after rectification, when four corners are
+given) to metres (u * s, -v * s): x to the right, y up.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from shapely.geometry import Polygon
+
+from tasks import lines
+from tasks.plan.config import PlanConfig, PlanScale
+from tasks.plan.doors import doors_and_windows
+from tasks.plan.raster import clean_ink, min_pool, wall_raster
+from tasks.plan.rooms import (
+    free_space_rooms,
+    outline_scale,
+    plan_preview,
+    rectify,
+    rooms_in_metres,
+    to_metres,
+)
+from tasks.plan.vectorize import hough_lines, vector_walls
+
+
+@dataclass(frozen=True)
+class ParsedPlan:
+    """Result of `parse_plan`, in metres in the plan frame."""
+
+    walls: NDArray[np.float64]
+    """(M, 4) wall centrelines x0 y0 x1 y1."""
+    thickness_m: NDArray[np.float64]
+    """(M,) wall thickness measured across the raster."""
+    rooms: list[tuple[Polygon, str | None]]
+    """Enclosed free-space polygons with their label (None when unlabelled), largest first."""
+    doors: NDArray[np.float64]
+    """(D, 4) door gaps as segments between the two wall ends (or wall end and wall); gaps spanned by a
+    thin line (windows) are walls instead."""
+    preview: NDArray[np.uint8]
+    """(h, w, 3) RGB picture at working resolution: cleaned plan, walls, rooms, doors."""
+    metrics: dict[str, Any]
+    """Timings (s), counts, removed symbol pixels, scale used."""
+    m_per_px: float = 0.0
+    """Scale of the input (rectified) image."""
+
+
+def parse_plan(
+    image: NDArray[np.uint8],
+    scale: PlanScale,
+    cfg: PlanConfig,
+    labels: dict[str, tuple[float, float]] | None = None,
+    name: str = "plan image",
+) -> ParsedPlan:
+    """Parse a plan raster (H, W, 3) uint8 RGB into wall centrelines, thicknesses, rooms and doors (m).
+
+    `labels` optionally maps room names to a point (plan-frame metres) inside the room. `name` is used in
+    error messages. Raises ValueError (one line, naming the image) for empty images, implausible scales
+    and images without a floor plan."""
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    img, s = _scaled_image(_checked_image(image, name), scale, cfg, name)
+    f = max(1, math.ceil(max(img.shape[:2]) / cfg.max_side_px))
+    img = min_pool(img, f)
+    sp = s * f  # metres per working pixel
+    px = 1.0 / sp
+    timings["load_s"] = time.perf_counter() - t_start
+
+    t = time.perf_counter()
+    found = clean_ink(img, px, cfg)
+    timings["clean_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    raster = wall_raster(found, px, cfg)
+    walls_r = raster.walls
+    timings["binarize_s"] = time.perf_counter() - t
+    ink_area = _check_wall_raster(walls_r, s, sp, cfg, name)
+
+    t = time.perf_counter()
+    raw = hough_lines(walls_r, px, cfg)
+    timings["skeleton_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    segs, thick, thick_faces = vector_walls(raw, walls_r, raster.lines_f, found.symbols_any, px, cfg)
+    timings["vectorize_s"] = time.perf_counter() - t
+    coverage = _check_walls(segs, thick, walls_r, ink_area, sp, cfg, name)
+
+    t = time.perf_counter()
+    mask_f = walls_r.astype(np.float32)
+    segs, thick, thick_faces, doors, n_windows = doors_and_windows(
+        segs, thick, thick_faces, mask_f, found, px, cfg
+    )
+    rooms_px = free_space_rooms(walls_r, segs, thick, doors, sp, cfg)
+    rooms_m = rooms_in_metres(rooms_px, f, s, labels)
+    timings["rooms_s"] = time.perf_counter() - t
+
+    preview = plan_preview(walls_r, segs, thick, rooms_px, doors)
+    timings["total_s"] = time.perf_counter() - t_start
+    metrics = {
+        "m_per_px": s,
+        "working_m_per_px": sp,
+        "downsample_factor": f,
+        "ink_threshold": found.threshold,
+        "symbol_pixels": {k2: int(v.sum()) for k2, v in found.symbols.items() if k2 not in found.pen},
+        "pen_colours": found.pen,
+        "wall_layers": raster.wall_layers,
+        "layer_evidence_m": {int(k2): round(v, 1) for k2, v in raster.layer_evidence.items()},
+        "text_components": len(raster.text_px),
+        "text_positions_m": to_metres(np.asarray(raster.text_px).reshape(-1, 2), f, s).tolist(),
+        "hough_segments": len(raw),
+        "walls": len(segs),
+        "wall_length_m": float(lines.lengths(segs).sum() * sp) if len(segs) else 0.0,
+        "wall_coverage": coverage,
+        "rooms": len(rooms_m),
+        "doors": len(doors),
+        "windows": n_windows,
+        "timings": timings,
+    }
+    return ParsedPlan(
+        walls=to_metres(segs, f, s).reshape(-1, 4),
+        thickness_m=thick_faces * sp,
+        rooms=rooms_m,
+        doors=to_metres(doors, f, s).reshape(-1, 4),
+        preview=preview,
+        metrics=metrics,
+        m_per_px=s,
+    )
+
+
+def _checked_image(image: NDArray[np.uint8], name: str) -> NDArray[np.uint8]:
+    """The image (H, W, 3) as an array, when it is an RGB picture with some contrast."""
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8 or min(img.shape[:2]) < 16:
+        raise ValueError(
+            f"{name}: expected a non-empty (H, W, 3) uint8 RGB image, got {img.shape} {img.dtype}"
+        )
+    if int(img.max()) - int(img.min()) < 16:
+        raise ValueError(f"{name}: the image is blank (no contrast), no floor plan in it")
+    return img
+
+
+def _scaled_image(
+    img: NDArray[np.uint8], scale: PlanScale, cfg: PlanConfig, name: str
+) -> tuple[NDArray[np.uint8], float]:
+    """The image (rectified when four outline corners are given) and its metres per pixel, checked to
+    make the image a plausible size."""
+    s_rect = None
+    if scale.corners_px is not None:
+        img, s_rect = rectify(img, np.asarray(scale.corners_px), scale.outline_size_m)
+    if s_rect is not None:
+        s = s_rect
+    elif scale.m_per_px is not None:
+        s = float(scale.m_per_px)
+    elif scale.known_distance is not None:
+        x0, y0, x1, y1, d = scale.known_distance
+        s = float(d) / math.hypot(x1 - x0, y1 - y0)
+    else:
+        s = outline_scale(img, float(scale.outline_length_m), cfg)
+    extent_m = max(img.shape[:2]) * s
+    if not cfg.min_extent_m <= extent_m <= cfg.max_extent_m * 1.5:
+        raise ValueError(
+            f"{name}: scale {s:.4g} m/px makes the image {extent_m:.3g} m across, outside the plausible "
+            f"{cfg.min_extent_m:g}-{cfg.max_extent_m:g} m (wrong units?)"
+        )
+    return img, s
+
+
+def _check_wall_raster(walls_r: NDArray[np.bool_], s: float, sp: float, cfg: PlanConfig, name: str) -> int:
+    """The wall raster's (h, w) pixel count, when it holds walls spanning a plausible extent."""
+    ink_area = int(walls_r.sum())
+    if ink_area < 10:
+        raise ValueError(f"{name}: no wall lines found in the image, no floor plan in it")
+    ys, xs = np.nonzero(walls_r)
+    size_m = max(xs.max() - xs.min(), ys.max() - ys.min()) * sp
+    if not cfg.min_extent_m <= size_m <= cfg.max_extent_m:
+        raise ValueError(
+            f"{name}: the walls span {size_m:.3g} m at {s:.4g} m/px, outside the plausible "
+            f"{cfg.min_extent_m:g}-{cfg.max_extent_m:g} m (wrong scale units?)"
+        )
+    return ink_area
+
+
+def _check_walls(
+    segs: NDArray[np.float64],
+    thick: NDArray[np.float64],
+    walls_r: NDArray[np.bool_],
+    ink_area: int,
+    sp: float,
+    cfg: PlanConfig,
+    name: str,
+) -> float:
+    """The share of the wall raster (h, w) that the straight walls (M, 4) explain, when they are enough
+    walls, long enough and explain enough of it to be a floor plan."""
+    if len(segs) < cfg.min_walls:
+        raise ValueError(f"{name}: only {len(segs)} straight walls found, no floor plan in it")
+    total_px = float(lines.lengths(segs).sum())
+    if total_px < cfg.min_wall_length_diagonals * math.hypot(*walls_r.shape):
+        raise ValueError(
+            f"{name}: the straight walls add up to only {total_px * sp:.3g} m in a "
+            f"{math.hypot(*walls_r.shape) * sp:.3g} m wide image, no floor plan in it"
+        )
+    rendered = np.zeros(walls_r.shape, np.uint8)
+    long_walls = lines.lengths(segs) >= cfg.coverage_wall_length_ratio * thick
+    for sg, th in zip(segs[long_walls], thick[long_walls], strict=True):
+        p0, p1 = np.round(sg[:2]).astype(int), np.round(sg[2:]).astype(int)
+        cv2.line(rendered, tuple(int(v) for v in p0), tuple(int(v) for v in p1), 1, max(1, round(th) + 2))
+    coverage = float((rendered.astype(bool) & walls_r).sum() / ink_area)
+    if coverage < cfg.min_wall_coverage:
+        raise ValueError(
+            f"{name}: straight walls explain only {coverage:.0%} of the dark strokes, no floor plan in it"
+        )
+    return coverage

@@ -1,0 +1,408 @@
+"""The raster side of plan parsing (thesis 4.2.3, after Peter et al. 2010, 2013b): loading, white balance
+and local contrast (the Wallis filter's role), coloured symbols found by colour segmentation and taken out,
+text removed, a coloured drawing's wall layers chosen, outline-drawn walls filled, thin strokes opened away,
+wall stretches hidden under symbols bridged, legend frames dropped."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+
+from tasks.plan.config import PlanConfig
+
+
+def load_plan_image(path: Path) -> NDArray[np.uint8]:
+    """A plan image file as (H, W, 3) RGB uint8, transparent pixels composited on white paper."""
+    path = Path(path)
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None or raw.size == 0:
+        raise ValueError(f"{path}: empty or not a readable image")
+    if raw.dtype != np.uint8:
+        raw = (raw / max(float(raw.max()), 1.0) * 255).astype(np.uint8)
+    if raw.ndim == 2:
+        return cv2.cvtColor(raw, cv2.COLOR_GRAY2RGB)
+    if raw.shape[2] == 4:
+        a3 = cv2.merge([raw[..., 3]] * 3)
+        bgr = cv2.add(
+            cv2.multiply(np.ascontiguousarray(raw[..., :3]), a3, scale=1 / 255), cv2.bitwise_not(a3)
+        )
+        return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    return cv2.cvtColor(raw[..., :3], cv2.COLOR_BGR2RGB)
+
+
+def _hue_mask(hue_deg: NDArray, rng: tuple[float, float]) -> NDArray[np.bool_]:
+    lo, hi = rng
+    return (hue_deg >= lo) & (hue_deg <= hi) if lo <= hi else (hue_deg >= lo) | (hue_deg <= hi)
+
+
+def min_pool(image: NDArray[np.uint8], f: int) -> NDArray[np.uint8]:
+    """Reduce by factor f keeping the darkest value of every f x f block, so 1 px lines survive."""
+    if f <= 1:
+        return image
+    return cv2.erode(image, np.ones((f, f), np.uint8), anchor=(0, 0))[::f, ::f][
+        : image.shape[0] // f, : image.shape[1] // f
+    ]
+
+
+def enhance(image: NDArray[np.uint8], tile_px: int, cfg: PlanConfig) -> NDArray[np.uint8]:
+    """White-patch white balance, then CLAHE on lightness (the Wallis filter's local contrast role)."""
+    img = image.astype(np.float32)
+    step = max(1, img.shape[0] * img.shape[1] // 1_000_000)  # a subsample is enough for a percentile
+    white = np.percentile(img.reshape(-1, 3)[::step], cfg.white_balance_percentile, axis=0)
+    img = np.clip(img * (255.0 / np.maximum(white, 32.0)), 0, 255).astype(np.uint8)
+    if cfg.clahe_clip > 0:
+        lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB)
+        h, w = img.shape[:2]
+        tiles = (max(1, w // max(tile_px, 8)), max(1, h // max(tile_px, 8)))
+        lab[..., 0] = cv2.createCLAHE(clipLimit=cfg.clahe_clip, tileGridSize=tiles).apply(lab[..., 0])
+        img = cv2.cvtColor(lab, cv2.COLOR_LAB2RGB)
+    return img
+
+
+def symbol_mask(image: NDArray[np.uint8], cfg: PlanConfig) -> dict[str, NDArray[np.bool_]]:
+    """Green, red and blue symbol pixels by HSV segmentation (Peter et al. 2013b colour segmentation)."""
+    hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)
+    hue = hsv[..., 0].astype(np.float32) * 2.0
+    coloured = (hsv[..., 1] >= cfg.symbol_min_saturation) & (hsv[..., 2] >= cfg.symbol_min_value)
+    return {
+        "green": coloured & _hue_mask(hue, cfg.green_hue_deg),
+        "red": coloured & _hue_mask(hue, cfg.red_hue_deg),
+        "blue": coloured & _hue_mask(hue, cfg.blue_hue_deg),
+    }
+
+
+def _solid_symbols(
+    mask: NDArray[np.bool_], hole_px: int, core_kernel: NDArray[np.uint8], solid_share: float
+) -> NDArray[np.bool_]:
+    """The symbols among one colour's pixels: filled signs and arrows, not the thin strokes of a drawing
+    whose line work is coloured (CAD layers). The solid core survives an opening as wide as a symbol's
+    narrowest part once white details narrower than hole_px (pictograms) are closed; a connected piece
+    of the colour that is mostly core is a symbol whole (its thin tips and rims too), elsewhere only the
+    core is."""
+    m8 = mask.astype(np.uint8)
+    filled = closing(m8, np.ones((hole_px, hole_px), np.uint8))
+    core = cv2.morphologyEx(filled, cv2.MORPH_OPEN, core_kernel).astype(bool) & mask
+    if not core.any():
+        return core
+    n, lab = cv2.connectedComponents(m8, connectivity=8)
+    share = np.bincount(lab[core], minlength=n) / np.maximum(np.bincount(lab.ravel(), minlength=n), 1)
+    whole = share >= solid_share
+    whole[0] = False
+    return core | whole[lab]
+
+
+def closing(mask: NDArray[np.uint8], kernel: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """Closing with paper (0) outside the image: the default border would join strokes to the edge."""
+    return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def _fill_outline_walls(
+    ink: NDArray[np.bool_],
+    max_width_px: float,
+    faces: NDArray[np.bool_] | None = None,
+    min_width_px: float = 0.0,
+    one_face_percentile: float = 90.0,
+) -> NDArray[np.bool_]:
+    """Fill the space between facing ink lines closer than max_width_px (outline-drawn walls, CAD style)
+    along rows and columns: a run of paper is filled when ink bounds it on both sides within the width
+    (a closing with a 1 x L and an L x 1 segment). With `faces` (the lines of a drawing's wall layers),
+    a run is filled when both of its ink ends are wall faces, or when one is and the run is no wider than
+    the walls drawn with two faces (their one_face_percentile of widths from min_width_px up): where
+    furniture or a window abuts a wall its face may be drawn in another layer, but two lines of other
+    layers never make a wall, and neither does furniture standing farther from a wall than a wall is
+    thick. A disc or diagonal closing would also round every room corner; walls drawn at other angles
+    than 0/90 degrees as outlines are therefore not filled."""
+    L = int(max_width_px) | 1
+    if L < 3:
+        return ink
+    runs = []
+    for m, f in ((ink, faces), (ink.T, None if faces is None else faces.T)):
+        h, w = m.shape
+        idx = np.arange(w, dtype=np.int32)
+        left = np.maximum.accumulate(np.where(m, idx, -1), axis=1)
+        right = np.minimum.accumulate(np.where(m, idx, w)[:, ::-1], axis=1)[:, ::-1]
+        width = right - left - 1
+        fill = (left >= 0) & (right < w) & (width < L)
+        n_faces = None
+        if f is not None:
+            rows = np.arange(h)[:, None]
+            n_faces = f[rows, np.clip(left, 0, w - 1)].astype(np.uint8) + f[rows, np.clip(right, 0, w - 1)]
+        runs.append((fill, width, n_faces))
+    if faces is not None:
+        both = np.concatenate([wd[fl & (nf == 2) & (wd >= min_width_px)] for fl, wd, nf in runs])
+        one_max = float(np.percentile(both, one_face_percentile)) if len(both) else -1.0
+        runs = [(fl & ((nf == 2) | ((nf == 1) & (wd <= one_max))), wd, nf) for fl, wd, nf in runs]
+    return ink | runs[0][0] | runs[1][0].T
+
+
+def _ink_layers(image: NDArray[np.uint8], ink: NDArray[np.bool_], cfg: PlanConfig) -> NDArray[np.uint8]:
+    """Drawing layer of every ink pixel, by colour: 0 for black and grey ink, 1-12 for coloured ink by hue
+    (30 degree bins centred on 0, 30, ... 330 degrees: the pens of a CAD drawing's layers). Pale
+    anti-aliased rims keep the hue of their line."""
+    hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)
+    hue_bin = ((hsv[..., 0].astype(np.int32) * 2 + 15) // 30) % 12 + 1
+    return np.where(ink & (hsv[..., 1] >= cfg.layer_min_saturation), hue_bin, 0).astype(np.uint8)
+
+
+def _wall_layers(
+    ink: NDArray[np.bool_], layers: NDArray[np.uint8], px: float, cfg: PlanConfig
+) -> tuple[list[int], dict[int, float]]:
+    """Layers that draw walls, and every layer's wall evidence (metres of wall face). A drawing in one
+    colour has one layer. In a drawing with coloured layers (walls, windows, furniture, text, axes each in
+    their pen), the wall layer is the one whose long straight lines most often pair up at wall spacing
+    (min_wall_thickness_m to max_outline_width_m) into bands; furniture is drawn in shorter or wider-spaced
+    lines. Layers with at least wall_layer_share of the best evidence are wall layers too. Scored on a
+    grid about wall_layer_grid_m coarse (max-pooled masks keep thin lines) to stay quick."""
+    n_ink = max(int(ink.sum()), 1)
+    counts = np.bincount(layers[ink], minlength=13)
+    cand = [int(c) for c in np.flatnonzero(counts >= cfg.layer_min_share * n_ink)]
+    if len(cand) <= 1:
+        return cand, {}
+    c = max(1, round(cfg.wall_layer_grid_m * px))
+    cpx = px / c
+    line = max(3, round(cfg.wall_face_min_m * cpx) | 1)
+    k = max(1, round(cfg.min_wall_thickness_m * cpx)) | 1
+    evidence: dict[int, float] = {}
+    for lay in cand:
+        m = cv2.dilate(((layers == lay) & ink).astype(np.uint8), np.ones((c, c), np.uint8), anchor=(0, 0))[
+            ::c, ::c
+        ]
+        long_h = cv2.morphologyEx(m, cv2.MORPH_OPEN, np.ones((1, line), np.uint8))
+        long_v = cv2.morphologyEx(m, cv2.MORPH_OPEN, np.ones((line, 1), np.uint8))
+        faces = 0
+        for lines_m in (long_h, long_v):
+            band = _fill_outline_walls(lines_m.astype(bool), cfg.max_outline_width_m * cpx).astype(np.uint8)
+            band = cv2.morphologyEx(band, cv2.MORPH_OPEN, np.ones((k, k), np.uint8))
+            faces += int((lines_m & cv2.dilate(band, np.ones((3, 3), np.uint8))).sum())
+        evidence[lay] = faces / cpx
+    best = max(evidence.values())
+    return [lay for lay in cand if best > 0 and evidence[lay] >= cfg.wall_layer_share * best], evidence
+
+
+def _remove_small_components(mask: NDArray[np.bool_], max_size_px: float) -> tuple[NDArray, NDArray]:
+    """Drop components whose bounding box fits in max_size_px; returns (mask, (T, 2) centres of them)."""
+    _n, lab, stats, cents = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    small = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) < max_size_px
+    small[0] = False
+    return mask & ~small[lab], cents[small]
+
+
+def _inside_shell(walls: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Keep the wall components whose centre lies within the building: the union of the bounding boxes
+    of the big components (diagonal at least half the largest one's). Legend frames, title blocks and
+    north arrows beside the building go; free-standing walls inside it stay."""
+    n, lab, stats, cents = cv2.connectedComponentsWithStats(walls.astype(np.uint8), connectivity=8)
+    if n <= 2:
+        return walls
+    diag = np.hypot(stats[1:, cv2.CC_STAT_WIDTH], stats[1:, cv2.CC_STAT_HEIGHT])
+    big = 1 + np.flatnonzero(diag >= 0.5 * diag.max())
+    x0, y0 = stats[big, 0].min(), stats[big, 1].min()
+    x1 = (stats[big, 0] + stats[big, 2]).max()
+    y1 = (stats[big, 1] + stats[big, 3]).max()
+    inside = (cents[:, 0] >= x0) & (cents[:, 0] <= x1) & (cents[:, 1] >= y0) & (cents[:, 1] <= y1)
+    inside[0] = False
+    return inside[lab]
+
+
+def _legend_frames(dark: NDArray[np.bool_], min_side_px: float, cover: float) -> list[tuple[int, ...]]:
+    """Bounding boxes (x, y, w, h) of the ink components drawn as a rectangle frame (every side of the
+    box covered by the component's ink) at least min_side_px wide and high: legend and title frames."""
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(dark.astype(np.uint8), connectivity=8)
+    out = []
+    for k in range(1, n):
+        x, y, w, h, _a = (int(v) for v in stats[k])
+        if min(w, h) < min_side_px:
+            continue
+        comp = lab[y : y + h, x : x + w] == k
+        b = 3  # a frame line a few pixels wide, or anti-aliased
+        sides = (comp[:b].any(0), comp[-b:].any(0), comp[:, :b].any(1), comp[:, -b:].any(1))
+        if min(float(side.mean()) for side in sides) >= cover:
+            out.append((x, y, w, h))
+    return out
+
+
+def _drop_framed(walls: NDArray[np.bool_], frames: list[tuple[int, ...]]) -> NDArray[np.bool_]:
+    """Drop the wall components inside a legend frame; a frame around the largest wall component (a
+    drawing's border, or the outline of a building drawn in thin lines) holds the building and stays."""
+    if not frames:
+        return walls
+    n, lab, stats, cents = cv2.connectedComponentsWithStats(walls.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return walls
+    big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    drop = np.zeros(n, bool)
+    for x, y, w, h in frames:
+        bx, by, bw, bh = stats[big, :4]
+        if bx >= x and by >= y and bx + bw <= x + w and by + bh <= y + h:
+            continue
+        drop |= (cents[:, 0] > x) & (cents[:, 0] < x + w) & (cents[:, 1] > y) & (cents[:, 1] < y + h)
+    drop[0] = False
+    return walls & ~drop[lab]
+
+
+def _bridge_symbols(
+    walls: NDArray[np.bool_], symbols: NDArray[np.bool_], length_px: int, run_px: int
+) -> NDArray:
+    """Restore wall pixels hidden under symbols. Walls running along a direction (with the symbols, their
+    runs along it are longer than run_px, more than any wall thickness) are closed along that direction
+    with gaps up to length_px, and a gap is filled only when symbols cover all of it: door gaps (paper,
+    even with an escape arrow drawn across) stay open, and a symbol between two parallel walls (an arrow
+    in a corridor) is not taken for a wall across them. Horizontal and vertical walls only (the plans'
+    prevailing directions; diagonal kernels are slow)."""
+    if length_px < 3 or not symbols.any():
+        return walls
+    w8 = walls.astype(np.uint8)
+    ws8 = (walls | symbols).astype(np.uint8)
+    L, R = int(length_px) | 1, max(3, int(run_px) | 1)
+    out = walls.copy()
+    for axis, run, gap in ((1, (1, R), (1, L)), (0, (R, 1), (L, 1))):
+        # wall pieces between symbols are short, but with the symbols they run along the direction
+        along = cv2.morphologyEx(ws8, cv2.MORPH_OPEN, np.ones(run, np.uint8)) & w8
+        gaps = closing(along, np.ones(gap, np.uint8)).astype(bool) & ~along.astype(bool)
+        # a gap is bridged only when symbols cover all of it: an arrow drawn across a door leaves paper
+        # on both of its sides, and the door stays open
+        structure = np.zeros((3, 3), int)
+        structure[1, :] = 1
+        runs, _ = ndimage.label(gaps if axis == 1 else gaps.T, structure=structure)
+        if axis == 0:
+            runs = runs.T
+        bad = np.zeros(runs.max() + 1, bool)
+        bad[np.unique(runs[gaps & ~symbols & ~walls])] = True
+        bad[0] = True
+        out |= ~bad[runs]
+    return out
+
+
+@dataclass(frozen=True)
+class InkMasks:
+    """The enhanced working image and what its colours say: which pixels are ink, which are symbols."""
+
+    image: NDArray[np.uint8]
+    """(h, w, 3) RGB after white balance and CLAHE."""
+    symbols: dict[str, NDArray[np.bool_]]
+    """Colour -> (h, w) symbol pixels of that colour (the pen colours' masks as segmented)."""
+    pen: list[str]
+    """Symbol colours that carry most of the line work: the drawing's pen, kept as ink."""
+    threshold: float
+    """Darkness threshold of ink (Otsu, clamped)."""
+    dark: NDArray[np.bool_]
+    """(h, w) pixels darker than the threshold."""
+    symbols_any: NDArray[np.bool_]
+    """(h, w) symbol pixels of every colour, grown over their rims and pictograms."""
+    ink: NDArray[np.bool_]
+    """(h, w) dark pixels that are not symbols."""
+    rim_other: NDArray[np.bool_]
+    """(h, w) vivid ink of another hue in a symbol's rim (another layer's line running past it)."""
+
+
+def clean_ink(img: NDArray[np.uint8], px: float, cfg: PlanConfig) -> InkMasks:
+    """Enhance the working image (h, w, 3) at `px` pixels per metre, find the ink and take the coloured
+    symbols out of it (Peter et al. 2013b colour segmentation)."""
+    img = enhance(img, int(cfg.clahe_tile_m * px), cfg)
+    syms = symbol_mask(img, cfg)
+    darkness = (255 - img.min(axis=2)).astype(np.uint8)
+    thr, _ = cv2.threshold(darkness, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    thr = float(np.clip(thr, *cfg.ink_threshold_bounds))
+    dark = darkness > thr
+    n_dark = max(int(dark.sum()), 1)
+    # a colour carrying most of the line work is the drawing's pen (a one-colour CAD rendering), not symbols
+    pen = [c for c, m in syms.items() if (m & dark).sum() > cfg.pen_colour_share * n_dark]
+    sym_union = np.zeros(dark.shape, bool)
+    hole = max(3, round(cfg.symbol_hole_m * px) | 1)
+    solid_k = cv2.getStructuringElement(
+        cv2.MORPH_ELLIPSE, (max(3, round(cfg.symbol_min_width_m * px) | 1),) * 2
+    )
+    for c, m in syms.items():
+        if c not in pen:
+            syms[c] = _solid_symbols(m, hole, solid_k, cfg.symbol_solid_share)
+            sym_union |= syms[c]
+    grow = max(1, round(cfg.symbol_grow_m * px))
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
+    sym_any = cv2.dilate(sym_union.astype(np.uint8), kernel)
+    # white pictograms inside a sign belong to the sign
+    sym_any = closing(sym_any, np.ones((hole, hole), np.uint8)).astype(bool)
+    ink = dark & ~sym_any
+    # vivid ink of another hue in a symbol's rim: line work of another layer running past the symbol
+    # (a wall face past a window drawn in blue); given back below if it is the wall layer's
+    rim_other = np.zeros(dark.shape, bool)
+    rim_same = np.zeros(dark.shape, bool)
+    if sym_union.any():
+        hsv = cv2.cvtColor(img, cv2.COLOR_RGB2HSV)
+        hue = hsv[..., 0].astype(np.float32) * 2.0
+        vivid = dark & (hsv[..., 1] >= cfg.symbol_min_saturation) & (hsv[..., 2] >= cfg.symbol_min_value)
+        hues = {"green": cfg.green_hue_deg, "red": cfg.red_hue_deg, "blue": cfg.blue_hue_deg}
+        for c, m in syms.items():
+            if c in pen or not m.any():
+                continue
+            grown = closing(cv2.dilate(m.astype(np.uint8), kernel), np.ones((hole, hole), np.uint8)).astype(
+                bool
+            )
+            own_hue = _hue_mask(hue, hues[c])
+            rim_other |= grown & vivid & ~own_hue
+            rim_same |= grown & own_hue
+        rim_other &= ~rim_same & ~sym_union  # in the rim of a symbol of its own colour, it is that symbol
+    return InkMasks(img, syms, pen, thr, dark, sym_any, ink, rim_other)
+
+
+@dataclass(frozen=True)
+class WallRaster:
+    """The ink that draws walls, and what was taken out on the way."""
+
+    walls: NDArray[np.bool_]
+    """(h, w) wall pixels: outline walls filled, thin strokes opened away, symbols bridged."""
+    lines_f: NDArray[np.float32]
+    """(h, w) the drawn lines before outline walls were filled (1.0 ink): outline walls measure between
+    their faces."""
+    text_px: NDArray[np.float64]
+    """(T, 2) centres (pixels) of the components removed as text."""
+    wall_layers: list[int]
+    """Colour layers that draw walls (`_wall_layers`)."""
+    layer_evidence: dict[int, float]
+    """Every colour layer's wall evidence (metres of wall face); empty for a one-colour drawing."""
+
+
+def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
+    """The wall raster from the cleaned ink: text removed, a coloured drawing's wall layers chosen,
+    outline-drawn walls filled, thinner strokes opened away, walls bridged under symbols, legend and
+    title frames dropped."""
+    img, ink, dark = found.image, found.ink, found.dark
+    rim_other, sym_any = found.rim_other, found.symbols_any
+    # letters first, while they are still separate components; then outline walls are filled and thin
+    # strokes (hatching, furniture, dimension lines) are opened away
+    ink, text_px = _remove_small_components(ink, cfg.text_max_size_m * px)
+    layers = _ink_layers(img, ink, cfg)
+    wall_layers, layer_evidence = _wall_layers(ink, layers, px, cfg)
+    faces = None
+    if layer_evidence:  # several colour layers hold line work
+        rim_layers = _ink_layers(img, rim_other, cfg)
+        ink |= rim_other & np.isin(rim_layers, wall_layers)
+        layers = _ink_layers(img, ink, cfg)
+        # a drawing in coloured layers: only the wall layers' lines (rims included) are wall faces, and
+        # where another layer's line is drawn over a face (a bath tub's rim, a window sill) the face runs on
+        w8 = cv2.dilate((np.isin(layers, wall_layers) & ink).astype(np.uint8), np.ones((3, 3), np.uint8))
+        span, run = int(cfg.bridge_max_m * px) | 1, max(3, round(cfg.min_wall_thickness_m * px) | 1)
+        for ker_run, ker_span in (((1, run), (1, span)), ((run, 1), (span, 1))):
+            # along the line only: a closing of the lines themselves, not of the space between two of them
+            along = cv2.morphologyEx(w8, cv2.MORPH_OPEN, np.ones(ker_run, np.uint8))
+            w8 |= closing(along, np.ones(ker_span, np.uint8))
+        faces = w8.astype(bool) & ink
+    lines_f = ink.astype(np.float32)  # the drawn lines: outline walls measure between their faces
+    ink = _fill_outline_walls(ink, cfg.max_outline_width_m * px, faces, cfg.min_wall_thickness_m * px)
+    k = max(1, round(cfg.min_wall_thickness_m * px)) | 1  # odd: an even kernel shifts by a pixel
+    walls_r = cv2.morphologyEx(ink.astype(np.uint8), cv2.MORPH_OPEN, np.ones((k, k), np.uint8)).astype(bool)
+    walls_r, more_text = _remove_small_components(walls_r, cfg.text_max_size_m * px)
+    text_px = np.concatenate([text_px, more_text])
+    walls_r = _bridge_symbols(
+        walls_r, sym_any, int(cfg.bridge_max_m * px), int(cfg.max_outline_width_m * px) + 2
+    )
+    if cfg.drop_outside_shell:
+        walls_r = _inside_shell(walls_r)
+    if cfg.legend_frame_min_m > 0:
+        frames = _legend_frames(dark, cfg.legend_frame_min_m * px, cfg.legend_frame_cover)
+        walls_r = _drop_framed(walls_r, frames)
+    return WallRaster(walls_r, lines_f, text_px, wall_layers, layer_evidence)

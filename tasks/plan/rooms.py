@@ -1,0 +1,160 @@
+"""Rooms and scale of a parsed plan: the plan's metres per pixel (given, from a known distance, from the
+outline's perimeter, or from a rectified outline of known size), working pixels to plan metres, the rooms
+as the free space the walls and doors enclose, and the preview picture."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import shapely
+from numpy.typing import NDArray
+from shapely.geometry import Polygon
+
+from tasks.plan.config import PlanConfig
+from tasks.plan.raster import closing, enhance
+
+
+def to_metres(seg_px: NDArray, f: int, s: float) -> NDArray[np.float64]:
+    """Working pixels (after min-pooling by f) -> plan metres (u s, -v s) of the input pixel grid."""
+    out = (np.asarray(seg_px, dtype=np.float64) * f + (f - 1) / 2.0) * s
+    out[..., 1::2] *= -1
+    return out
+
+
+def rectify(
+    image: NDArray[np.uint8], corners: NDArray, size_m: tuple[float, float] | None
+) -> tuple[NDArray[np.uint8], float | None]:
+    """Perspective rectification: the corners go to an axis-parallel rectangle with a 5 % margin. Its
+    sides are the photo's mean side lengths, or, with `size_m`, the true aspect ratio at the photo's
+    mean resolution (then also returns that scale, metres per pixel)."""
+    c = np.asarray(corners, dtype=np.float32)
+    w = 0.5 * (np.hypot(*(c[1] - c[0])) + np.hypot(*(c[2] - c[3])))
+    h = 0.5 * (np.hypot(*(c[3] - c[0])) + np.hypot(*(c[2] - c[1])))
+    s = None
+    if size_m is not None:
+        s = 0.5 * (size_m[0] / w + size_m[1] / h)
+        w, h = size_m[0] / s, size_m[1] / s
+    margin = 0.05 * max(w, h)
+    dst = np.float32([[margin, margin], [margin + w, margin], [margin + w, margin + h], [margin, margin + h]])
+    H = cv2.getPerspectiveTransform(c, dst)
+    size = (round(w + 2 * margin), round(h + 2 * margin))
+    return cv2.warpPerspective(image, H, size, flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255)), s
+
+
+def outline_scale(image: NDArray[np.uint8], length_m: float, cfg: PlanConfig) -> float:
+    """Metres per pixel from the perimeter of the largest dark outline not touching the image border
+    (a photo's own frame or background does)."""
+    img = enhance(image, max(image.shape[:2]) // 4, cfg)
+    dark = (255 - img.min(axis=2)).astype(np.uint8)
+    _, ink = cv2.threshold(dark, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    ink = closing(ink, np.ones((5, 5), np.uint8))
+    contours, _ = cv2.findContours(ink, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    h, w = ink.shape
+    inner = []
+    for c in contours:
+        x, y, cw, ch = cv2.boundingRect(c)
+        if x > 0 and y > 0 and x + cw < w and y + ch < h:
+            inner.append(c)
+    if not inner:
+        raise ValueError("outline_length_m given but no building outline found")
+    c = max(inner, key=cv2.contourArea)
+    c = cv2.approxPolyDP(c, 0.002 * cv2.arcLength(c, True), True)
+    return length_m / cv2.arcLength(c, True)
+
+
+def free_space_rooms(
+    walls_r: NDArray[np.bool_],
+    segs: NDArray[np.float64],
+    thick: NDArray[np.float64],
+    doors: NDArray[np.float64],
+    sp: float,
+    cfg: PlanConfig,
+) -> list[Polygon]:
+    """Room polygons (working pixels): the free space the walls (M, 4) and door lines (D, 4) enclose, in
+    components of at least `min_room_area_m2` at `sp` metres per working pixel."""
+    closed = walls_r.astype(np.uint8)
+    for sg, th in zip(segs, thick, strict=True):
+        cv2.line(
+            closed,
+            tuple(int(v) for v in np.round(sg[:2])),
+            tuple(int(v) for v in np.round(sg[2:])),
+            1,
+            max(1, round(th) - 2),  # inside the raster wall: closes its gaps, does not fatten it
+        )
+    for dr in doors:  # one 8-connected pixel line separates 4-connected free space
+        cv2.line(
+            closed, tuple(int(v) for v in np.round(dr[:2])), tuple(int(v) for v in np.round(dr[2:])), 1, 1
+        )
+    n, lab, stats, _ = cv2.connectedComponentsWithStats((1 - closed).astype(np.uint8), connectivity=4)
+    border = set(np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])).tolist())
+    rooms_px: list[Polygon] = []
+    for c in range(1, n):
+        if c in border or stats[c, cv2.CC_STAT_AREA] * sp * sp < cfg.min_room_area_m2:
+            continue
+        comp = lab[stats[c, 1] : stats[c, 1] + stats[c, 3], stats[c, 0] : stats[c, 0] + stats[c, 2]] == c
+        cs, _ = cv2.findContours(comp.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        cont = max(cs, key=cv2.contourArea)
+        cont = cv2.approxPolyDP(cont, 1.0, True).reshape(-1, 2).astype(np.float64)
+        if len(cont) < 3:
+            continue
+        # pixel centres -> pixel edges: the component's outline lies half a pixel outside its centres
+        poly = Polygon(cont + np.array([stats[c, 0], stats[c, 1]])).buffer(0.5, join_style="mitre")
+        if poly.is_valid and poly.area * sp * sp >= cfg.min_room_area_m2:
+            rooms_px.append(poly)
+    return rooms_px
+
+
+def rooms_in_metres(
+    rooms_px: list[Polygon], f: int, s: float, labels: dict[str, tuple[float, float]] | None
+) -> list[tuple[Polygon, str | None]]:
+    """The room polygons in plan metres, largest first, each with the label whose point lies inside it."""
+    rooms_m: list[tuple[Polygon, str | None]] = []
+    for poly in sorted(rooms_px, key=lambda p: -p.area):
+        xy = to_metres(np.asarray(poly.exterior.coords), f, s)
+        pm = Polygon(xy)
+        label = None
+        for lname, (lx, ly) in (labels or {}).items():
+            if pm.contains(shapely.Point(lx, ly)):
+                label = lname
+                break
+        rooms_m.append((pm, label))
+    return rooms_m
+
+
+def plan_preview(
+    walls_r: NDArray, segs: NDArray, thick: NDArray, rooms_px: list[Polygon], doors: NDArray
+) -> NDArray[np.uint8]:
+    out = np.full((*walls_r.shape, 3), 255, np.uint8)
+    palette = np.array(
+        [
+            [255, 224, 178],
+            [200, 230, 201],
+            [187, 222, 251],
+            [248, 187, 208],
+            [225, 190, 231],
+            [255, 249, 196],
+        ],
+        np.uint8,
+    )
+    for n, poly in enumerate(rooms_px):
+        pts = np.round(np.asarray(poly.exterior.coords)).astype(np.int32)
+        cv2.fillPoly(out, [pts], tuple(int(v) for v in palette[n % len(palette)]))
+    out[walls_r] = (120, 120, 120)
+    lw = max(1, round(min(walls_r.shape) / 800))
+    for sg in segs:
+        cv2.line(
+            out,
+            tuple(int(v) for v in np.round(sg[:2])),
+            tuple(int(v) for v in np.round(sg[2:])),
+            (220, 0, 0),
+            lw,
+        )
+    for dr in doors:
+        cv2.line(
+            out,
+            tuple(int(v) for v in np.round(dr[:2])),
+            tuple(int(v) for v in np.round(dr[2:])),
+            (0, 160, 0),
+            lw + 1,
+        )
+    return out

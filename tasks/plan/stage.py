@@ -1,0 +1,63 @@
+"""The plan stage: the survey's plan image and scale in; the plan's walls (centrelines and thickness), rooms
+and doors, and a preview picture out."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import shapely.geometry
+
+from tasks import artefacts
+from tasks.context import StageContext
+from tasks.plan.config import PlanConfig, PlanScale
+from tasks.plan.parse import parse_plan
+from tasks.plan.raster import load_plan_image
+
+
+def run(ctx: StageContext, cfg: PlanConfig, out: Path) -> dict[str, Any]:
+    """The coarse plan raster as metric walls (centrelines + thickness) and rooms (thesis 4.2.3)."""
+    known = ctx.params.get("known_distance")
+    scale = PlanScale(
+        m_per_px=ctx.params.get("m_per_px"),
+        known_distance=tuple(known) if known else None,
+        outline_length_m=ctx.params.get("outline_length_m"),
+    )
+    metrics = run_parse_plan(Path(ctx.raw_inputs["plan"]), out, scale, cfg)
+    metrics.pop("outputs", None)
+    return {"metrics": metrics}
+
+
+# to be replaced by the CLI running the stage through the pipeline
+def run_parse_plan(image_path: Path, out_dir: Path, scale: PlanScale, cfg: PlanConfig | None = None) -> dict:
+    """CLI-level: parse IMAGE and write plan_walls.parquet, rooms.geojson, plan_preview.png into out_dir.
+    Returns the metrics (with the written paths)."""
+    cfg = cfg or PlanConfig()
+    image_path, out_dir = Path(image_path), Path(out_dir)
+    if not image_path.is_file():
+        raise ValueError(f"{image_path}: no such image file")
+    image = load_plan_image(image_path)
+    res = parse_plan(image, scale, cfg, name=str(image_path))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    walls_p = artefacts.write_table(
+        out_dir / "plan_walls.parquet", artefacts.segments_table(res.walls, thickness_m=res.thickness_m)
+    )
+    features = [
+        {
+            "type": "Feature",
+            "geometry": shapely.geometry.mapping(poly),
+            "properties": {"room_id": f"R{n + 1}", "label": label, "area_m2": float(poly.area)},
+        }
+        for n, (poly, label) in enumerate(res.rooms)
+    ]
+    features += [
+        {
+            "type": "Feature",
+            "geometry": {"type": "LineString", "coordinates": [d[:2].tolist(), d[2:].tolist()]},
+            "properties": {"kind": "door"},
+        }
+        for d in res.doors
+    ]
+    rooms_p = artefacts.write_geojson(out_dir / "rooms.geojson", features, crs_note="plan frame, metres")
+    prev_p = artefacts.write_png(out_dir / "plan_preview.png", res.preview)
+    return {**res.metrics, "outputs": {"walls": str(walls_p), "rooms": str(rooms_p), "preview": str(prev_p)}}

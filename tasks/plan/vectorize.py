@@ -1,0 +1,272 @@
+"""The vector side of plan parsing: skeleton and Hough segments, straight walls from the line code shared
+with the walls stage (`tasks.lines`: clustering, regularization; `tasks.connect`: extension and trimming),
+each wall centred on its ink band and its thickness measured across it."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from skimage.morphology import skeletonize
+
+from tasks import lines
+from tasks.connect import connect
+from tasks.plan.config import PlanConfig
+
+
+def sample_mask(mask_f: NDArray[np.float32], pts: NDArray) -> NDArray[np.float32]:
+    """Bilinear samples of a float raster at (N, 2) pixel positions (u, v); 0 outside."""
+    if len(pts) == 0:
+        return np.zeros(0, np.float32)
+    mx = pts[:, 0].astype(np.float32).reshape(-1, 1)
+    my = pts[:, 1].astype(np.float32).reshape(-1, 1)
+    return cv2.remap(mask_f, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)[:, 0]
+
+
+def _thickness_px(
+    seg: NDArray, mask_f: NDArray[np.float32], max_px: float, lines_f: NDArray[np.float32] | None = None
+) -> tuple[float, float]:
+    """(median width, median offset of the run's centre along the left normal) of the ink run across
+    the centreline, sampled along the middle of the wall: the distance across the wall raster, and a
+    sub-pixel correction of the skeleton's position (thinning is biased by up to a pixel).
+
+    With `lines_f` (the drawn lines before outline walls were filled), a run that holds paper between
+    two lines is an outline-drawn wall: its width is the distance between the centres of its first and
+    last line (CAD draws a wall's faces as lines centred on the faces), not the outer width of the ink."""
+    a, b = seg[:2], seg[2:]
+    d = b - a
+    L = float(np.hypot(*d))
+    if L <= 0:
+        return 0.0, 0.0
+    u = d / L
+    nrm = np.array([-u[1], u[0]])
+    ts = np.linspace(0.15, 0.85, max(3, min(40, int(L / 2))))
+    step = 0.25
+    offs = np.arange(-max_px, max_px + step, step)
+    pts = ((a + ts[:, None, None] * d) + offs[None, :, None] * nrm).reshape(-1, 2)
+    vals = sample_mask(mask_f, pts).reshape(len(ts), len(offs))
+    drawn = None if lines_f is None else sample_mask(lines_f, pts).reshape(len(ts), len(offs))
+    c = len(offs) // 2
+    widths, centres = [], []
+    for r, row in enumerate(vals):
+        inside = row > 0.01  # down to the bilinear tails, so the run's mass is the full width
+        if not inside[c - 4 : c + 5].any():
+            continue
+        j = c - 4 + int(np.argmax(row[c - 4 : c + 5]))
+        lo = j
+        while lo > 0 and inside[lo - 1]:
+            lo -= 1
+        hi = j
+        while hi < len(row) - 1 and inside[hi + 1]:
+            hi += 1
+        mass = row[lo : hi + 1]
+        width = float(mass.sum()) * step
+        if drawn is not None:
+            faces = _line_centres(drawn[r, lo : hi + 1], offs[lo : hi + 1])
+            if len(faces) >= 2:
+                width = faces[-1] - faces[0]
+        widths.append(width)
+        centres.append(float((mass * offs[lo : hi + 1]).sum() / max(float(mass.sum()), 1e-9)))
+    return (float(np.median(widths)), float(np.median(centres))) if widths else (0.0, 0.0)
+
+
+def _line_centres(profile: NDArray, offs: NDArray) -> list[float]:
+    """Centres (mass-weighted offsets) of the ink runs of a profile across a wall, separated by paper."""
+    ink = profile > 0.5
+    out = []
+    k = 0
+    while k < len(ink):
+        if not ink[k]:
+            k += 1
+            continue
+        e = k
+        while e + 1 < len(ink) and ink[e + 1]:
+            e += 1
+        w = profile[k : e + 1]
+        out.append(float((w * offs[k : e + 1]).sum() / max(float(w.sum()), 1e-9)))
+        k = e + 1
+    return out
+
+
+def _centre_and_measure(segs: NDArray, mask_f: NDArray[np.float32], max_px: float) -> tuple[NDArray, NDArray]:
+    """Segments moved onto the middle of their ink band, and their thickness (px)."""
+    out = segs.copy()
+    thick = np.zeros(len(segs))
+    for i, sg in enumerate(segs):
+        thick[i], off = _thickness_px(sg, mask_f, max_px)
+        d = sg[2:] - sg[:2]
+        nrm = np.array([-d[1], d[0]]) / max(float(np.hypot(*d)), 1e-9)
+        # thinning is biased by up to a pixel; a larger offset is another wall's ink met at a junction
+        out[i] += np.tile(float(np.clip(off, -1.5, 1.5)) * nrm, 2)
+    return out, thick
+
+
+def free_ends(segs: NDArray, tol: float, thick: NDArray | None = None) -> list[tuple[int, int]]:
+    """(segment, end) pairs of the ends farther than tol from every other segment (with `thick`, also
+    outside its ink: farther than half its thickness)."""
+    if len(segs) == 0:
+        return []
+    ends = np.concatenate([segs[:, :2], segs[:, 2:]])
+    owner = np.concatenate([np.arange(len(segs))] * 2)
+    dist = lines.point_segment_distances(ends, segs)
+    if thick is not None:
+        dist -= np.maximum(np.asarray(thick)[None, :] / 2 - tol, 0.0)
+    dist[np.arange(len(ends)), owner] = np.inf
+    free = dist.min(axis=1) > tol if len(segs) > 1 else np.ones(len(ends), bool)
+    return [(int(owner[k]), int(k >= len(segs))) for k in np.flatnonzero(free)]
+
+
+def _spur_free(segs: NDArray, keep: NDArray[np.bool_], short_px: NDArray) -> NDArray[np.bool_]:
+    """False for the short segments (length below short_px), off the plan's main axes, that are not on the
+    line of another kept segment (both ends within 1.5 px of it, directions within 2 degrees): a jamb beside a door or window
+    continues its wall, a skeleton spur at a corner turns away from both walls."""
+    out = np.ones(len(segs), bool)
+    if len(segs) == 0:
+        return out
+    ang = lines.angles(segs)
+    main = ang[int(np.argmax(lines.lengths(segs)))]
+    # along or across the longest wall: the plan's main axes, where spurs (diagonal at corners) are not
+    on_axes = np.abs(np.sin(2 * (ang - main))) < math.sin(math.radians(4.0))
+    for i in np.flatnonzero((lines.lengths(segs) < short_px) & ~on_axes):
+        others = np.flatnonzero(keep & (np.arange(len(segs)) != i))
+        turn = np.abs(np.sin(np.asarray(lines.angle_difference(ang[others], ang[i]))))
+        same = others[turn < math.sin(math.radians(2.0))]
+        a = segs[same, :2]
+        u = segs[same, 2:] - a
+        u /= np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-9)[:, None]
+        off = [np.abs(u[:, 0] * (e[1] - a[:, 1]) - u[:, 1] * (e[0] - a[:, 0])) for e in segs[i].reshape(2, 2)]
+        out[i] = bool(len(same) and (np.maximum(*off) <= 1.5).any())
+    return out
+
+
+def _regularize(segs: NDArray, band_px: NDArray, lcfg: lines.LinesConfig) -> NDArray[np.float64]:
+    """`lines.regularize`, except that walls its orientation clusters would turn by more than the angle
+    tolerance and more than their own angle is uncertain keep out of those clusters: a wing of the
+    building drawn a few degrees off the main axes would otherwise be snapped to them, and would pull the
+    main axes off by a fraction of a degree (0.3 degrees is 0.3 m over 60 m). The two sets are
+    regularized apart. A skeleton piece can tilt across its ink band (band_px (N,) wide) by up to
+    atan(band / length) and still lie in it: that is how uncertain its angle is."""
+    out, rot = lines.regularize(segs, lcfg)
+    uncertain = np.arctan2(np.maximum(band_px, 2.0), np.maximum(lines.lengths(segs), 1e-9))
+    off = np.abs(rot) > np.maximum(math.radians(lcfg.angle_tol_deg), uncertain)
+    if off.any() and not off.all():
+        out[~off] = lines.regularize(segs[~off], lcfg)[0]
+        out[off] = lines.regularize(segs[off], lcfg)[0]
+    return out
+
+
+def _join_hidden_junctions(
+    segs: NDArray, thick: NDArray, support: NDArray[np.float32], door_min_px: float
+) -> NDArray[np.float64]:
+    """Free wall ends whose prolongation meets another wall after a gap narrower than the smallest door
+    and drawn (ink or a removed symbol over all of it): the junction is hidden under a symbol, and the
+    wall is prolonged to the other wall's centreline. A gap of paper stays open."""
+    out = segs.copy()
+    for i, e in free_ends(segs, 1.0, thick):
+        a, b = segs[i, :2], segs[i, 2:]
+        p, q = (b, a) if e else (a, b)
+        u = (p - q) / max(float(np.hypot(*(p - q))), 1e-9)
+        r = first_wall_hit(p, u, segs, thick, i)
+        if not r < door_min_px:
+            continue
+        pts = p + np.linspace(0, r, max(2, int(r) + 1))[:, None] * u
+        if float((sample_mask(support, pts) > 0.5).mean()) >= 0.99:
+            out[i, 2 * e : 2 * e + 2] = p + r * u
+    return out
+
+
+def first_wall_hit(
+    p: NDArray, u: NDArray, segs: NDArray, thick: NDArray, i: int, skip: int | None = None
+) -> float:
+    """Distance (px) from the end p of wall i along the unit direction u to the first other wall the
+    prolongation meets (inf when none). A wall is met when the ray crosses its centreline within its
+    length, lengthened by half the thickness of wall i plus a pixel (a wall ending beside the ray still
+    blocks the gap's ink band). Walls crossing within their half thickness of p are the junction p sits
+    at (a jamb at a corner), not an obstacle; nor is wall `skip`."""
+    best = math.inf
+    for k in range(len(segs)):
+        if k == i or k == skip:
+            continue
+        t = segs[k]
+        hit = lines.line_intersection(np.concatenate([p, p + u]), t)
+        if hit is None:
+            continue
+        _x, s_ray, s_seg = hit
+        slack = (thick[i] / 2 + 1.0) / max(float(np.hypot(*(t[2:] - t[:2]))), 1e-9)
+        if s_ray > thick[k] / 2 + 1.0 and -slack <= s_seg <= 1 + slack:
+            best = min(best, s_ray)
+    return best
+
+
+def hough_lines(walls_r: NDArray[np.bool_], px: float, cfg: PlanConfig) -> NDArray[np.float64]:
+    """Probabilistic Hough segments (K, 4) in working pixels of the wall raster's (h, w) skeleton."""
+    skel = skeletonize(walls_r).astype(np.uint8) * 255
+    min_len = max(3, round(cfg.hough_min_length_m * px))
+    hough = cv2.HoughLinesP(
+        skel,
+        1,
+        np.pi / 720,
+        max(3, min_len // 2),
+        minLineLength=min_len,
+        maxLineGap=max(1, round(cfg.hough_max_gap_m * px)),
+    )
+    raw = hough.reshape(-1, 4).astype(np.float64) if hough is not None else np.zeros((0, 4))
+    return raw
+
+
+def vector_walls(
+    raw: NDArray[np.float64],
+    walls_r: NDArray[np.bool_],
+    lines_f: NDArray[np.float32],
+    sym_any: NDArray[np.bool_],
+    px: float,
+    cfg: PlanConfig,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Straight walls from the Hough segments `raw` (K, 4): merged, regularized, centred on their ink,
+    connected (extensions backed by walls or symbols), spurs dropped, free ends prolonged to the wall
+    face and hidden junctions joined. Returns the walls (M, 4), their raster thickness (M,) and their
+    thickness between drawn faces (M,), in working pixels."""
+    lcfg = cfg.lines.scaled(px)
+    mask_f = walls_r.astype(np.float32)
+    support = (walls_r | sym_any).astype(np.float32)
+    segs = np.zeros((0, 4))
+    if len(raw):
+        segs = lines.merge_segments(raw, lcfg).segments
+        band = np.array([_thickness_px(sg, mask_f, cfg.max_outline_width_m * px)[0] for sg in segs])
+        segs = _regularize(segs, band, lcfg)
+        segs = lines.merge_segments(segs, lcfg).segments
+        segs, _ = _centre_and_measure(segs, mask_f, cfg.max_outline_width_m * px)
+
+        def support_fn(pieces: NDArray, parent: NDArray) -> NDArray:
+            out = np.zeros(len(pieces))
+            for n, p in enumerate(pieces):
+                L = float(np.hypot(p[2] - p[0], p[3] - p[1]))
+                ts = np.linspace(0, 1, max(2, int(L) + 1))
+                pts = p[:2] + ts[:, None] * (p[2:] - p[:2])
+                out[n] = float((sample_mask(support, pts) > 0.5).mean())
+            return out
+
+        segs, _ = connect(segs, lcfg, support_fn)
+    max_t = cfg.max_outline_width_m * px
+    thick = np.array([_thickness_px(sg, mask_f, max_t)[0] for sg in segs])
+    # reported thickness: between the face lines of outline-drawn walls (the raster width elsewhere)
+    thick_faces = np.array([_thickness_px(sg, mask_f, max_t, lines_f)[0] for sg in segs])
+    keep = (
+        (lines.lengths(segs) >= cfg.min_wall_length_ratio * thick) & (thick > 0)
+        if len(segs)
+        else np.zeros(0, bool)
+    )
+    keep &= _spur_free(segs, keep, cfg.short_wall_length_ratio * thick)
+    segs, thick, thick_faces = segs[keep], thick[keep], thick_faces[keep]
+    # skeletons stop half a thickness short of a free wall end: prolong free ends to the wall face
+    for i, e in free_ends(segs, 1.0):
+        a, b = segs[i, :2], segs[i, 2:]
+        u = (b - a) / max(float(np.hypot(*(b - a))), 1e-9)
+        if e:
+            segs[i, 2:] = b + u * thick[i] / 2
+        else:
+            segs[i, :2] = a - u * thick[i] / 2
+    segs = _join_hidden_junctions(segs, thick, support, cfg.door_min_m * px)
+    return segs, thick, thick_faces

@@ -1,0 +1,44 @@
+"""Wall modelling of one room (thesis 5.2): from the furniture slice of a levelled cloud to a topologically
+correct 2D model of the inner wall faces, extruded from floor to ceiling.
+
+`tasks.walls.model.model_walls(slice_points, floor_z_m, ceiling_z_m, cfg) -> WallModel` is pure: it reads
+and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesis section in brackets):
+
+1. projection image (5.2.1, eq 5.3; `image`): the number of occupied voxels above each grid cell, so that
+   the image measures wall height rather than point density (overlapping frames count once);
+2. binarization (5.2.2, `image`): eq 5.5 keeps the cells whose column is at least α = H_noise / H_filter
+   full, so clutter shorter than α of the slice disappears (eq 5.4, μ - 1.65σ, as the alternative). A
+   cell's data must also span `min_column_height_m`: table tops and ceiling patches are flat;
+3. 3×3 closing and Zhang-Suen skeleton (5.2.3, `image`);
+4. probabilistic Hough (5.2.4.1, `image`), β1 votes, β2 minimum length and β3 maximum gap given in metres;
+5. 3-level clustering and regression averaging (5.2.4.2, `tasks.lines.merge_segments`), then the
+   top-reach test on the merged lines (`evidence`): walls go on up to the ceiling, furniture and plants
+   stop below it, so a line is kept when at least `min_top_share` of it lies on cells with data near the
+   slice top. It is judged per line, not per cell, because a face seen from close range holds data only up
+   to the camera's vertical view over most of its length. Two kinds of line below the top stay: the other
+   face of a thin free-standing wall whose first face reaches the top (`thin_wall_faces`), and a long line
+   with no top-reaching data parallel and close beside it (`unshadowed_lines`: furniture is seen in front
+   of a wall seen above it, while a corridor captured from a metre away never reaches the top);
+6. regularization (5.2.5.1, eq 5.9, `tasks.lines.regularize`); each wall's offset is refined to the median
+   of the slice points near it (the skeleton is only good to a pixel), and its ends are moved out along it
+   as far as its data goes (`extend_to_data`: the skeleton stops short of a band's end);
+7. topology (5.2.5.2, `tasks.connect.connect_detailed`; `topology`): extension and trimming (trimming only
+   overshoot, not a wall's observed data), perpendicular joins of free ends onto parallel walls, removal
+   of extensions with less than `min_overlap` of data, one at a time and judged with the regularization
+   rotation undone. A join across an unseen wall goes where the data holds it, else at the end of the wall
+   nearer the room's interior (its reflex corner, seen from anywhere in the room). The room is the
+   largest face the walls enclose when the walls on or inside it hold most of the wall length; walls
+   outside it (seen through doors and windows), groups hung from the ceiling (lamps) and dangling walls
+   shorter than `min_wall_length_m` go. When the walls do not close, collinear pieces are bridged across
+   the wider `bridge_gaps_m`. Walls are turned to have the room on their left;
+8. extrusion (5.2.6, `model`) to a triangle mesh, and a preview picture.
+
+Choosing α (`topology.choose_alpha`): the thesis has a person raise α until the clutter disappears. Here
+every candidate α runs steps 2-7 (without the point-level offset refinement) and its model is summarised as
+its set of walls. Walls are stable over a wide range of α (their columns are full), clutter and noise are
+not (they fade out gradually), and too large an α breaks the walls apart. The chosen α is the smallest of
+the longest run of consecutive candidates that give a closed wall graph and the same walls (every wall end
+within `stable_tol_m` of a wall of the neighbour's model); without a closed model, the longest run of
+equal models. The chosen α is run again with the refinement. Occupancy alone cannot tell a tall cabinet
+from the wall above a window (both fill part of the slice): the top-reach test does that, not α.
+"""

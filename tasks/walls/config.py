@@ -1,0 +1,102 @@
+"""The wall modelling stage's settings (thesis 5.2, table 6.3): plain data, importable without the stage's
+computation."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from tasks.lines import LinesConfig
+
+
+@dataclass(frozen=True)
+class WallsConfig:
+    """Settings of the wall modelling stage (thesis 5.2, table 6.3)."""
+
+    grid_size_m: float = 0.01
+    """Projection image pixel size = voxel size of the occupancy count (m)."""
+    gray_levels: int = 255
+    """G in eq 5.3 / 5.5."""
+    binarization: Literal["alpha", "gaussian"] = "alpha"
+    """"alpha": eq 5.5 with α = H_noise / H_filter; "gaussian": eq 5.4 (μ - 1.65σ of the occupied cells)."""
+    alpha: float | None = None
+    """Fixed α for eq 5.5; None chooses it automatically among `alpha_candidates`."""
+    alpha_candidates: tuple[float, ...] = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5)
+    """α values tried by the automatic choice, ascending."""
+    top_reach_m: float | None = 0.25
+    """Data within this distance below the top of the slice reaches the top (walls reach the ceiling,
+    furniture does not; judged per merged line with `min_top_share`); None switches the test off."""
+    top_max_gap_m: float = 0.1
+    """A cell's data near the slice top counts only when the cell holds more data at most this far below it
+    (a lone voxel up there is a flying pixel)."""
+    top_clear_m: float = 0.1
+    """When the slice reaches within this of the ceiling, the top-reach test looks for data from
+    `top_reach_m` below the top up to this distance below the ceiling (a ceiling's stray points fall into
+    every column above that)."""
+    min_top_share: float = 0.25
+    """A merged line is a wall when at least this share of its length lies on cells with data near the
+    slice top (`top_reach_m`); the rest of it may stop lower (the sensor's view cut it off there)."""
+    top_share_tol_m: float = 0.03
+    """A point of a line counts as reaching the top when such a cell lies within this distance."""
+    thin_wall_max_m: float = 0.3
+    """A line below the slice top is still a wall when it is the other face of a free-standing wall at most
+    this thick whose first face reaches the top (`thin_wall_faces`); 0 switches that off."""
+    thin_wall_end_tol_m: float = 0.15
+    """The two faces of such a wall end within this distance of each other, at the wall's free end."""
+    thin_wall_clear_m: float = 0.3
+    """...where no wall runs on beside the end, outward of either face, this far (a corner's wall would)."""
+    shadow_m: float = 1.0
+    """A line below the slice top is still a wall when it is at least `open_min_length_m` long and data
+    reaching the top lies within this distance beside it (further than `shadow_gap_m`) along less than half
+    its length (`unshadowed_lines`): furniture stands in front of a wall that is seen above it, while a
+    corridor seen from close range holds no data near the top anywhere (a cabinet's depth is under this,
+    a corridor's width over it). 0 switches that off."""
+    shadow_gap_m: float = 0.05
+    """Top-reaching data nearer than this beside a line is the line's own (its noisy band)."""
+    open_min_length_m: float = 0.75
+    """...and longer than furniture is deep (wardrobes and kitchen units 0.6 m): a cabinet's side stands on
+    the wall behind, which is not parallel to it."""
+    min_column_height_m: float = 0.1
+    """A wall cell's data must span at least this height (flat things: table tops, ceiling patches, stray
+    points are not walls, however the counts compare)."""
+    closing_kernel_px: int = 3
+    """Morphological closing kernel (thesis: 3×3)."""
+    hough_votes_m: float = 0.15
+    """β1: minimum votes of a Hough line, as a length of skeleton (m)."""
+    hough_min_length_m: float = 0.15
+    """β2: minimum Hough segment length (m)."""
+    hough_max_gap_m: float = 0.2
+    """β3: maximum gap between points of one Hough segment (m)."""
+    hough_min_px: int = 8
+    """Floor under β1 and β2 in pixels: on a coarse grid a few pixels of a staircase skeleton are not a
+    line (at 1 cm the metre values are larger and rule)."""
+    hough_theta_deg: float = 0.5
+    """Angular resolution of the Hough accumulator (degrees)."""
+    lines: LinesConfig = field(default_factory=LinesConfig)
+    """Clustering, regularization and topology thresholds (metres; `tasks.lines`)."""
+    refine_band_m: float = 0.06
+    """Slice points within this distance of a wall refine its offset (median); 0 switches it off."""
+    support_tol_m: float = 0.05
+    """A point of a wall counts as backed by data when a wall pixel lies within this distance."""
+    end_tol_m: float = 0.02
+    """A line's end is moved out along it while wall data lies within this distance of it (the Hough
+    segments stop short of the data's end; `extend_to_data`)."""
+    end_gap_m: float = 0.05
+    """Gaps in that data up to this length do not stop the end (m)."""
+    bridge_gaps_m: tuple[float, ...] = (1.2, 1.6, 2.0)
+    """When the walls do not enclose the room, collinear pieces are joined across these larger gaps, and
+    ends are extended to intersections this far, in turn (a wall hidden behind a partition or furniture, a
+    corner the capture did not see in the slice), keeping the first that closes it; a bridged span between
+    two junctions still needs data (the mouth of an alcove stays open), and so does a wall made only by
+    extension that is longer than `lines.extend_m`."""
+    stable_tol_m: float = 0.05
+    """Two candidate models (automatic α) are equal when their walls lie within this of each other."""
+    min_wall_length_m: float = 0.2
+    """Dangling walls (one end free) shorter than this are dropped: skeleton spurs, not partitions (short
+    walls joined at both ends, such as a reveal or a column face, stay)."""
+    min_points: int = 100
+    """Fewer slice points than this is a degenerate input."""
+    min_slice_height_m: float = 0.2
+    """A slice thinner than this (a single horizontal plane) is a degenerate input."""
+    max_image_px: int = 36_000_000
+    """Largest projection image (pixels); a larger extent is a degenerate input."""

@@ -1,0 +1,285 @@
+"""What the slice's data says about a line: where its offset and its ends lie (`refine_offsets`,
+`extend_to_data`), how much of it is backed by data (samplers), and whether it is a wall rather than
+furniture: the top-reach test (`top_reach_shares`) and the two kinds of line that stay below the slice top
+(`thin_wall_faces`, `unshadowed_lines`)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from tasks.lines import angles, lengths, point_segment_distances, sample_segments
+from tasks.walls.config import WallsConfig
+from tasks.walls.image import Grid
+
+
+def refine_offsets(
+    walls: NDArray, xy: NDArray, pix: NDArray, grid: Grid, band_m: float, iterations: int = 2
+) -> NDArray:
+    """Each wall moved along its normal to the median signed distance of the points within `band_m`
+    of it (away from its ends by `band_m`, so that the neighbouring walls do not pull). `pix` (N,) is
+    every point's flat pixel index in `grid`: points are found through a raster of the walls' bands."""
+    out = walls.copy()
+    if band_m <= 0 or len(xy) == 0 or len(walls) == 0:
+        return out
+    label = np.zeros(grid.shape, dtype=np.int32)
+    px = grid.to_pixels(walls.reshape(-1, 2)).reshape(-1, 4)
+    thick = 2 * math.ceil(band_m / grid.size) + 1
+    for i, s in enumerate(px):
+        cv2.line(label, (round(s[0]), round(s[1])), (round(s[2]), round(s[3])), i + 1, thick)
+    owner = label.ravel()[pix] - 1
+    order = np.argsort(owner, kind="stable")
+    bounds = np.searchsorted(owner[order], np.arange(len(walls) + 1))
+    for i, s in enumerate(out):
+        a, b = s[:2], s[2:]
+        L = float(np.hypot(*(b - a)))
+        if L <= 2 * band_m:
+            continue
+        u = (b - a) / L
+        n = np.array([-u[1], u[0]])
+        pts = xy[order[bounds[i] : bounds[i + 1]]] - a
+        t, d = pts @ u, pts @ n
+        inside = (t > band_m) & (t < L - band_m)
+        shift = 0.0
+        for _ in range(iterations):
+            sel = inside & (np.abs(d - shift) < band_m)
+            if sel.sum() < 10:
+                break
+            shift = float(np.median(d[sel]))
+        out[i] = s + np.concatenate([n, n]) * shift
+    return out
+
+
+def extend_to_data(
+    lines: NDArray, binary: NDArray[np.bool_], grid: Grid, tol_m: float, gap_m: float, max_m: float
+) -> NDArray:
+    """Every line's ends moved outward along the line as far as `binary` holds data within `tol_m` of it
+    (gaps up to `gap_m` bridged, at most `max_m`). The skeleton turns off a band before its end (Zhang-Suen
+    rounds a corner; a wall end seen against nothing frays), so the Hough segments stop short of where the
+    wall's data ends; an end that reaches a perpendicular wall goes on into its band and is trimmed back
+    to the intersection by the topology step."""
+    out = np.asarray(lines, dtype=np.float64).copy()
+    if len(out) == 0 or max_m <= 0:
+        return out
+    r = max(0, round(tol_m / grid.size))
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    near = cv2.dilate(binary.astype(np.uint8), k).astype(bool)
+    steps = np.arange(1, int(max_m / grid.size) + 1) * grid.size  # (S,) distances beyond the end
+    max_gap = max(1, round(gap_m / grid.size))
+    hi = np.array([binary.shape[1] - 1, binary.shape[0] - 1])
+    for i, s in enumerate(out):
+        a, b = s[:2], s[2:]
+        L = float(np.hypot(*(b - a)))
+        if L <= 0:
+            continue
+        u = (b - a) / L
+        for end, direction in ((0, -u), (1, u)):
+            p = s[2 * end : 2 * end + 2]
+            px = np.rint(grid.to_pixels(p + steps[:, None] * direction)).astype(np.int64)
+            inside = (px >= 0).all(axis=1) & (px <= hi).all(axis=1)
+            hit = np.zeros(len(steps), dtype=bool)
+            hit[inside] = near[px[inside, 1], px[inside, 0]]
+            # walk out until the first run of more than max_gap samples without data
+            miss = np.flatnonzero(~hit)
+            run_end = len(steps)
+            if len(miss) > max_gap and len(steps) > max_gap:
+                runs = np.lib.stride_tricks.sliding_window_view(~hit, max_gap + 1).all(axis=1)
+                if runs.any():
+                    run_end = int(np.argmax(runs))
+            last = np.flatnonzero(hit[:run_end])
+            if len(last):
+                out[i, 2 * end : 2 * end + 2] = p + steps[last[-1]] * direction
+    return out
+
+
+def _near_sampler(binary: NDArray[np.bool_], grid: Grid, tol_m: float):
+    """near(points (P, 2)) -> (P,) bool: a pixel of `binary` lies within tol_m of the point."""
+    r = max(0, int(tol_m / grid.size))
+    dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
+    disk = ((dx**2 + dy**2) * grid.size**2 <= tol_m**2 + 1e-12).astype(np.uint8)
+    # one dilation by the disk, then a lookup per point
+    reach = cv2.dilate(binary.astype(np.uint8), disk).astype(bool) if r else binary.astype(bool)
+    hi = np.array([binary.shape[1] - 1, binary.shape[0] - 1])
+
+    def near(points: NDArray) -> NDArray[np.bool_]:
+        # the image border holds no data (a margin of empty cells), so clipping adds none
+        px = np.clip(np.rint(grid.to_pixels(points)).astype(np.int64), 0, hi)
+        return reach[px[:, 1], px[:, 0]]
+
+    return near
+
+
+def support_sampler(binary: NDArray[np.bool_], grid: Grid, tol_m: float):
+    """share(segments (P, 4)) -> (P,): share of each segment's length within tol_m of a wall pixel."""
+    near = _near_sampler(binary, grid, tol_m)
+
+    def share(segments: NDArray) -> NDArray:
+        if len(segments) == 0:
+            return np.zeros(0)
+        pts, owner = sample_segments(segments, grid.size)
+        return np.bincount(owner, near(pts), len(segments)) / np.bincount(owner, minlength=len(segments))
+
+    return share
+
+
+class TopCells:
+    """The wall cells with data near the slice top (binary & top), their centres in metres and point
+    samplers by tolerance: made once per binary image, shared by the top-reach tests of every topology."""
+
+    def __init__(self, cells: NDArray[np.bool_], grid: Grid) -> None:
+        self.cells = cells
+        self.grid = grid
+        rows, cols = np.nonzero(cells)
+        self.xy = grid.to_metres(np.column_stack([cols, rows]))  # (K, 2)
+        self._near: dict[float, Any] = {}
+
+    def near(self, tol_m: float):
+        """near(points (P, 2)) -> (P,) bool: such a cell lies within tol_m of the point."""
+        if tol_m not in self._near:
+            self._near[tol_m] = _near_sampler(self.cells, self.grid, tol_m)
+        return self._near[tol_m]
+
+
+def top_reach_shares(lines: NDArray, top: TopCells, tol_m: float, angle_tol_deg: float) -> NDArray:
+    """(M,) share of each line's length within `tol_m` of a wall cell with data near the slice top.
+
+    Every line is judged without its parts lying in the data band of a longer line that reaches the top
+    on at least half its length (and is not parallel to it): there the other wall's top-reaching data covers
+    it (a cabinet's side standing against a wall, and seen from across a large room, range noise spreads
+    a wall over decimetres), which says nothing about its own top. A band's half-width is the 90th
+    percentile of the distance of the top-reaching cells along that line, plus `tol_m`. A line lying
+    entirely in such bands gets 0."""
+    if len(lines) == 0:
+        return np.zeros(0)
+    pts, owner = sample_segments(lines, top.grid.size)
+    hit = top.near(tol_m)(pts)
+    count = np.bincount(owner, minlength=len(lines)).astype(np.float64)
+    shares = np.bincount(owner, hit, len(lines)) / count
+    strong = np.flatnonzero(shares >= 0.5)
+    if len(strong) == 0:
+        return shares
+    cell_xy = top.xy
+    th = angles(lines)
+    L = lengths(lines)
+    sin_tol = math.sin(math.radians(angle_tol_deg))
+    band: dict[int, float] = {}
+    for i in range(len(lines)):
+        others = strong[(np.abs(np.sin(th[strong] - th[i])) > sin_tol) & (L[strong] > L[i])]
+        if len(others) == 0:
+            continue
+        mine = np.flatnonzero(owner == i)
+        covered = np.zeros(len(mine), dtype=bool)
+        for j in others:
+            if j not in band:
+                band[j] = _band_half_width(lines[j], cell_xy) + tol_m
+            covered |= point_segment_distances(pts[mine], lines[j : j + 1])[:, 0] <= band[j]
+        free = mine[~covered]
+        shares[i] = float(hit[free].mean()) if len(free) else 0.0
+    return shares
+
+
+def thin_wall_faces(
+    lines: NDArray, walls: NDArray, top: TopCells, cfg: WallsConfig, angle_tol_deg: float
+) -> NDArray[np.bool_]:
+    """(M,) lines that fail the top-reach test but are the other face of a thin free-standing wall (a
+    partition stub) whose face in `walls` (M,) bool reaches the top. A face seen only from close range
+    holds data up to the camera's vertical view, below the slice top; a cabinet's or a shelf's front does
+    not reach the top either, but it is deeper than a partition or, when thin, it stands against a wall
+    that goes on past it, or in a corner whose other wall closes its end.
+
+    A line is such a face when a wall line parallel to it lies within `thin_wall_max_m` (and further than
+    two grid cells), the two overlap on at least half the line's length, and they end together (within
+    `thin_wall_end_tol_m`) at a free end: beside that end, outward of either face for `thin_wall_clear_m`,
+    no top-reaching data (`top`) crosses the end's line (a corner's closing wall would)."""
+    lines = np.asarray(lines, dtype=np.float64)
+    out = np.zeros(len(lines), dtype=bool)
+    if cfg.thin_wall_max_m <= 0 or not walls.any() or walls.all():
+        return out
+    grid = top.grid
+    near = top.near(grid.size)
+    sin_tol = math.sin(math.radians(angle_tol_deg))
+    th = angles(lines)
+    tol = cfg.thin_wall_end_tol_m
+    window = np.arange(-tol / 2, 2 * tol + 1e-9, grid.size)  # along the faces, about the end and beyond
+    reach = np.arange(2 * cfg.top_share_tol_m, cfg.thin_wall_clear_m + 1e-9, grid.size)  # outward of a face
+
+    def crossed(p: NDArray, along: NDArray, outward: NDArray) -> bool:
+        """Does data cross, on most of `reach` outward from p, the faces' direction `along` (out of the
+        end) near the end or a little beyond it?"""
+        pts = p + window[:, None, None] * along + reach[None, :, None] * outward
+        hit = near(pts.reshape(-1, 2)).reshape(len(window), len(reach)).any(axis=0)
+        return bool(hit.mean() >= 0.5)
+
+    for i in np.flatnonzero(~walls):
+        a, b = lines[i, :2], lines[i, 2:]
+        L = float(np.hypot(*(b - a)))
+        if L <= 0:
+            continue
+        u = (b - a) / L
+        n = np.array([-u[1], u[0]])
+        for j in np.flatnonzero(walls & (np.abs(np.sin(th - th[i])) < sin_tol)):
+            pa, pb = lines[j, :2] - a, lines[j, 2:] - a
+            offset = 0.5 * float(pa @ n + pb @ n)
+            if not 2 * grid.size < abs(offset) <= cfg.thin_wall_max_m:
+                continue
+            tj = np.sort([pa @ u, pb @ u])
+            if min(L, tj[1]) - max(0.0, tj[0]) < 0.5 * L:
+                continue
+            side = math.copysign(1.0, offset) * n  # from this face towards the other
+            for t_end, t_other, along in ((0.0, tj[0], -u), (L, tj[1], u)):
+                if abs(t_end - t_other) > tol:
+                    continue
+                p = a + 0.5 * (t_end + t_other) * u
+                if not crossed(p, along, -side) and not crossed(p + offset * n, along, side):
+                    out[i] = True
+    return out
+
+
+def unshadowed_lines(
+    lines: NDArray, walls: NDArray[np.bool_], top: TopCells, cfg: WallsConfig
+) -> NDArray[np.bool_]:
+    """(M,) lines outside `walls` (those reaching the slice top) that are at least `open_min_length_m`
+    long and that top-reaching data beside them does not shadow: cells of `top` or points of the
+    lines in `walls`, between `shadow_gap_m` and `shadow_m` away on either side, along at least half the
+    line's length (in 10 cm bins; the wall lines count where the data above a cabinet is sparse, as from a
+    distant scanner). The top-reach test needs a sensor that saw up to the slice top; where it
+    did not (a corridor's walls seen from a metre away by a camera with a 43° vertical view), nothing says
+    that a line is furniture, and the line stays (as it does in the thesis, which has no such test).
+    Furniture stands in front of a wall seen above it, so its front is shadowed (a partition's face by its
+    other face, which `thin_wall_faces` judges). Nothing is exempted when no line reaches the top: the slice
+    then holds no wall to judge against (clutter only)."""
+    lines = np.asarray(lines, dtype=np.float64)
+    out = np.zeros(len(lines), dtype=bool)
+    if cfg.shadow_m <= 0 or not walls.any():
+        return out
+    cell_xy = np.concatenate([top.xy, sample_segments(lines[walls], top.grid.size)[0]])
+    L = lengths(lines)
+    bin_m = 0.1
+    for i in np.flatnonzero(~walls & (L >= cfg.open_min_length_m)):
+        a = lines[i, :2]
+        u = (lines[i, 2:] - a) / L[i]
+        rel = cell_xy - a
+        t, d = rel @ u, np.abs(rel @ np.array([-u[1], u[0]]))
+        beside = (t >= 0) & (t < L[i]) & (d > cfg.shadow_gap_m) & (d <= cfg.shadow_m)
+        n_bins = max(1, math.ceil(L[i] / bin_m))
+        per_bin = np.bincount(np.minimum((t[beside] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins)
+        out[i] = float((per_bin > 0).mean()) < 0.5
+    return out
+
+
+def _band_half_width(line: NDArray, cell_xy: NDArray, window_m: float = 0.3, share: float = 0.9) -> float:
+    """The `share` quantile of the distance to `line` of the cells within `window_m` of it, beside the
+    middle 80 % of its span (clear of the walls at its ends): how far its data spreads across it."""
+    a, b = line[:2], line[2:]
+    L = float(np.hypot(*(b - a)))
+    if L <= 0 or len(cell_xy) == 0:
+        return 0.0
+    u = (b - a) / L
+    rel = cell_xy - a
+    t, d = rel @ u, np.abs(rel @ np.array([-u[1], u[0]]))
+    sel = (t >= 0.1 * L) & (t <= 0.9 * L) & (d <= window_m)
+    return float(np.quantile(d[sel], share)) if sel.any() else 0.0

@@ -1,0 +1,270 @@
+"""The wall model of one room (`model_walls`): the steps of tasks.walls run for every candidate α, the
+chosen model refined on the points, oriented, extruded from floor to ceiling (thesis 5.2.6) and drawn."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from tasks.cloud import DegenerateInputError
+from tasks.connect import OBSERVED
+from tasks.lines import angles, is_closed, transform_segments, wall_graph
+from tasks.walls.config import WallsConfig
+from tasks.walls.evidence import support_sampler
+from tasks.walls.image import Grid, projection_image
+from tasks.walls.topology import choose_alpha, model_for
+
+
+@dataclass(frozen=True)
+class WallModel:
+    """A room's walls in the x-y frame of the levelled cloud (metres), extruded from floor to ceiling."""
+
+    walls: NDArray[np.float64]
+    """(M, 4) x0 y0 x1 y1 of the inner wall faces."""
+    origin: NDArray[np.str_]
+    """(M,) "observed" or "extended" (made only by extension, e.g. a perpendicular join)."""
+    support: NDArray[np.float64]
+    """(M,) share of each wall's length backed by data (0..1)."""
+    floor_z_m: float
+    ceiling_z_m: float
+    polygon: Any
+    """shapely Polygon of the room when the walls enclose one, else None."""
+    mesh_vertices: NDArray[np.float64]
+    """(V, 3) extruded walls (and floor and ceiling when closed)."""
+    mesh_triangles: NDArray[np.int64]
+    """(T, 3) vertex indices, counter-clockwise seen from inside the room."""
+    preview: NDArray[np.uint8]
+    """(H, W, 3) RGB: the projection image with the walls drawn over it, north up."""
+    alpha: float | None
+    """α used for eq 5.5 (None with eq 5.4)."""
+    metrics: dict[str, Any]
+    """Counts per step, α choice and reason, timings (s), warnings."""
+
+    @property
+    def height_m(self) -> float:
+        return self.ceiling_z_m - self.floor_z_m
+
+    @property
+    def closed(self) -> bool:
+        return self.polygon is not None
+
+    def transformed(self, rotation_rad: float, translation_xy: NDArray) -> WallModel:
+        """The model moved by the 2D rigid transform p -> R(rotation) p + t (z unchanged)."""
+        import shapely.affinity
+
+        c, s = math.cos(rotation_rad), math.sin(rotation_rad)
+        r = np.array([[c, -s], [s, c]])
+        t = np.asarray(translation_xy, dtype=np.float64).reshape(2)
+        verts = self.mesh_vertices.copy()
+        verts[:, :2] = verts[:, :2] @ r.T + t
+        poly = None
+        if self.polygon is not None:
+            poly = shapely.affinity.affine_transform(self.polygon, [c, -s, s, c, t[0], t[1]])
+        return replace(self, walls=transform_segments(self.walls, r, t), polygon=poly, mesh_vertices=verts)
+
+
+def extrude(walls: NDArray, floor_z: float, ceiling_z: float, polygon: Any) -> tuple[NDArray, NDArray]:
+    """Wall quads from floor to ceiling (two triangles each), plus floor and ceiling caps when the room
+    is closed. Walls must have the room on their left (`orient_walls`); every triangle then faces into
+    the room (counter-clockwise seen from inside). Returns vertices (V, 3) and triangles (T, 3)."""
+    m = len(walls)
+    verts = np.zeros((4 * m, 3))
+    verts[0::4, :2], verts[0::4, 2] = walls[:, :2], floor_z
+    verts[1::4, :2], verts[1::4, 2] = walls[:, 2:], floor_z
+    verts[2::4, :2], verts[2::4, 2] = walls[:, 2:], ceiling_z
+    verts[3::4, :2], verts[3::4, 2] = walls[:, :2], ceiling_z
+    base = 4 * np.arange(m)[:, None]
+    tris = np.concatenate([base + np.array([0, 2, 1]), base + np.array([0, 3, 2])]).astype(np.int64)
+    if polygon is not None:
+        import shapely
+
+        cap = shapely.constrained_delaunay_triangles(polygon)
+        tri_xy = [np.asarray(t.exterior.coords)[:3] for t in shapely.get_parts(cap)]
+        if tri_xy:
+            txy = np.array(tri_xy)  # (T, 3, 2)
+            # counter-clockwise seen from above for the floor (normal up, into the room), reversed above
+            area = (txy[:, 1, 0] - txy[:, 0, 0]) * (txy[:, 2, 1] - txy[:, 0, 1]) - (
+                txy[:, 2, 0] - txy[:, 0, 0]
+            ) * (txy[:, 1, 1] - txy[:, 0, 1])
+            txy[area < 0] = txy[area < 0][:, ::-1]
+            k = len(txy)
+            floor = np.concatenate([txy.reshape(-1, 2), np.full((3 * k, 1), floor_z)], axis=1)
+            ceil = np.concatenate([txy.reshape(-1, 2), np.full((3 * k, 1), ceiling_z)], axis=1)
+            n0 = len(verts)
+            verts = np.concatenate([verts, floor, ceil])
+            ft = n0 + np.arange(3 * k).reshape(k, 3)
+            ct = (n0 + 3 * k + np.arange(3 * k).reshape(k, 3))[:, ::-1]
+            tris = np.concatenate([tris, ft, ct])
+    return verts, tris
+
+
+def orient_walls(walls: NDArray, polygon: Any) -> NDArray:
+    """Walls turned so that the room lies on their left (counter-clockwise round the room): judged by the
+    room polygon when there is one, else by the side of the walls' length-weighted centre."""
+    if len(walls) == 0:
+        return walls.copy()
+    d = walls[:, 2:] - walls[:, :2]
+    L = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
+    left = np.column_stack([-d[:, 1], d[:, 0]]) / L[:, None]
+    mid = 0.5 * (walls[:, :2] + walls[:, 2:])
+    if polygon is not None:
+        import shapely
+
+        probe = mid + left * np.minimum(0.01, 0.1 * L)[:, None]
+        inside = shapely.contains_xy(polygon, probe[:, 0], probe[:, 1])
+    else:
+        centre = (mid * L[:, None]).sum(axis=0) / L.sum()
+        inside = ((centre - mid) * left).sum(axis=1) >= 0
+    out = walls.copy()
+    out[~inside] = walls[~inside][:, [2, 3, 0, 1]]
+    return out
+
+
+def render_preview(
+    counts: NDArray, binary: NDArray, walls: NDArray, origin: NDArray, grid: Grid, min_side_px: int = 800
+) -> NDArray:
+    """RGB picture, north up: data in grey (darker = taller column), the cells kept as wall data in light
+    blue, observed walls in dark blue, extended ones in orange, wall ends as red dots, a 1 m bar below.
+    Coarse grids are enlarged (whole pixels) so that the longer side has at least `min_side_px`."""
+    n_max = max(float(counts.max()), 1.0)
+    grey = (255 - 140 * np.sqrt(counts / n_max)).astype(np.uint8)
+    img = np.repeat(grey[..., None], 3, axis=2)
+    img[binary] = (150, 190, 235)
+    scale = int(min(10, max(1, math.ceil(min_side_px / max(counts.shape)))))
+    if scale > 1:
+        img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    img = np.ascontiguousarray(img[::-1])  # north up: row 0 is the largest y
+    h = img.shape[0]
+    shift = 4  # sub-pixel drawing
+    thick = 3
+
+    def at(p: NDArray) -> tuple[int, int]:
+        col, row = (p[0] + 0.5) * scale - 0.5, h - 1 - ((p[1] + 0.5) * scale - 0.5)
+        return round(col * (1 << shift)), round(row * (1 << shift))
+
+    px = grid.to_pixels(walls.reshape(-1, 2)).reshape(-1, 4) if len(walls) else np.zeros((0, 4))
+    for s, o in zip(px, origin, strict=True):
+        colour = (25, 60, 170) if o == OBSERVED else (240, 140, 20)
+        cv2.line(img, at(s[:2]), at(s[2:]), colour, thick, cv2.LINE_AA, shift)
+    for s in px:
+        for p in (s[:2], s[2:]):
+            cv2.circle(img, at(p), 5 << shift, (210, 30, 30), -1, cv2.LINE_AA, shift)
+    bar = round(scale / grid.size)
+    foot = np.full((34, img.shape[1], 3), 255, dtype=np.uint8)
+    if img.shape[1] > bar + 60:
+        cv2.rectangle(foot, (10, 14), (10 + bar, 20), (0, 0, 0), -1)
+        cv2.putText(foot, "1 m", (16 + bar, 23), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.concatenate([img, foot])
+
+
+def _check_input(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg: WallsConfig) -> NDArray:
+    pts = np.asarray(slice_points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise DegenerateInputError(f"slice points must be (N, 3), got {pts.shape}")
+    if not np.isfinite(pts).all():
+        raise DegenerateInputError(
+            f"{int((~np.isfinite(pts).all(axis=1)).sum())} slice points are NaN or infinite"
+        )
+    if len(pts) < cfg.min_points:
+        raise DegenerateInputError(f"slice has {len(pts)} points, at least {cfg.min_points} needed for walls")
+    if not (math.isfinite(floor_z_m) and math.isfinite(ceiling_z_m) and ceiling_z_m > floor_z_m):
+        raise DegenerateInputError(f"floor {floor_z_m} m and ceiling {ceiling_z_m} m do not bound a room")
+    spread = float(np.quantile(pts[:, 2], 0.99) - np.quantile(pts[:, 2], 0.01))
+    if spread < cfg.min_slice_height_m:
+        raise DegenerateInputError(
+            f"slice is {spread:.3f} m thick (a single horizontal plane?), at least {cfg.min_slice_height_m} m needed"
+        )
+    return pts
+
+
+def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg: WallsConfig) -> WallModel:
+    """The wall model of one room from the furniture slice (N, 3) of its levelled cloud (z up, metres).
+
+    Raises DegenerateInputError (one line) for an input that cannot hold walls: too few points, NaN, a
+    flat slice, an extent too large for the grid. A slice in which no wall is found gives an empty model
+    with a warning in `metrics["warnings"]`."""
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    pts = _check_input(slice_points, floor_z_m, ceiling_z_m, cfg)
+    proj = projection_image(pts, cfg, ceiling_z_m)
+    grid, counts = proj.grid, proj.counts
+    xy = np.ascontiguousarray(pts[:, :2])
+    timings["projection_s"] = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    if cfg.binarization == "gaussian":
+        alphas: list[float | None] = [None]
+    elif cfg.alpha is not None:
+        alphas = [float(cfg.alpha)]
+    else:
+        alphas = sorted(float(a) for a in cfg.alpha_candidates)
+    if len(alphas) == 1:
+        cands = [model_for(proj, cfg, alphas[0], xy)]
+        chosen, reason = 0, ("eq 5.4 (mean - 1.65 sigma)" if alphas[0] is None else "alpha fixed in config")
+        best = cands[0]
+    else:
+        # candidates are compared on the pixel-accurate model; the chosen one is refined on the points
+        cands = [model_for(proj, cfg, a) for a in alphas]
+        chosen, reason = choose_alpha(cands, cfg.stable_tol_m)
+        best = model_for(proj, cfg, alphas[chosen], xy)
+        if cands[chosen].closed and not best.closed:
+            # the refinement moved a borderline corner out of reach: keep the pixel-accurate model
+            best = cands[chosen]
+            reason += "; offsets not refined (the refined walls did not close)"
+    timings["walls_s"] = time.perf_counter() - t1
+
+    t2 = time.perf_counter()
+    walls, origin = best.walls, best.origin
+    share = support_sampler(best.binary, grid, cfg.support_tol_m)
+    support = share(walls)
+    polygon = best.polygon
+    walls = orient_walls(walls, polygon)
+    verts, tris = extrude(walls, floor_z_m, ceiling_z_m, polygon)
+    preview = render_preview(counts, best.binary, walls, origin, grid)
+    timings["outputs_s"] = time.perf_counter() - t2
+    timings["total_s"] = time.perf_counter() - t0
+
+    warnings = []
+    if len(walls) == 0:
+        warnings.append("no wall found in the slice")
+    elif polygon is None:
+        warnings.append("the walls do not enclose a room (open wall graph)")
+    elif not is_closed(wall_graph(walls)):
+        warnings.append("the walls enclose a room but some walls have free ends")
+    metrics: dict[str, Any] = {
+        "points": len(pts),
+        "image_shape": list(counts.shape),
+        "slice_voxel_layers": proj.n_levels,
+        "alpha": best.alpha,
+        "alpha_reason": reason,
+        "alpha_candidates": [{"alpha": c.alpha, "closed": c.closed, **c.counts} for c in cands],
+        **best.counts,
+        "walls_observed": int((origin == OBSERVED).sum()),
+        "walls_extended": int((origin != OBSERVED).sum()),
+        "closed": polygon is not None,
+        "room_area_m2": float(polygon.area) if polygon is not None else None,
+        "orientations_deg": sorted({round(float(a), 2) for a in np.degrees(angles(walls))})
+        if len(walls)
+        else [],
+        "timings": timings,
+        "warnings": warnings,
+    }
+    return WallModel(
+        walls=walls,
+        origin=origin,
+        support=support,
+        floor_z_m=float(floor_z_m),
+        ceiling_z_m=float(ceiling_z_m),
+        polygon=polygon,
+        mesh_vertices=verts,
+        mesh_triangles=tris,
+        preview=preview,
+        alpha=best.alpha,
+        metrics=metrics,
+    )

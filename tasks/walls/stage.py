@@ -1,0 +1,108 @@
+"""The walls stage: the preprocess stage's slice and levelling in, the room's walls, plan, extruded model and
+preview out, in the input cloud's own frame when that frame means something."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import shapely.affinity
+import shapely.geometry
+from numpy.typing import NDArray
+
+from tasks import artefacts as art
+from tasks.context import StageContext
+from tasks.walls.config import WallsConfig
+from tasks.walls.model import model_walls
+
+
+def levelled_to_input(levelling: dict[str, Any]) -> tuple[NDArray[np.float64], float]:
+    """The inverse levelling transform (levelled -> input frame, 4x4) and the height at which wall
+    lines are carried back: the levelling pivot's, where the rotation moves nothing."""
+    back = np.linalg.inv(np.asarray(levelling["transform"], dtype=np.float64))
+    pivot = levelling.get("pivot_m")
+    return back, float(pivot[2]) if pivot else 0.0
+
+
+def segments_to_input(walls: NDArray[np.float64], back: NDArray[np.float64], z: float) -> NDArray[np.float64]:
+    """(M, 4) levelled-frame wall lines as (M, 4) lines of the input cloud's own x-y frame."""
+    ends = np.concatenate([walls[:, :2], walls[:, 2:]], axis=0)
+    pts = np.column_stack([ends, np.full(len(ends), z)]) @ back[:3, :3].T + back[:3, 3]
+    half = len(walls)
+    return np.column_stack([pts[:half, :2], pts[half:, :2]])
+
+
+def wall_features(
+    walls: NDArray[np.float64], origin: Any, support: Any, polygon: Any, room: str
+) -> list[dict]:
+    """GeoJSON features: one LineString per wall, and the room Polygon when the walls close it."""
+    features = [
+        {
+            "type": "Feature",
+            "geometry": {"type": "LineString", "coordinates": [[w[0], w[1]], [w[2], w[3]]]},
+            "properties": {"room_id": room, "kind": "wall", "origin": str(o), "support": float(s)},
+        }
+        for w, o, s in zip(walls.tolist(), origin, support, strict=True)
+    ]
+    if polygon is not None:
+        features.append(
+            {
+                "type": "Feature",
+                "geometry": shapely.geometry.mapping(polygon),
+                "properties": {"room_id": room, "kind": "room", "area_m2": float(polygon.area)},
+            }
+        )
+    return features
+
+
+def run(ctx: StageContext, cfg: WallsConfig, out: Path) -> dict[str, Any]:
+    """The room's walls (`walls.parquet`), plan (`plan.geojson`), extruded model (`model.ply`) and preview
+    (`preview.png`) from the preprocess stage's furniture slice and levelling."""
+    pre = ctx.upstream["preprocess"]
+    levelling = art.read_json(pre.file("levelling.json"))
+    slice_cloud = art.read_cloud(pre.file("slice.ply"))
+    model = model_walls(slice_cloud.points, levelling["floor_z_m"], levelling["ceiling_z_m"], cfg)
+    # A given cloud's frame means something (a TLS survey's, the user's): walls go back into it. A frame
+    # made by registration is arbitrary and maybe tilted: walls stay in the levelled (z up) room frame.
+    if levelling.get("source") == "register":
+        back, z, frame = np.eye(4), 0.0, "levelled room frame (m)"
+    else:
+        back, z = levelled_to_input(levelling)
+        frame = "input cloud x-y (m)"
+    walls = segments_to_input(model.walls, back, z)
+    polygon = model.polygon
+    if polygon is not None:
+        polygon = shapely.affinity.affine_transform(
+            polygon,
+            [
+                back[0, 0],
+                back[0, 1],
+                back[1, 0],
+                back[1, 1],
+                back[0, 3] + back[0, 2] * z,
+                back[1, 3] + back[1, 2] * z,
+            ],
+        )
+    art.write_table(
+        out / "walls.parquet",
+        art.segments_table(
+            walls,
+            height=np.full(len(walls), model.height_m),
+            origin=model.origin.astype(str),
+            support=model.support,
+        ),
+        art.WALLS_SCHEMA,
+    )
+    art.write_geojson(
+        out / "plan.geojson",
+        wall_features(walls, model.origin, model.support, polygon, ctx.room),
+        frame,
+    )
+    vertices = model.mesh_vertices @ back[:3, :3].T + back[:3, 3]
+    art.write_ply_mesh(out / "model.ply", vertices, model.mesh_triangles)
+    art.write_png(out / "preview.png", model.preview)
+    return {
+        "frame": frame,
+        "metrics": {**model.metrics, "walls": len(walls), "closed": model.closed, "alpha": model.alpha},
+    }

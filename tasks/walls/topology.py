@@ -1,0 +1,300 @@
+"""From Hough segments to the room's walls for one α (thesis 5.2.4.2-5.2.5): merge, the top-reach test,
+regularize, refine, connect, the room polygon and the walls that belong to it; and the choice of α among
+the candidates' models."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from tasks.connect import OBSERVED, connect_detailed
+from tasks.lines import (
+    LinesConfig,
+    lengths,
+    merge_segments,
+    point_segment_distances,
+    regularize,
+    room_polygons,
+    rotate_segments,
+)
+from tasks.walls.config import WallsConfig
+from tasks.walls.evidence import (
+    TopCells,
+    extend_to_data,
+    refine_offsets,
+    support_sampler,
+    thin_wall_faces,
+    top_reach_shares,
+    unshadowed_lines,
+)
+from tasks.walls.image import Grid, Projection, binarize, hough_segments, skeleton
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """The model one α gives (steps 2-7): what the choice of α compares."""
+
+    alpha: float | None
+    walls: NDArray
+    origin: NDArray
+    counts: dict[str, int]
+    binary: NDArray
+    polygon: Any
+    """The room, when the walls enclose one (a partition stub may still dangle in it)."""
+
+    @property
+    def closed(self) -> bool:
+        return self.polygon is not None
+
+
+def model_for(
+    proj: Projection, cfg: WallsConfig, alpha: float | None, xy: NDArray | None = None
+) -> Candidate:
+    """Steps 2-7 for one α; the slice points `xy` (N, 2), when given, refine the wall offsets."""
+    grid = proj.grid
+    # the tall cells go through the image steps; the top-reach test is made on the lines (`_topology`)
+    binary = binarize(proj.counts, proj.tall, cfg, alpha)
+    skel = skeleton(binary, cfg)
+    hough = hough_segments(skel, grid, cfg)
+    low_share = support_sampler(proj.low, grid, cfg.support_tol_m)
+    top = TopCells(binary & proj.top, grid)
+    found = _topology(hough, cfg.lines, cfg, grid, binary, top, proj, low_share, xy)
+    bridged = None
+    for gap in cfg.bridge_gaps_m if found.polygon is None else ():
+        # the unseen span may be a corner as well as a stretch of one wall: ends reach as far
+        lines = replace(cfg.lines, max_gap_m=gap, extend_m=max(cfg.lines.extend_m, gap))
+        wider = _topology(hough, lines, cfg, grid, binary, top, proj, low_share, xy)
+        # a wall made only by extension (a perpendicular join) longer than the usual reach needs data:
+        # without it the wider reach would cut off a poorly seen part of the room (behind a partition)
+        made = wider.origin != OBSERVED
+        long_made = made & (lengths(wider.walls) > cfg.lines.extend_m)
+        if (
+            wider.polygon is not None
+            and not (wider.share(wider.walls[long_made]) < cfg.lines.min_overlap).any()
+        ):
+            found, bridged = wider, gap
+            break
+    stats = {
+        "binary_px": int(found.binary.sum()),
+        "skeleton_px": int(skel.sum()),
+        "hough_segments": len(hough),
+        "orientation_clusters": len(found.merged.orientation_deg),
+        "merged_lines": len(found.merged.segments),
+        "lines_below_top": found.below_top,
+        "removed_extensions": len(found.conn.removed),
+        "walls_outside_room": found.outside,
+        "walls_hung_from_ceiling": int(found.hung.sum()),
+        "bridged_gap_m": bridged,
+        "walls": len(found.walls),
+    }
+    return Candidate(alpha, found.walls, found.origin, stats, found.binary, found.polygon)
+
+
+@dataclass(frozen=True)
+class _Topology:
+    merged: Any
+    conn: Any
+    walls: NDArray
+    origin: NDArray
+    polygon: Any
+    outside: int
+    hung: NDArray
+    below_top: int
+    """Merged lines dropped by the top-reach test."""
+    binary: NDArray
+    """The wall data: cells near the top, and the other tall cells along the kept lines."""
+    share: Any
+    """share(segments) -> (P,) support of segments by `binary`."""
+
+
+def _wall_data(binary: NDArray, top: NDArray, lines: NDArray, grid: Grid, tol_m: float) -> NDArray:
+    """The binary cells that are wall data: those near the slice top, and the others within `tol_m` of
+    a kept line (the part of a wall seen below the top). A cabinet's cells, away from every kept line,
+    do not back an extension."""
+    near = np.zeros(binary.shape, dtype=np.uint8)
+    px = grid.to_pixels(lines.reshape(-1, 2)).reshape(-1, 4) if len(lines) else np.zeros((0, 4))
+    thick = 2 * math.ceil(tol_m / grid.size) + 1
+    for s in px:
+        cv2.line(near, (round(s[0]), round(s[1])), (round(s[2]), round(s[3])), 1, thick)
+    return binary & (top | near.astype(bool))
+
+
+def _topology(
+    hough: NDArray,
+    lcfg: LinesConfig,
+    cfg: WallsConfig,
+    grid: Grid,
+    binary: NDArray,
+    top: TopCells,
+    proj: Projection,
+    low_share,
+    xy: NDArray | None,
+) -> _Topology:
+    """Steps 5-7 on the Hough segments: merge, the top-reach test, regularize, refine (when `xy` is
+    given), connect, then keep the room's walls."""
+    merged = merge_segments(hough, lcfg)
+    lines = merged.segments
+    below_top = 0
+    if cfg.top_reach_m is not None and len(lines):
+        reach = top_reach_shares(lines, top, cfg.top_share_tol_m, lcfg.angle_tol_deg)
+        keep = reach >= cfg.min_top_share
+        keep = keep | thin_wall_faces(lines, keep, top, cfg, lcfg.angle_tol_deg)
+        keep |= unshadowed_lines(lines, keep, top, cfg)
+        below_top = int((~keep).sum())
+        lines = lines[keep]
+    wall_data = _wall_data(binary, proj.top, lines, grid, cfg.support_tol_m)
+    share = support_sampler(wall_data, grid, cfg.support_tol_m)
+    reg, rotation = regularize(lines, lcfg)
+    refined = reg if xy is None else refine_offsets(reg, xy, proj.cell, grid, cfg.refine_band_m)
+    refined = extend_to_data(refined, wall_data, grid, cfg.end_tol_m, cfg.end_gap_m, lcfg.extend_m)
+    centres = 0.5 * (refined[:, :2] + refined[:, 2:])
+
+    def support_fn(pieces: NDArray, parent: NDArray) -> NDArray:
+        # undo the regularization rotation about the parent wall's centre before looking at the data
+        rot = np.where(parent >= 0, -rotation[np.maximum(parent, 0)], 0.0)
+        c = np.where(
+            parent[:, None] >= 0, centres[np.maximum(parent, 0)], 0.5 * (pieces[:, :2] + pieces[:, 2:])
+        )
+        return share(rotate_segments(pieces, rot, c))
+
+    # the room's interior, for the joins across unseen walls: the walls' length-weighted centre
+    weight = lengths(refined)
+    interior = (centres * weight[:, None]).sum(axis=0) / weight.sum() if weight.sum() > 0 else None
+    conn = connect_detailed(refined, lcfg, support_fn, interior)
+    walls, origin = _drop_short_stubs(conn.segments, conn.origin, cfg.min_wall_length_m)
+    polygon, walls, origin, outside = _room_polygon(walls, origin, grid.size)
+    hung = _hung_from_ceiling(walls, polygon, low_share)
+    if hung.any():
+        walls, origin = walls[~hung], origin[~hung]
+        polygon, walls, origin, _ = _room_polygon(walls, origin, grid.size)
+    return _Topology(merged, conn, walls, origin, polygon, outside, hung, below_top, wall_data, share)
+
+
+def _hung_from_ceiling(walls: NDArray, polygon: Any, low_share) -> NDArray[np.bool_]:
+    """Walls of free-standing groups (not touching the room's outline) whose data stays clear of the
+    slice bottom on most of their length: lamps and shades hanging from the ceiling. A column goes down
+    to the floor; furniture standing on it was removed by the top-reach test."""
+    hung = np.zeros(len(walls), dtype=bool)
+    if polygon is None or len(walls) == 0:
+        return hung
+    import shapely
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(walls)
+    ends = np.concatenate([walls[:, :2], walls[:, 2:]])
+    touch = point_segment_distances(ends, walls) <= 1e-6
+    i, j = np.nonzero(touch)
+    adj = coo_matrix((np.ones(len(i)), (i % n, j)), shape=(n, n))
+    _, comp = connected_components(adj, directed=False)
+    mid = 0.5 * (walls[:, :2] + walls[:, 2:])
+    on_outline = shapely.distance(polygon.exterior, shapely.points(mid)) <= 1e-6
+    share = low_share(walls)
+    L = lengths(walls)
+    for c in np.unique(comp):
+        m = comp == c
+        if not on_outline[m].any() and (share[m] * L[m]).sum() < 0.5 * L[m].sum():
+            hung[m] = True
+    return hung
+
+
+def _drop_short_stubs(walls: NDArray, origin: NDArray, min_length_m: float) -> tuple[NDArray, NDArray]:
+    """Walls shorter than min_length_m with a free end go (short connectors between walls stay)."""
+    short = lengths(walls) < min_length_m
+    if not short.any():
+        return walls, origin
+    ends = np.concatenate([walls[:, :2], walls[:, 2:]])
+    d = point_segment_distances(ends, walls)
+    n = len(walls)
+    d[np.arange(2 * n), np.tile(np.arange(n), 2)] = np.inf
+    free = d.min(axis=1) > 1e-6 if n > 1 else np.ones(2 * n, dtype=bool)
+    drop = short & (free[:n] | free[n:])
+    return walls[~drop], origin[~drop]
+
+
+def _room_polygon(walls: NDArray, origin: NDArray, tol_m: float) -> tuple[Any, NDArray, NDArray, int]:
+    """The room: the largest face the walls enclose, provided the walls on or inside its outline hold most
+    of the wall length (else it is a column or a cupboard, not the room: None). With a room, the walls are
+    clipped to its outline (a wall seen through a door, or a wall line running on past the room's
+    corner, is not one of its inner faces). Returns (room, walls, origin, walls dropped)."""
+    polys = room_polygons(walls) if len(walls) >= 3 else []
+    if not polys:
+        return None, walls, origin, 0
+    import shapely
+    from shapely.geometry import Polygon
+
+    shell = Polygon(polys[0].exterior).buffer(tol_m, join_style="mitre")
+    lines = shapely.linestrings(walls.reshape(-1, 2, 2))
+    inner = shapely.intersection(lines, shell)
+    L = lengths(walls)
+    kept_len = shapely.length(inner)
+    if kept_len.sum() < 0.5 * L.sum():
+        return None, walls, origin, 0
+    room = polys[0]
+    corners = np.concatenate([np.asarray(r.coords) for r in [room.exterior, *room.interiors]])
+    out, out_origin = [], []
+    for wall, geom, o in zip(walls, inner, origin, strict=True):
+        for part in shapely.get_parts(geom):
+            # a wall cut in two (its span behind a partition stub lies outside the room) gives two walls
+            if part.geom_type != "LineString" or part.length <= tol_m:
+                continue
+            c = np.asarray(part.coords)[[0, -1]]
+            for k in (0, 1):
+                # a cut end (the wall ran on past the room's corner) goes to that corner exactly
+                if min(np.hypot(*(c[k] - wall[:2])), np.hypot(*(c[k] - wall[2:]))) > 1e-9:
+                    d = np.hypot(*(corners - c[k]).T)
+                    if d.min() <= 2 * tol_m:
+                        c[k] = corners[int(np.argmin(d))]
+            out.append([*c[0], *c[1]])
+            out_origin.append(o)
+    kept = np.array(out, dtype=np.float64).reshape(-1, 4)
+    dropped = int((kept_len <= tol_m).sum())
+    return polys[0], kept, np.array(out_origin, dtype=origin.dtype), dropped
+
+
+def same_walls(a: NDArray, b: NDArray, tol_m: float) -> bool:
+    """Equal wall sets: same count, and every endpoint of each within tol_m of a wall of the other."""
+    if len(a) != len(b):
+        return False
+    if len(a) == 0:
+        return True
+    ea = np.concatenate([a[:, :2], a[:, 2:]])
+    eb = np.concatenate([b[:, :2], b[:, 2:]])
+    return bool(point_segment_distances(ea, b).min(axis=1).max() <= tol_m) and bool(
+        point_segment_distances(eb, a).min(axis=1).max() <= tol_m
+    )
+
+
+def choose_alpha(cands: list[Candidate], tol_m: float) -> tuple[int, str]:
+    """Index of the chosen candidate and the reason (see the module docstring). Models closed as they
+    are rank before models closed only by bridging wider gaps, which rank before unclosed ones."""
+    n = len(cands)
+    tiers = (
+        ("closed", lambda c: c.closed and c.counts.get("bridged_gap_m") is None),
+        ("closed (after bridging wider gaps)", lambda c: c.closed),
+        ("unclosed (no candidate gave a closed wall graph)", lambda c: True),
+    )
+    for what, ok in tiers:
+        best, best_len = -1, 0
+        i = 0
+        while i < n:
+            if not ok(cands[i]) or len(cands[i].walls) == 0:
+                i += 1
+                continue
+            j = i
+            while j + 1 < n and ok(cands[j + 1]) and same_walls(cands[j].walls, cands[j + 1].walls, tol_m):
+                j += 1
+            if j - i + 1 > best_len:
+                best, best_len = i, j - i + 1
+            i = j + 1
+        if best >= 0:
+            return best, (
+                f"smallest alpha of the longest run of equal {what} models: alpha={cands[best].alpha} stable "
+                f"over {best_len} of {n} candidates"
+            )
+    return 0, "no candidate found any wall"
