@@ -25,7 +25,7 @@ from tasks.artefacts import (
     write_json,
 )
 from tasks.cloud import DegenerateInputError
-from tasks.ingest import capture_kind
+from tasks.ingest.capture import capture_kind
 from tasks.stages import BUILDING_DELIVERABLES, ROOM_DELIVERABLES, STAGES, StageContext
 
 log = logging.getLogger("indoor_survey")

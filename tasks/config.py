@@ -19,7 +19,7 @@ import yaml
 
 from tasks.artefacts import check_room_id
 from tasks.calibration import CalibrateConfig
-from tasks.ingest import IngestConfig
+from tasks.ingest.config import IngestConfig
 from tasks.plan import PlanConfig
 from tasks.preprocess import PreprocessConfig
 from tasks.register import RegisterConfig

@@ -118,9 +118,9 @@ def run_plan(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
 
 
 def run_ingest(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
-    from tasks.ingest import ingest_capture
+    from tasks.ingest.stage import run
 
-    return {"metrics": ingest_capture(Path(ctx.raw_inputs["capture"]), out, ctx.profile, cfg, ctx.progress)}
+    return run(ctx, cfg, out)
 
 
 def read_track(path: Path) -> NDArray[np.float64]:
