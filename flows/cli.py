@@ -41,7 +41,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from tasks.artefacts import ArtefactError
     from tasks.cloud import DegenerateInputError
     from tasks.config import ConfigError
-    from tasks.ingest import IngestError
+    from tasks.ingest.errors import IngestError
 
     return (
         CliError,

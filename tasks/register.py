@@ -1269,7 +1269,7 @@ def register_room(
     workdir: scratch folder for pycolmap; track: (K, 3) t_ns x y foot-mounted IMU positions (plan frame);
     plan_walls: (M, 4) or (M, 5 with thickness) coarse plan walls for the fallback's heading correction.
     Raises DegenerateInputError (one line) when neither SfM nor the fallback can place the frames."""
-    from tasks.ingest import iter_frames
+    from tasks.ingest.frames import iter_frames
 
     started = time.perf_counter()
     say = progress or (lambda _msg: None)
@@ -1294,7 +1294,7 @@ def register_room(
     images = []
     for row in iter_frames(frames_path, ["frame_id", "rgb"]):
         if row["rgb"]:
-            from tasks.ingest import decode_rgb
+            from tasks.ingest.frames import decode_rgb
 
             img = decode_rgb(row)
             if img is not None:
@@ -1411,7 +1411,7 @@ def register_room(
     used_poses: dict[int, NDArray[np.float64]] = {}
 
     def fuse_stream(only: set[int] | None) -> Iterator[FrameData]:
-        from tasks.ingest import decode_rgb
+        from tasks.ingest.frames import decode_rgb
 
         for r in iter_frames(frames_path, ["frame_id", "depth", "depth_kind", "depth_units_per_m", "rgb"]):
             fid = int(r["frame_id"])
@@ -1457,7 +1457,8 @@ def run_register_room(
 
     from tasks.artefacts import POSES_SCHEMA, write_json, write_ply_points, write_table
     from tasks.config import load_sensor_profile
-    from tasks.ingest import IngestConfig, ingest_capture
+    from tasks.ingest.capture import ingest_capture
+    from tasks.ingest.config import IngestConfig
 
     profile = load_sensor_profile(profile_name)
     out_dir = Path(out_dir)

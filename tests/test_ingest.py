@@ -4,15 +4,10 @@ import pytest
 
 from tasks.artefacts import read_json
 from tasks.config import load_sensor_profile
-from tasks.ingest import (
-    IngestConfig,
-    IngestError,
-    capture_kind,
-    decode_depth_m,
-    decode_rgb,
-    ingest_capture,
-    iter_frames,
-)
+from tasks.ingest.capture import capture_kind, ingest_capture
+from tasks.ingest.config import IngestConfig
+from tasks.ingest.errors import IngestError
+from tasks.ingest.frames import decode_depth_m, decode_rgb, iter_frames
 from tests.captures import write_box_room_ply, write_rgbd_mcap
 
 

@@ -418,7 +418,8 @@ def synthetic_survey() -> Path:
 
 def _ingest(capture: Path, out: Path) -> tuple[Path, dict]:
     from tasks.config import load_sensor_profile
-    from tasks.ingest import IngestConfig, ingest_capture
+    from tasks.ingest.capture import ingest_capture
+    from tasks.ingest.config import IngestConfig
 
     out.mkdir(parents=True, exist_ok=True)
     ingest_capture(capture, out, load_sensor_profile("kinect_v1"), IngestConfig())
@@ -485,7 +486,7 @@ def test_synthetic_room_registered_metric_and_accurate(synthetic_survey, tmp_pat
 def _precision_eq_3_19(frames_path: Path, est: dict, truth: dict, calib: Calibration) -> list[float]:
     """Eq 3.19 with the truth standing in for matched features: the mean distance between where two
     consecutive frames put the same points of the later frame."""
-    from tasks.ingest import iter_frames
+    from tasks.ingest.frames import iter_frames
     from tasks.register import _decode_depth, frame_points
 
     depth = {int(r["frame_id"]): _decode_depth(r, None) for r in iter_frames(frames_path)}

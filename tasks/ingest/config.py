@@ -1,0 +1,34 @@
+"""The ingest stage's settings: computation-free (standard library only), so that the pipeline's config
+loads without the readers' libraries."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class IngestConfig:
+    """Reading captures. Topic names default to the sensor profile's (configs/sensors/*.yaml)."""
+
+    rgb_topic: str = ""
+    """Colour topic (Image or CompressedImage); empty = the profile's `rgb_compressed`, then `rgb`."""
+    depth_topic: str = ""
+    """Depth topic (Image 16UC1 mm or 32FC1 m); empty = the profile's `depth`."""
+    disparity_topic: str = ""
+    """Raw Kinect v1 disparity topic, used when there is no depth topic; empty = the profile's."""
+    imu_topic: str = ""
+    """IMU topic (optional); empty = the profile's."""
+    pose_topic: str = ""
+    """Device pose topic, PoseStamped (optional); empty = the profile's."""
+    max_sync_gap_ms: float = 20.0
+    """A depth frame is paired with the nearest colour image within this time; farther = no colour."""
+    frame_stride: int = 1
+    """Keep every n-th depth frame (1 = all)."""
+    max_frames: int = 0
+    """Stop after this many frames (0 = all)."""
+    tum_depth_units_per_m: float = 5000.0
+    """TUM RGB-D depth PNG units per metre."""
+    max_cloud_extent_m: float = 300.0
+    """A registered cloud spreading wider than this (1st to 99th percentile, x or y) is not in metres."""
+    max_cloud_height_m: float = 30.0
+    """...or higher than this (z roughly up: a room, a storey or a stairwell)."""
