@@ -24,7 +24,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(REPO)]
 
-from tasks.calibration import Calibration, CameraModel, RigidPose  # noqa: E402
+from tasks.camera import Calibration, CameraModel, RigidPose  # noqa: E402
 from tasks.scale import ScaleConfig, estimate_scale  # noqa: E402
 from tasks.sfm import SfmConfig, run_sfm  # noqa: E402
 

@@ -47,8 +47,8 @@ import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
-from tasks.calibration import Calibration  # noqa: E402
-from tasks.calibration import CameraModel as CalibCamera  # noqa: E402
+from tasks.camera import Calibration  # noqa: E402
+from tasks.camera import CameraModel as CalibCamera  # noqa: E402
 from tasks.cloud import Cloud  # noqa: E402
 from tasks.config import PipelineConfig, load_config, load_sensor_profile  # noqa: E402
 from tasks.evaluate import evaluate_walls  # noqa: E402

@@ -359,7 +359,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from tasks.calibration import run_calibrate
+    from tasks.calibrate.stage import run_calibrate
 
     distances = None
     if args.distances:

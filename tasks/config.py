@@ -18,7 +18,7 @@ from typing import Any
 import yaml
 
 from tasks.artefacts import check_room_id
-from tasks.calibration import CalibrateConfig
+from tasks.calibrate.config import CalibrateConfig
 from tasks.ingest import IngestConfig
 from tasks.plan import PlanConfig
 from tasks.preprocess import PreprocessConfig

@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from tasks.calibration import Calibration, CameraModel, RigidPose, colour_points, depth_to_points
+from tasks.camera import Calibration, CameraModel, RigidPose, colour_points, depth_to_points
 from tasks.cloud import Cloud, DegenerateInputError
 from tasks.scale import ScaleConfig, apply_scale, estimate_scale
 from tasks.sfm import SfmConfig, SfmResult, run_sfm
@@ -184,7 +184,7 @@ def calibration_from_camera_info(
             "profile",
             "camera_info",
         }:
-            from tasks.calibration import profile_calibration
+            from tasks.camera import profile_calibration
 
             try:
                 pose = profile_calibration(profile).ir_to_rgb

@@ -17,7 +17,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from tasks.calibration import Calibration, CameraModel, depth_to_points
+from tasks.camera import Calibration, CameraModel, depth_to_points
 from tasks.cloud import DegenerateInputError
 from tasks.sfm import SfmResult
 

@@ -25,7 +25,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from tasks.calibration import CameraModel
+from tasks.camera import CameraModel
 from tasks.cloud import DegenerateInputError
 
 log = logging.getLogger(__name__)

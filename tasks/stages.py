@@ -76,30 +76,9 @@ def _code_version(module_name: str, run: Callable[..., Any]) -> str:
 
 def run_calibrate(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
     """The survey's calibration from its target images, else the sensor profile's values (said so)."""
-    from tasks.calibration import calibrate_folder, profile_calibration, write_calibration
+    from tasks.calibrate.stage import run
 
-    folder = ctx.raw_inputs.get("calibration")
-    if folder:
-        ctx.progress(f"calibrating from {folder}")
-        calib = calibrate_folder(Path(folder), cfg)
-    else:
-        ctx.progress(f"no calibration data: using the {ctx.profile.get('name')} profile's values")
-        calib = profile_calibration(ctx.profile)
-    write_calibration(calib, out)
-    data = calib.to_json()
-    return {"metrics": {"source": calib.source, **_calibration_figures(data)}}
-
-
-def _calibration_figures(data: dict[str, Any]) -> dict[str, Any]:
-    figures: dict[str, Any] = {}
-    for cam in ("ir", "rgb"):
-        if data.get(cam):
-            figures[f"{cam}_rms_px"] = data[cam].get("rms_px")
-            figures[f"{cam}_fx_px"] = data[cam]["K"][0][0]
-    if data.get("ir_to_rgb"):
-        figures["baseline_mm"] = 1000.0 * float(np.linalg.norm(data["ir_to_rgb"]["t_m"]))
-    figures["stereo_rms_px"] = data.get("stereo_rms_px")
-    return figures
+    return run(ctx, cfg, out)
 
 
 def run_plan(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
@@ -148,7 +127,7 @@ def run_register(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
     """SfM -> metric scale -> fused coloured cloud, or the track-based fallback (thesis 3.2)."""
     import tempfile
 
-    from tasks.calibration import Calibration
+    from tasks.camera import Calibration
     from tasks.register import register_room
 
     ingest = ctx.upstream["ingest"]
@@ -323,7 +302,7 @@ BUILDING_DELIVERABLES = {"plan": ("plan_walls.parquet", "rooms.geojson", "plan_p
 STAGES: dict[str, Stage] = {
     stage.name: stage
     for stage in (
-        Stage("calibrate", "calibrate", "tasks.calibration", run_calibrate, uses_profile=True),
+        Stage("calibrate", "calibrate", "tasks.calibrate.stage", run_calibrate, uses_profile=True),
         Stage("plan", "plan", "tasks.plan", run_plan),
         Stage("ingest", "ingest", "tasks.ingest", run_ingest, uses_profile=True),
         Stage("register", "register", "tasks.register", run_register, True, ("sfm", "scale")),

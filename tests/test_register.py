@@ -15,7 +15,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from tasks.artefacts import FRAMES_SCHEMA, encode_png
-from tasks.calibration import Calibration, RigidPose
+from tasks.camera import Calibration, RigidPose
 from tasks.cloud import DegenerateInputError
 from tasks.register import (
     RegisterConfig,
@@ -391,7 +391,7 @@ def test_calibration_from_camera_info_uses_the_profile_pose_only_for_sensor_intr
     }
     for d in (info["depth"], info["rgb"]):
         d["source"] = "camera_info"
-    from tasks.calibration import profile_calibration
+    from tasks.camera import profile_calibration
 
     calib = calibration_from_camera_info(info, profile)
     assert calib.ir_to_rgb == profile_calibration(profile).ir_to_rgb

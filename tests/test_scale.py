@@ -10,7 +10,7 @@ import pytest
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from tasks.calibration import Calibration, CameraModel, RigidPose
+from tasks.camera import Calibration, CameraModel, RigidPose
 from tasks.cloud import DegenerateInputError
 from tasks.scale import (
     ROOM_FROM_CAMERA_AXES,

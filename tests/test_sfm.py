@@ -7,7 +7,7 @@ import glob
 import numpy as np
 import pytest
 
-from tasks.calibration import CameraModel
+from tasks.camera import CameraModel
 from tasks.cloud import DegenerateInputError
 from tasks.sfm import SfmConfig, _loop_pairs, run_sfm
 from tests.test_register import ate_after_similarity
