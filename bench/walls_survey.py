@@ -54,7 +54,7 @@ from tasks.config import PipelineConfig, load_config, load_sensor_profile  # noq
 from tasks.evaluate import evaluate_walls  # noqa: E402
 from tasks.lines import sample_segments  # noqa: E402
 from tasks.preprocess import preprocess  # noqa: E402
-from tasks.register import fuse_capture  # noqa: E402
+from tasks.register.fusion import fuse_capture  # noqa: E402
 from tasks.stages import levelled_to_input, segments_to_input  # noqa: E402
 from tasks.walls import model_walls  # noqa: E402
 

@@ -399,7 +399,7 @@ def cmd_parse_plan(args: argparse.Namespace) -> int:
 def cmd_register_room(args: argparse.Namespace) -> int:
     import json
 
-    from tasks.register import run_register_room
+    from tasks.register.stage import run_register_room
 
     report = run_register_room(
         args.capture,

@@ -22,9 +22,7 @@ from tasks.calibrate.config import CalibrateConfig
 from tasks.ingest import IngestConfig
 from tasks.plan import PlanConfig
 from tasks.preprocess import PreprocessConfig
-from tasks.register import RegisterConfig
-from tasks.scale import ScaleConfig
-from tasks.sfm import SfmConfig
+from tasks.register.config import RegisterConfig, ScaleConfig, SfmConfig
 from tasks.walls import WallsConfig
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"

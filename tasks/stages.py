@@ -102,63 +102,11 @@ def run_ingest(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
     return {"metrics": ingest_capture(Path(ctx.raw_inputs["capture"]), out, ctx.profile, cfg, ctx.progress)}
 
 
-def read_track(path: Path) -> NDArray[np.float64]:
-    """(K, 3) t_ns, x, y of a foot-mounted IMU track CSV (header line allowed)."""
-    try:
-        data = np.loadtxt(path, delimiter=",", ndmin=2, skiprows=1 if not _starts_numeric(path) else 0)
-    except ValueError as exc:
-        raise art.ArtefactError(f"{path}: not a track CSV of t_ns,x,y ({exc})") from exc
-    if data.shape[1] < 3:
-        raise art.ArtefactError(f"{path}: a track needs three columns t_ns,x,y")
-    return data[:, :3]
-
-
-def _starts_numeric(path: Path) -> bool:
-    with open(path) as fh:
-        first = fh.readline().split(",")[0].strip()
-    try:
-        float(first)
-    except ValueError:
-        return False
-    return True
-
-
 def run_register(ctx: StageContext, cfg: Any, out: Path) -> dict[str, Any]:
     """SfM -> metric scale -> fused coloured cloud, or the track-based fallback (thesis 3.2)."""
-    import tempfile
+    from tasks.register.stage import run
 
-    from tasks.camera import Calibration
-    from tasks.register import register_room
-
-    ingest = ctx.upstream["ingest"]
-    camera_info = art.read_json(ingest.file("camera_info.json"))
-    calibration = None
-    if "calibrate" in ctx.upstream:
-        calibration = Calibration.from_json(art.read_json(ctx.upstream["calibrate"].file("calibration.json")))
-    track = read_track(Path(ctx.raw_inputs["track"])) if "track" in ctx.raw_inputs else None
-    plan_walls = None
-    if "plan" in ctx.upstream:
-        segments, table = art.read_segments(ctx.upstream["plan"].file("plan_walls.parquet"))
-        # (M, 5): the thickness lets the fallback put frames against the walls' faces, not centrelines
-        plan_walls = np.column_stack([segments, table["thickness_m"].to_numpy()])
-    with tempfile.TemporaryDirectory(prefix="sfm-") as workdir:
-        result = register_room(
-            ingest.file("frames.parquet"),
-            camera_info,
-            calibration,
-            cfg,
-            ctx.extra_config["sfm"],
-            Path(workdir),
-            track=track,
-            plan_walls=plan_walls,
-            progress=ctx.progress,
-            scale_cfg=ctx.extra_config["scale"],
-            profile=ctx.profile,
-        )
-    art.write_table(out / "poses.parquet", result.poses, art.POSES_SCHEMA)
-    art.write_ply_points(out / "cloud.ply", result.cloud.points, result.cloud.colors)
-    art.write_json(out / "scale.json", result.scale)
-    return {"metrics": {**result.metrics, "frame": result.frame}}
+    return run(ctx, cfg, out)
 
 
 def room_cloud(ctx: StageContext) -> tuple[art.Cloud, str]:
@@ -305,7 +253,7 @@ STAGES: dict[str, Stage] = {
         Stage("calibrate", "calibrate", "tasks.calibrate.stage", run_calibrate, uses_profile=True),
         Stage("plan", "plan", "tasks.plan", run_plan),
         Stage("ingest", "ingest", "tasks.ingest", run_ingest, uses_profile=True),
-        Stage("register", "register", "tasks.register", run_register, True, ("sfm", "scale")),
+        Stage("register", "register", "tasks.register.stage", run_register, True, ("sfm", "scale")),
         Stage("preprocess", "preprocess", "tasks.preprocess", run_preprocess),
         Stage("walls", "walls", "tasks.walls", run_walls),
     )

@@ -9,7 +9,8 @@ import pytest
 
 from tasks.camera import CameraModel
 from tasks.cloud import DegenerateInputError
-from tasks.sfm import SfmConfig, _loop_pairs, run_sfm
+from tasks.register.config import SfmConfig
+from tasks.register.sfm import _loop_pairs, run_sfm
 from tests.test_register import ate_after_similarity
 from tests.test_scale import look_pose, render
 
