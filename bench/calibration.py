@@ -19,15 +19,10 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from tasks.calibration import (  # noqa: E402
-    CalibrateConfig,
-    calibrate_images,
-    colour_points,
-    depth_to_points,
-    detect_targets,
-    profile_calibration,
-    read_gray,
-)
+from tasks.calibrate.config import CalibrateConfig  # noqa: E402
+from tasks.calibrate.files import calibrate_images, read_gray  # noqa: E402
+from tasks.calibrate.targets import detect_targets  # noqa: E402
+from tasks.camera import colour_points, depth_to_points, profile_calibration  # noqa: E402
 
 REALDATA = REPO.parent / "shared" / "realdata"
 

@@ -24,9 +24,10 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(REPO)]
 
-from tasks.calibration import Calibration, CameraModel, RigidPose  # noqa: E402
-from tasks.scale import ScaleConfig, estimate_scale  # noqa: E402
-from tasks.sfm import SfmConfig, run_sfm  # noqa: E402
+from tasks.camera import Calibration, CameraModel, RigidPose  # noqa: E402
+from tasks.register.config import ScaleConfig, SfmConfig  # noqa: E402
+from tasks.register.scale import estimate_scale  # noqa: E402
+from tasks.register.sfm import run_sfm  # noqa: E402
 
 REALDATA = REPO.parent / "shared" / "realdata" / "rgbd_7scenes_redkitchen"
 
@@ -95,7 +96,8 @@ def write_walk(path: Path, n: int) -> dict:
 
 
 def child_register(frames_path: str, info_path: str, threads: int) -> None:
-    from tasks.register import RegisterConfig, register_room
+    from tasks.register.config import RegisterConfig
+    from tasks.register.room import register_room
 
     info = json.loads(Path(info_path).read_text())
     track = np.load(Path(frames_path).with_name("track.npy"))

@@ -47,14 +47,14 @@ import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
-from tasks.calibration import Calibration  # noqa: E402
-from tasks.calibration import CameraModel as CalibCamera  # noqa: E402
+from tasks.camera import Calibration  # noqa: E402
+from tasks.camera import CameraModel as CalibCamera  # noqa: E402
 from tasks.cloud import Cloud  # noqa: E402
 from tasks.config import PipelineConfig, load_config, load_sensor_profile  # noqa: E402
 from tasks.evaluate import evaluate_walls  # noqa: E402
 from tasks.lines import sample_segments  # noqa: E402
 from tasks.preprocess.pipeline import preprocess  # noqa: E402
-from tasks.register import fuse_capture  # noqa: E402
+from tasks.register.fusion import fuse_capture  # noqa: E402
 from tasks.walls.model import model_walls  # noqa: E402
 from tasks.walls.stage import levelled_to_input, segments_to_input  # noqa: E402
 

@@ -362,7 +362,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from tasks.calibration import run_calibrate
+    from tasks.calibrate.stage import run_calibrate
 
     distances = None
     if args.distances:
@@ -403,7 +403,7 @@ def cmd_parse_plan(args: argparse.Namespace) -> int:
 def cmd_register_room(args: argparse.Namespace) -> int:
     import json
 
-    from tasks.register import run_register_room
+    from tasks.register.stage import run_register_room
 
     report = run_register_room(
         args.capture,

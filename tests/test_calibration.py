@@ -11,27 +11,22 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tasks.calibration import (
+from tasks.calibrate.bundle import calibrate_camera, pair_names
+from tasks.calibrate.config import CalibrateConfig
+from tasks.calibrate.disparity import fit_disparity_model
+from tasks.calibrate.files import calibrate_folder, calibrate_images, read_gray
+from tasks.calibrate.stage import run_calibrate
+from tasks.calibrate.targets import TargetPattern, detect_targets, parse_pattern
+from tasks.camera import (
     DEPTH_KINDS,
-    CalibrateConfig,
     Calibration,
     CameraModel,
     DepthModel,
     RigidPose,
-    TargetPattern,
-    calibrate_camera,
-    calibrate_folder,
-    calibrate_images,
     colour_points,
     depth_to_points,
-    detect_targets,
-    fit_disparity_model,
-    pair_names,
-    parse_pattern,
     photogrammetric_to_opencv,
     profile_calibration,
-    read_gray,
-    run_calibrate,
     thesis_kinect_v1,
 )
 

@@ -11,7 +11,8 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from tasks.calibration import Calibration, CameraModel, calibrate_folder
+from tasks.calibrate.files import calibrate_folder
+from tasks.camera import Calibration, CameraModel
 from tasks.synth.calibration_set import CalibrationSetConfig, write_calibration_set
 
 REPO = Path(__file__).resolve().parents[1]

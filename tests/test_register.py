@@ -15,26 +15,14 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from tasks.artefacts import FRAMES_SCHEMA, encode_png
-from tasks.calibration import Calibration, RigidPose
+from tasks.camera import Calibration, RigidPose
 from tasks.cloud import DegenerateInputError
-from tasks.register import (
-    RegisterConfig,
-    VoxelAccumulator,
-    calibration_from_camera_info,
-    estimate_radial_depth_error,
-    frame_points,
-    fuse_frames,
-    icp_to_plan,
-    level_frame,
-    place_by_track,
-    plan_faces,
-    register_room,
-    run_register_room,
-    track_drift,
-    track_heading,
-    track_pose,
-)
-from tasks.sfm import SfmConfig
+from tasks.register.config import RegisterConfig, SfmConfig
+from tasks.register.fusion import VoxelAccumulator, estimate_radial_depth_error, frame_points, fuse_frames
+from tasks.register.plan_icp import icp_to_plan, plan_faces
+from tasks.register.room import calibration_from_camera_info, register_room
+from tasks.register.stage import run_register_room
+from tasks.register.track_fallback import level_frame, place_by_track, track_drift, track_heading, track_pose
 from tests.test_scale import BOX, box_hits, look_pose, small_camera
 
 CORRIDOR = (np.array([0.0, 0.0, 0.0]), np.array([14.0, 2.0, 2.6]))
@@ -336,8 +324,8 @@ def test_register_room_without_overlap_falls_back_or_fails(tmp_path, rng):
 def test_register_room_maps_again_when_the_per_frame_scales_drift(tmp_path, rng, monkeypatch):
     """A reconstruction whose per-frame scales drift along the capture (a bent map) is made again with the
     next seed, and the straightest one is kept; a straight one is kept at once."""
-    import tasks.register as reg
-    from tasks.scale import ScaleReport
+    import tasks.register.room as reg
+    from tasks.register.scale import ScaleReport
 
     cam = small_camera()
     poses, track = corridor_walk(4)
@@ -391,7 +379,7 @@ def test_calibration_from_camera_info_uses_the_profile_pose_only_for_sensor_intr
     }
     for d in (info["depth"], info["rgb"]):
         d["source"] = "camera_info"
-    from tasks.calibration import profile_calibration
+    from tasks.camera import profile_calibration
 
     calib = calibration_from_camera_info(info, profile)
     assert calib.ir_to_rgb == profile_calibration(profile).ir_to_rgb
@@ -487,7 +475,8 @@ def _precision_eq_3_19(frames_path: Path, est: dict, truth: dict, calib: Calibra
     """Eq 3.19 with the truth standing in for matched features: the mean distance between where two
     consecutive frames put the same points of the later frame."""
     from tasks.ingest.frames import iter_frames
-    from tasks.register import _decode_depth, frame_points
+    from tasks.register.fusion import frame_points
+    from tasks.register.room import _decode_depth
 
     depth = {int(r["frame_id"]): _decode_depth(r, None) for r in iter_frames(frames_path)}
     ids = sorted(est)

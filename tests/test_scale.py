@@ -10,19 +10,19 @@ import pytest
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from tasks.calibration import Calibration, CameraModel, RigidPose
+from tasks.camera import Calibration, CameraModel, RigidPose
 from tasks.cloud import DegenerateInputError
-from tasks.scale import (
+from tasks.register.config import ScaleConfig
+from tasks.register.scale import (
     ROOM_FROM_CAMERA_AXES,
     FrameScale,
-    ScaleConfig,
     apply_scale,
     combine_scales,
     estimate_scale,
     horn_similarity,
     ransac_similarity,
 )
-from tasks.sfm import SfmResult
+from tasks.register.sfm import SfmResult
 
 BOX = (np.array([-2.0, -1.5, 0.0]), np.array([2.5, 2.0, 2.6]))
 """A room 4.5 x 3.5 x 2.6 m, floor at z = 0 (world frame, z up)."""

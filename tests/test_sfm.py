@@ -7,9 +7,10 @@ import glob
 import numpy as np
 import pytest
 
-from tasks.calibration import CameraModel
+from tasks.camera import CameraModel
 from tasks.cloud import DegenerateInputError
-from tasks.sfm import SfmConfig, _loop_pairs, run_sfm
+from tasks.register.config import SfmConfig
+from tasks.register.sfm import _loop_pairs, run_sfm
 from tests.test_register import ate_after_similarity
 from tests.test_scale import look_pose, render
 

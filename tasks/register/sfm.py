@@ -1,4 +1,4 @@
-"""SfM stage (thesis 3.2.1): orient a room's colour frames with pycolmap, up to scale.
+"""SfM (thesis 3.2.1): orient a room's colour frames with pycolmap, up to scale.
 
 The thesis oriented Kinect colour images with VisualSFM; here COLMAP's incremental mapper does the same job:
 SIFT features, sequential matching for video-like captures (with sparse key-frame pairs as loop closures;
@@ -20,58 +20,16 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from tasks.calibration import CameraModel
+from tasks.camera import CameraModel
 from tasks.cloud import DegenerateInputError
+from tasks.register.config import SfmConfig
 
 log = logging.getLogger(__name__)
-
-CODE_VERSION = "sfm-1"
-"""Bumped when the stage's output for the same inputs and config would change."""
-
-
-@dataclass(frozen=True)
-class SfmConfig:
-    """Settings of the sfm stage (section `sfm` of the config tree)."""
-
-    matching: Literal["auto", "sequential", "exhaustive"] = "auto"
-    """Pairing: sequential (video-like captures), exhaustive, or auto = exhaustive up to
-    `exhaustive_max_frames` frames, sequential beyond."""
-    exhaustive_max_frames: int = 40
-    """Largest frame count matched exhaustively by `matching="auto"`."""
-    sequential_overlap: int = 10
-    """Sequential matching: each frame is matched with this many following frames."""
-    loop_keyframe_stride: int = 5
-    """Loop closures (sequential matching): every n-th frame is also matched with every other n-th frame
-    farther apart than the overlap (0 = off). Stands in for vocabulary-tree loop detection, whose tree
-    would have to be downloaded."""
-    loop_max_keyframes: int = 30
-    """At most this many loop key frames (the stride grows for long captures: pairs grow with its square)."""
-    max_image_size_px: int = 1024
-    """Frames larger than this (longest side) are downscaled for feature extraction."""
-    max_num_features: int = 4096
-    """SIFT features per frame."""
-    min_num_matches: int = 15
-    """Fewest verified matches for an image pair to count in mapping."""
-    fix_intrinsics: bool = True
-    """Hold the given RGB intrinsics fixed in bundle adjustment; False starts from them and refines focal
-    length and principal point (for intrinsics that are only nominal)."""
-    uncalibrated_camera_model: str = "SIMPLE_RADIAL"
-    """COLMAP camera model estimated when no calibrated camera is given."""
-    num_threads: int = 1
-    """Threads for extraction, matching and mapping. 1 makes runs repeatable (a cache key must mean one
-    result; with 2 threads one CI run in a few mapped a room wrongly); the building flow already runs
-    rooms in parallel."""
-    random_seed: int = 0
-    """Seed of COLMAP's RANSAC and mapper."""
-    min_registered_fraction: float = 0.5
-    """Below this share of registered frames the reconstruction counts as failed (`SfmResult.ok`)."""
-    min_frames: int = 3
-    """Fewer frames than this is an error: no reconstruction can be made."""
 
 
 @dataclass
@@ -203,7 +161,6 @@ def run_sfm(
     workdir: an empty scratch folder for pycolmap's database, images and models (the only file I/O).
     Raises DegenerateInputError for too few or blank frames; a mapping that registers nothing returns a
     result with no registered frame (check `ok`)."""
-    import cv2
     import pycolmap
 
     _check_images(images, cfg)
@@ -214,6 +171,54 @@ def run_sfm(
     names = [str(n) for n, _ in images]
     timings: dict[str, float] = {}
     started = time.perf_counter()
+    _write_images(images, camera, img_dir)
+    timings["write_s"] = time.perf_counter() - started
+
+    db = workdir / "database.db"
+    if db.exists():
+        db.unlink()
+    t0 = time.perf_counter()
+    _extract_features(db, img_dir, names, camera, cfg)
+    timings["extract_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    mode = _match_features(db, workdir, names, cfg)
+    timings["match_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    recs = _map(db, img_dir, workdir, camera, cfg)
+    timings["map_s"] = time.perf_counter() - t0
+    timings["total_s"] = time.perf_counter() - started
+    # the frames were undistorted: their camera is the pinhole part of the calibrated one, unless the
+    # mapper refined it (then the refined one is read back from the model)
+    pinhole = None
+    if camera is not None and cfg.fix_intrinsics:
+        pinhole = CameraModel(camera.K, np.zeros(5), camera.size)
+    result = _result_from_models(names, recs, pinhole)
+    result.metrics.update({k: round(v, 3) for k, v in timings.items()})
+    result.metrics.update(
+        frames=len(names),
+        registered=int(result.registered.sum()),
+        points=len(result.points),
+        models=result.models,
+        matching=mode,
+    )
+    log.info(
+        "sfm: %d of %d frames registered, %d points, %.1f s",
+        result.registered.sum(),
+        len(names),
+        len(result.points),
+        timings["total_s"],
+    )
+    return result
+
+
+def _write_images(
+    images: Sequence[tuple[str, NDArray[np.uint8]]], camera: CameraModel | None, img_dir: Path
+) -> None:
+    """Each frame as img_dir/<name> (PNG), undistorted with the calibrated camera when there is one."""
+    import cv2
+
     for name, img in images:
         arr = np.asarray(img)
         if arr.ndim == 2:
@@ -227,11 +232,15 @@ def run_sfm(
             arr = _undistort(arr, camera)
         # PNG keeps the (already lossy) colour as it is; the file name is the frame's name
         cv2.imwrite(str(img_dir / name), cv2.cvtColor(arr[:, :, :3], cv2.COLOR_RGB2BGR))
-    timings["write_s"] = time.perf_counter() - started
 
-    db = workdir / "database.db"
-    if db.exists():
-        db.unlink()
+
+def _extract_features(
+    db: Path, img_dir: Path, names: list[str], camera: CameraModel | None, cfg: SfmConfig
+) -> None:
+    """SIFT features of every frame into the database, one shared camera (the calibrated pinhole one, or
+    `uncalibrated_camera_model` for COLMAP to estimate)."""
+    import pycolmap
+
     if camera is not None:
         K = camera.K
         # COLMAP puts pixel centres at +0.5, OpenCV at integers
@@ -243,7 +252,6 @@ def run_sfm(
         num_threads=cfg.num_threads, max_image_size=cfg.max_image_size_px
     )
     extraction.sift.max_num_features = cfg.max_num_features
-    t0 = time.perf_counter()
     pycolmap.extract_features(
         db,
         img_dir,
@@ -253,15 +261,19 @@ def run_sfm(
         extraction_options=extraction,
         device=pycolmap.Device.cpu,
     )
-    timings["extract_s"] = time.perf_counter() - t0
 
-    t0 = time.perf_counter()
+
+def _match_features(db: Path, workdir: Path, names: list[str], cfg: SfmConfig) -> str:
+    """Verified matches of the frame pairs `cfg.matching` chooses (sequential ones with loop key frames, or
+    all pairs); returns the matching used ("sequential" or "exhaustive")."""
+    import pycolmap
+
     matching = pycolmap.FeatureMatchingOptions(num_threads=cfg.num_threads)
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = cfg.random_seed
     mode = cfg.matching
     if mode == "auto":
-        mode = "exhaustive" if len(images) <= cfg.exhaustive_max_frames else "sequential"
+        mode = "exhaustive" if len(names) <= cfg.exhaustive_max_frames else "sequential"
     if mode == "exhaustive":
         pycolmap.match_exhaustive(
             db, matching_options=matching, verification_options=verification, device=pycolmap.Device.cpu
@@ -287,9 +299,16 @@ def run_sfm(
                 verification_options=verification,
                 device=pycolmap.Device.cpu,
             )
-    timings["match_s"] = time.perf_counter() - t0
+    return mode
 
-    t0 = time.perf_counter()
+
+def _map(
+    db: Path, img_dir: Path, workdir: Path, camera: CameraModel | None, cfg: SfmConfig
+) -> dict[int, Any]:
+    """COLMAP's incremental mapper (bundle adjustment with the given intrinsics held fixed when
+    `fix_intrinsics`): model id -> reconstruction, several when the frames do not chain."""
+    import pycolmap
+
     opts = pycolmap.IncrementalPipelineOptions(
         num_threads=cfg.num_threads,
         random_seed=cfg.random_seed,
@@ -306,31 +325,7 @@ def run_sfm(
         opts.mapper.abs_pose_refine_extra_params = False
     out_dir = workdir / "models"
     out_dir.mkdir(exist_ok=True)
-    recs = pycolmap.incremental_mapping(db, img_dir, out_dir, options=opts)
-    timings["map_s"] = time.perf_counter() - t0
-    timings["total_s"] = time.perf_counter() - started
-    # the frames were undistorted: their camera is the pinhole part of the calibrated one, unless the
-    # mapper refined it (then the refined one is read back from the model)
-    pinhole = None
-    if camera is not None and cfg.fix_intrinsics:
-        pinhole = CameraModel(camera.K, np.zeros(5), camera.size)
-    result = _result_from_models(names, recs, pinhole)
-    result.metrics.update({k: round(v, 3) for k, v in timings.items()})
-    result.metrics.update(
-        frames=len(names),
-        registered=int(result.registered.sum()),
-        points=len(result.points),
-        models=result.models,
-        matching=mode,
-    )
-    log.info(
-        "sfm: %d of %d frames registered, %d points, %.1f s",
-        result.registered.sum(),
-        len(names),
-        len(result.points),
-        timings["total_s"],
-    )
-    return result
+    return pycolmap.incremental_mapping(db, img_dir, out_dir, options=opts)
 
 
 def _result_from_models(names: list[str], recs: dict, camera: CameraModel | None) -> SfmResult:

@@ -1,4 +1,4 @@
-"""Scale stage (thesis 3.2.1, eq 3.16, appendix A.1): metric poses from SfM and depth.
+"""Metric scale (thesis 3.2.1, eq 3.16, appendix A.1): metric poses from SfM and depth.
 
 SfM orients the colour frames up to an unknown scale. Every registered frame observes some of the sparse
 SfM points; the depth image of the same frame measures those points in metres. For each frame the
@@ -12,64 +12,18 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from tasks.calibration import Calibration, CameraModel, depth_to_points
+from tasks.camera import Calibration, CameraModel, depth_to_points
 from tasks.cloud import DegenerateInputError
-from tasks.sfm import SfmResult
-
-CODE_VERSION = "scale-1"
-"""Bumped when the stage's output for the same inputs and config would change."""
+from tasks.register.config import ScaleConfig
+from tasks.register.sfm import SfmResult
 
 ROOM_FROM_CAMERA_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 """Room axes from the first camera's: x right, y forward (the optical axis), z up (minus the image y)."""
-
-
-@dataclass(frozen=True)
-class ScaleConfig:
-    """Settings of the scale stage (section `scale` of the config tree)."""
-
-    ransac_iterations: int = 200
-    """RANSAC draws of 3 correspondences per frame."""
-    inlier_threshold_m: float = 0.03
-    """A correspondence is an inlier when its residual after the similarity is below this plus
-    `inlier_threshold_rel` times its depth."""
-    inlier_threshold_rel: float = 0.02
-    """Depth-proportional part of the inlier threshold (Kinect range noise grows with distance)."""
-    min_points_per_frame: int = 8
-    """Fewest SfM points with a depth measurement for a frame to estimate a scale."""
-    min_inlier_fraction: float = 0.5
-    """A frame whose best similarity explains fewer of its correspondences is not used."""
-    depth_window_px: int = 1
-    """Half size of the window around an observation in which the depth (projected into RGB) is read."""
-    depth_stride: int = 0
-    """Back-project every n-th depth pixel in each direction (0 = about 320 columns: 2 at 640x480); the
-    window above still catches a projected point at the RGB pixels."""
-    max_depth_step_m: float = 0.05
-    """Observations whose depth window spans more than this (a depth edge) are skipped."""
-    min_depth_m: float = 0.3
-    """Nearer depth readings are ignored."""
-    max_depth_m: float = 6.0
-    """Farther depth readings are ignored."""
-    scale_from: Literal["range", "helmert"] = "range"
-    """A frame's scale: "helmert" = λ of its eq 3.16 fit; "range" = the median ratio, over the correspondences
-    that fit agrees with, of the depth measured along the ray to the SfM depth of the point in that frame.
-    The similarity's λ also follows the lateral extent of the points, which inherits any error of the
-    colour intrinsics and of the depth/colour registration (on 7-Scenes, whose colour intrinsics are only
-    nominal, "helmert" was 1.9 % off the given poses and "range" 0.3 %)."""
-    scale_formula: Literal["asymmetric", "symmetric"] = "asymmetric"
-    """Horn's scale formula (see `horn_similarity`): asymmetric = errors in the depth points."""
-    combine: Literal["median", "trimmed_mean"] = "median"
-    """How the per-frame scales are combined."""
-    trim_fraction: float = 0.2
-    """Share cut from each end for `combine="trimmed_mean"`."""
-    min_frames: int = 1
-    """Fewest frames with a scale; fewer is an error."""
-    random_seed: int = 0
-    """Seed of the RANSAC draws."""
 
 
 @dataclass

@@ -1,0 +1,200 @@
+"""Settings of the register stage and of the two methods it runs (sections `register`, `sfm` and `scale` of
+the config tree). Standard library only, so that the config tree loads without pycolmap or Open3D."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+
+@dataclass(frozen=True)
+class RegisterConfig:
+    """Settings of the register stage (section `register` of the config tree)."""
+
+    voxel_size_m: float = 0.02
+    """Edge of the fusion voxel grid; the room cloud has one point (the mean) per occupied voxel."""
+    min_depth_m: float = 0.5
+    """Depth readings nearer than this are not fused (Kinect v1 range 0.5-6 m, thesis 3.3)."""
+    max_depth_m: float = 6.0
+    """Depth readings farther than this are not fused. The noise grows with the square of the range, but
+    the far walls are what the walls stage needs: on the synthetic rooms a 4 m cut left 30-40 % of the wall
+    length unseen in two of four rooms (6 m: 85-90 %); outliers are the preprocess stage's job."""
+    pixel_stride: int = 2
+    """Fuse every n-th depth pixel in each direction (1 = all); the voxel grid is coarser anyway."""
+    min_points_per_voxel: int = 1
+    """Voxels hit by fewer depth points (over all frames) are dropped (outliers are the preprocess stage's
+    job; more than 1 thins out far walls of low-resolution sensors)."""
+    radial_correction: bool = True
+    """Estimate the depth camera's radial error on the capture and take it out before fusing
+    (`RadialDepthError`; applied only when significant)."""
+    radial_frames: int = 30
+    """Frames sampled (evenly over the placed ones) for that estimate."""
+    radial_min_frames: int = 5
+    """Fewer usable frames than this: no estimate, nothing applied."""
+    radial_min_points: int = 500
+    """A frame is usable when its dominant plane has at least this many points."""
+    radial_plane_tol_inv_m: float = 0.01
+    """Plane inlier band in inverse depth (1/m): about 0.4 px of Kinect v1 disparity, 9 cm at 3 m."""
+    radial_normal_tol_deg: float = 20.0
+    """A plane point's local normal must lie within this of the plane's."""
+    radial_min_significance: float = 3.0
+    """The estimate is applied when it is at least this many standard errors from zero."""
+    icp_refine: bool = False
+    """Refine each frame against its predecessor with open3d point-to-plane ICP before fusing."""
+    icp_voxel_m: float = 0.05
+    """Downsampling of the frames for ICP."""
+    icp_max_distance_m: float = 0.10
+    """ICP correspondence distance."""
+    icp_max_correction_m: float = 0.10
+    """An ICP correction moving the frame more than this (or turning it more than 5 degrees) is rejected."""
+    sfm_attempts: int = 2
+    """SfM runs (seeds random_seed, +1, ...) at most: another is made while the per-frame scales of the best so
+    far drift along the capture more than `sfm_max_scale_trend`; the one registering most frames, then with
+    the smallest drift, is kept."""
+    sfm_max_scale_trend: float = 0.015
+    """Change of the per-frame scales (eq 3.16) from the first frame to the last, relative to the scale
+    (`ScaleReport.relative_trend`), above which a reconstruction is bent: -5.5 % on a synthetic room mapped
+    with an unlucky seed (8 cm ATE; 0.1 % and 0.7 cm with the next seed), 0.1-0.3 % on well-mapped ones.
+    Real Kinect v1 frames spread more from depth noise and timing but without a trend (7-Scenes: 1.3 %
+    spread, -0.5 % trend with either seed), so they are mapped once; the spread was the old criterion and
+    sent every real capture through SfM twice."""
+    fallback_min_registered_fraction: float = 0.5
+    """Below this share of frames registered by SfM, the track-based fallback places the frames."""
+    floor_angle_tol_deg: float = 45.0
+    """Levelling: first tolerance between a point's normal and the vertical for floor candidates (3.2.2.4);
+    it is halved on each of the refinement passes."""
+    floor_passes: int = 3
+    """Levelling: refinement passes (fit the floor plane, tighten the tolerance, drop outliers)."""
+    floor_min_points: int = 300
+    """Levelling: fewest floor points for a frame's own floor fit; else the other frames' median tilt."""
+    track_min_step_m: float = 0.2
+    """Eq 3.17: the heading points to the first later track position at least this far away."""
+    line_cell_m: float = 0.03
+    """Plan-line correction: cell of the orthographic projected image (3.2.2.6)."""
+    line_min_count: int = 3
+    """Plan-line correction: points per cell for a cell to count as wall (binarisation)."""
+    line_min_length_m: float = 0.5
+    """Plan-line correction: shortest Hough line used."""
+    line_max_angle_deg: float = 40.0
+    """Plan-line correction, first pass: a line matches a plan wall only within this orientation difference
+    (the later passes use a quarter of it). The track's heading (eq 3.17) is off by as much as the surveyor
+    turns the sensor away from the walking direction."""
+    line_max_distance_m: float = 1.2
+    """Plan-line correction, first pass: a line matches a plan wall only when its midpoint is this close to
+    the wall's face (the later passes use a quarter of it)."""
+    line_fix_offset: bool = True
+    """Plan-line correction: after the heading, also shift the frame across the matched walls (beyond the
+    thesis, which corrects the heading only); needs wall thickness in `plan_walls` to match wall faces."""
+    line_good_fraction: float = 0.6
+    """Plan-line correction: a frame whose lines lie on plan walls for less than this share of their length
+    after the correction is retried from other start headings (`heading_search_deg`)."""
+    heading_search_deg: tuple[float, ...] = (20.0, 40.0, 60.0)
+    """Plan-line correction: start headings tried on either side of eq 3.17's for poorly fitting frames."""
+    drift_penalty_m_per_m: float = 2.0
+    """Plan-line correction: a placement's agreement with the plan (metres of wall line) is lowered by this
+    much per metre its track drift departs from the median drift of its neighbours in time."""
+    track_drift_model: bool = True
+    """Plan-line correction, then one drift model per capture (beyond the thesis): the track's drift over the
+    capture is fitted (a 2D similarity and a heading drift) to the directions the frames' walls pin (`track_drift`), and
+    every frame is placed by it and fitted to the walls once more, within `track_refit_max_shift_m`."""
+    track_drift_prior: tuple[float, float] = (0.05, 5.0)
+    """Drift model prior: standard deviations of its scale/rotation terms (fraction, radians) and of its
+    shift (m) around the track itself; they hold what no frame pins."""
+    track_heading_rate_prior_deg_s: float = 0.05
+    """Drift model: standard deviation of its heading drift rate (the gyro z bias of a MEMS IMU, deg/s)."""
+    track_drift_sigma_m: float = 0.05
+    """Drift model: standard deviation of a frame's plan-fitted position in a pinned direction."""
+    track_drift_rounds: int = 3
+    """Drift model: rounds of fitting the model and fitting the frames placed by it to the walls again."""
+    track_pin_length_m: float = 1.0
+    """Drift model: the wall length (m) a frame must see across a direction for its position to count fully
+    in that direction (less counts in proportion)."""
+    track_refit_max_shift_m: float = 0.3
+    """Drift model: a frame fitted to the walls again may move at most this far from the model's placement
+    (else the model's placement stands); also the robust scale of the model's residuals."""
+    wall_band_m: tuple[float, float] = (0.3, 2.0)
+    """Height band above the floor whose points form the projected wall image."""
+
+
+@dataclass(frozen=True)
+class SfmConfig:
+    """Settings of the sfm stage (section `sfm` of the config tree)."""
+
+    matching: Literal["auto", "sequential", "exhaustive"] = "auto"
+    """Pairing: sequential (video-like captures), exhaustive, or auto = exhaustive up to
+    `exhaustive_max_frames` frames, sequential beyond."""
+    exhaustive_max_frames: int = 40
+    """Largest frame count matched exhaustively by `matching="auto"`."""
+    sequential_overlap: int = 10
+    """Sequential matching: each frame is matched with this many following frames."""
+    loop_keyframe_stride: int = 5
+    """Loop closures (sequential matching): every n-th frame is also matched with every other n-th frame
+    farther apart than the overlap (0 = off). Stands in for vocabulary-tree loop detection, whose tree
+    would have to be downloaded."""
+    loop_max_keyframes: int = 30
+    """At most this many loop key frames (the stride grows for long captures: pairs grow with its square)."""
+    max_image_size_px: int = 1024
+    """Frames larger than this (longest side) are downscaled for feature extraction."""
+    max_num_features: int = 4096
+    """SIFT features per frame."""
+    min_num_matches: int = 15
+    """Fewest verified matches for an image pair to count in mapping."""
+    fix_intrinsics: bool = True
+    """Hold the given RGB intrinsics fixed in bundle adjustment; False starts from them and refines focal
+    length and principal point (for intrinsics that are only nominal)."""
+    uncalibrated_camera_model: str = "SIMPLE_RADIAL"
+    """COLMAP camera model estimated when no calibrated camera is given."""
+    num_threads: int = 1
+    """Threads for extraction, matching and mapping. 1 makes runs repeatable (a cache key must mean one
+    result; with 2 threads one CI run in a few mapped a room wrongly); the building flow already runs
+    rooms in parallel."""
+    random_seed: int = 0
+    """Seed of COLMAP's RANSAC and mapper."""
+    min_registered_fraction: float = 0.5
+    """Below this share of registered frames the reconstruction counts as failed (`SfmResult.ok`)."""
+    min_frames: int = 3
+    """Fewer frames than this is an error: no reconstruction can be made."""
+
+
+@dataclass(frozen=True)
+class ScaleConfig:
+    """Settings of the scale stage (section `scale` of the config tree)."""
+
+    ransac_iterations: int = 200
+    """RANSAC draws of 3 correspondences per frame."""
+    inlier_threshold_m: float = 0.03
+    """A correspondence is an inlier when its residual after the similarity is below this plus
+    `inlier_threshold_rel` times its depth."""
+    inlier_threshold_rel: float = 0.02
+    """Depth-proportional part of the inlier threshold (Kinect range noise grows with distance)."""
+    min_points_per_frame: int = 8
+    """Fewest SfM points with a depth measurement for a frame to estimate a scale."""
+    min_inlier_fraction: float = 0.5
+    """A frame whose best similarity explains fewer of its correspondences is not used."""
+    depth_window_px: int = 1
+    """Half size of the window around an observation in which the depth (projected into RGB) is read."""
+    depth_stride: int = 0
+    """Back-project every n-th depth pixel in each direction (0 = about 320 columns: 2 at 640x480); the
+    window above still catches a projected point at the RGB pixels."""
+    max_depth_step_m: float = 0.05
+    """Observations whose depth window spans more than this (a depth edge) are skipped."""
+    min_depth_m: float = 0.3
+    """Nearer depth readings are ignored."""
+    max_depth_m: float = 6.0
+    """Farther depth readings are ignored."""
+    scale_from: Literal["range", "helmert"] = "range"
+    """A frame's scale: "helmert" = λ of its eq 3.16 fit; "range" = the median ratio, over the correspondences
+    that fit agrees with, of the depth measured along the ray to the SfM depth of the point in that frame.
+    The similarity's λ also follows the lateral extent of the points, which inherits any error of the
+    colour intrinsics and of the depth/colour registration (on 7-Scenes, whose colour intrinsics are only
+    nominal, "helmert" was 1.9 % off the given poses and "range" 0.3 %)."""
+    scale_formula: Literal["asymmetric", "symmetric"] = "asymmetric"
+    """Horn's scale formula (see `horn_similarity`): asymmetric = errors in the depth points."""
+    combine: Literal["median", "trimmed_mean"] = "median"
+    """How the per-frame scales are combined."""
+    trim_fraction: float = 0.2
+    """Share cut from each end for `combine="trimmed_mean"`."""
+    min_frames: int = 1
+    """Fewest frames with a scale; fewer is an error."""
+    random_seed: int = 0
+    """Seed of the RANSAC draws."""

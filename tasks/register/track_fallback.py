@@ -1,0 +1,463 @@
+"""Track-based fallback (thesis 3.2.2) when SfM registers too few frames (a texture-poor hallway): each frame
+is levelled by its floor normal (3.2.2.4), turned toward the next point of the foot-mounted IMU track and
+put at the track position (eq 3.17, 3.18), and, when the plan walls are given, its heading corrected by
+making its Hough lines parallel to the coarse plan's walls (3.2.2.6); beyond the thesis, the track's drift
+over the capture is modelled and every frame fitted to the walls' faces once more."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from tasks.camera import Calibration, CameraModel
+from tasks.cloud import DegenerateInputError
+from tasks.register.config import RegisterConfig
+from tasks.register.fusion import frame_points
+from tasks.register.plan_icp import PlanFit, fit_to_plan, icp_to_plan, plan_faces
+
+
+def depth_normals(
+    depth_m: NDArray[np.floating], camera: CameraModel, step: int | None = None
+) -> tuple[NDArray, NDArray]:
+    """((N, 3) points, (N, 3) unit normals facing the camera) on a grid of every `step`-th depth pixel
+    (default: about 160 columns), the normals from the cross product of neighbouring points' differences."""
+    d = np.asarray(depth_m, dtype=np.float64)
+    step = step or max(1, round(d.shape[1] / 160))
+    rays = camera.pixel_rays()
+    z = np.where(np.isfinite(d) & (d > 0), d, np.nan)
+    P = np.concatenate([rays * z[..., None], z[..., None]], axis=2)[::step, ::step]
+    dx = P[1:-1, 2:] - P[1:-1, :-2]
+    dy = P[2:, 1:-1] - P[:-2, 1:-1]
+    n = np.cross(dx, dy)
+    c = P[1:-1, 1:-1]
+    norm = np.linalg.norm(n, axis=2)
+    ok = np.isfinite(norm) & (norm > 0) & np.isfinite(c).all(axis=2)
+    n = n[ok] / norm[ok][:, None]
+    c = c[ok]
+    flip = (n * c).sum(axis=1) > 0
+    n[flip] *= -1
+    return c, n
+
+
+def level_frame(
+    depth_m: NDArray[np.floating], camera: CameraModel, cfg: RegisterConfig
+) -> tuple[NDArray[np.float64], float, int] | None:
+    """The floor of one frame (3.2.2.4): points whose normal is within the tolerance of the vertical are
+    floor candidates, the lowest layer of them is fitted with a plane, and the fit is refined with a
+    halved tolerance on each pass. Returns ((3,) up direction in the camera frame, camera height above the
+    floor (m), floor points) or None when too few floor points are seen."""
+    pts, nrm = depth_normals(depth_m, camera)
+    if len(pts) < cfg.floor_min_points:
+        return None
+    up = np.array([0.0, -1.0, 0.0])  # a level camera's up is minus the image y
+    tol = np.radians(cfg.floor_angle_tol_deg)
+    floor = None
+    for _ in range(max(cfg.floor_passes, 1)):
+        cand = nrm @ up > np.cos(tol)
+        if cand.sum() < cfg.floor_min_points:
+            return None
+        h = -(pts[cand] @ up)  # height below the camera
+        # the floor is the lowest horizontal layer: tables and seats lie above it
+        low = h > np.percentile(h, 90) - 0.15
+        floor = pts[cand][low]
+        if len(floor) < cfg.floor_min_points:
+            return None
+        c = floor.mean(axis=0)
+        _, _, vt = np.linalg.svd(floor - c, full_matrices=False)
+        n = vt[2]
+        if n @ up < 0:
+            n = -n
+        res = np.abs((floor - c) @ n)
+        inl = res < max(3.0 * np.median(res), 0.01)
+        c = floor[inl].mean(axis=0)
+        _, _, vt = np.linalg.svd(floor[inl] - c, full_matrices=False)
+        n = vt[2] if vt[2] @ up > 0 else -vt[2]
+        up = n
+        tol = tol / 2
+    height = float(-(c @ up))
+    if height <= 0:
+        return None
+    return up, height, len(floor)
+
+
+def _interp_track(track: NDArray[np.float64], t_ns: int) -> NDArray[np.float64]:
+    t = track[:, 0].astype(np.float64)
+    return np.array([np.interp(float(t_ns), t, track[:, 1]), np.interp(float(t_ns), t, track[:, 2])])
+
+
+def track_heading(track: NDArray[np.float64], t_ns: int, min_step_m: float) -> float:
+    """eq 3.17: the direction from the track position at `t_ns` to the next track point at least
+    `min_step_m` away (the last heading before it at the end of the track), radians."""
+    here = _interp_track(track, t_ns)
+    later = track[track[:, 0] > t_ns, 1:3]
+    far = np.linalg.norm(later - here, axis=1) >= min_step_m
+    if far.any():
+        d = later[np.argmax(far)] - here
+    else:
+        earlier = track[track[:, 0] <= t_ns, 1:3]
+        far = np.linalg.norm(earlier - here, axis=1) >= min_step_m
+        if not far.any():
+            raise DegenerateInputError("the IMU track does not move: no heading for the fallback (eq 3.17)")
+        d = here - earlier[np.flatnonzero(far)[-1]]
+    return float(np.arctan2(d[1], d[0]))
+
+
+def track_pose(
+    up_cam: NDArray[np.float64], height_m: float, yaw_rad: float, xy: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Depth camera → plan (4, 4) from the levelling (up in the camera frame, camera height) and eq 3.17-3.18:
+    the camera's optical axis, levelled, points along `yaw_rad`; the camera stands at `xy`, `height_m` above
+    the floor (z = 0)."""
+    u = up_cam / np.linalg.norm(up_cam)
+    f = np.array([0.0, 0.0, 1.0]) - u[2] * u
+    f /= np.linalg.norm(f)
+    left = np.cross(u, f)
+    cam_basis = np.stack([f, left, u], axis=1)  # columns: forward, left, up in camera coordinates
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    world_basis = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # the same directions in the plan
+    T = np.eye(4)
+    T[:3, :3] = world_basis @ cam_basis.T
+    T[:3, 3] = [xy[0], xy[1], height_m]
+    return T
+
+
+def place_by_track(
+    frames: Iterable[tuple[int, int, NDArray[np.floating]]],
+    track: NDArray[np.float64],
+    calibration: Calibration,
+    cfg: RegisterConfig,
+    plan_walls: NDArray[np.float64] | None = None,
+) -> tuple[dict[int, NDArray[np.float64]], dict[str, Any]]:
+    """The track-based fallback (3.2.2): frames (frame_id, t_ns, (H, W) depth m) are levelled by their floor
+    (3.2.2.4), placed by the track (eq 3.17 heading toward the next track point, eq 3.18 translation) and,
+    with plan walls ((M, 4) x0 y0 x1 y1 or (M, 5) with thickness, plan frame), their heading corrected by
+    line parallelism (3.2.2.6). Returns (frame_id -> (4, 4) depth camera → plan, metrics)."""
+    track = np.asarray(track, dtype=np.float64)
+    if track.ndim != 2 or track.shape[1] != 3 or len(track) < 2:
+        raise DegenerateInputError(f"the IMU track must be (K>=2, 3) t_ns x y, got shape {track.shape}")
+    track = track[np.argsort(track[:, 0])]
+    use_plan = plan_walls is not None and len(plan_walls) > 0
+    levels, times, cam_points = _level_frames(frames, calibration, cfg, use_plan)
+    fits = [v for v in levels.values() if v is not None]
+    if not fits:
+        raise DegenerateInputError(
+            f"no floor found in any of {len(levels)} frames: cannot level them for the fallback"
+        )
+    default_up = np.median(np.array([f[0] for f in fits]), axis=0)
+    default_up /= np.linalg.norm(default_up)
+    default_h = float(np.median([f[1] for f in fits]))
+    t_lo, t_hi = track[0, 0], track[-1, 0]
+    inside = [f for f in times if t_lo <= times[f] <= t_hi]
+    start = _TrackStart(track, times, levels, default_up, default_h, cfg)
+    poses = {fid: start.pose(fid, np.zeros(2)) for fid in inside}
+    angles: dict[int, float] = {}
+    restarted = searched = 0
+    drift_metrics: dict[str, Any] = {}
+    if use_plan:
+        plan = _PlanPlacement(start, cam_points, np.asarray(plan_walls, dtype=np.float64), inside, poses)
+        restarted = plan.restart_from_neighbours()
+        searched = plan.search_headings()
+        if cfg.track_drift_model and inside:
+            drift_metrics = plan.fit_drift_model()
+        poses = {f: plan.fit[f].T for f in inside}
+        angles = {f: plan.fit[f].angle + plan.starts[f] for f in inside}
+    metrics = {
+        "track_frames": len(poses),
+        "frames_outside_track": len(times) - len(inside),
+        "frames_levelled_by_own_floor": len(fits),
+        "frames_restarted_from_neighbours": restarted,
+        "frames_heading_searched": searched,
+        "camera_height_m": default_h,
+        "heading_corrections_deg": [round(float(np.degrees(angles.get(f, 0.0))), 2) for f in inside],
+        "drift_model": drift_metrics,
+    }
+    return poses, metrics
+
+
+def _level_frames(
+    frames: Iterable[tuple[int, int, NDArray[np.floating]]],
+    calibration: Calibration,
+    cfg: RegisterConfig,
+    use_plan: bool,
+) -> tuple[dict[int, tuple[NDArray, float] | None], dict[int, int], dict[int, NDArray[np.float64]]]:
+    """One pass over the frames: each one's levelling (up direction, camera height; None without a floor),
+    its time, and, when the plan is used, its thinned (N, 3) depth-camera points for the wall-line work."""
+    levels: dict[int, tuple[NDArray, float] | None] = {}
+    times: dict[int, int] = {}
+    # wall-line work needs each frame's points (thinned) once more after all frames are levelled
+    line_cfg = RegisterConfig(**{**cfg.__dict__, "pixel_stride": max(cfg.pixel_stride, 3)})
+    cam_points: dict[int, NDArray[np.float64]] = {}
+    for frame_id, t_ns, depth in frames:
+        fid = int(frame_id)
+        lv = level_frame(depth, calibration.ir, cfg)
+        levels[fid] = None if lv is None else (lv[0], lv[1])
+        times[fid] = int(t_ns)
+        if use_plan:
+            cam_points[fid] = frame_points(depth, calibration, line_cfg).astype(np.float32)
+    return levels, times, cam_points
+
+
+class _TrackStart:
+    """Where the track puts a frame (eq 3.17-3.18), levelled by its own floor or the capture's median one."""
+
+    def __init__(
+        self,
+        track: NDArray[np.float64],
+        times: dict[int, int],
+        levels: dict[int, tuple[NDArray, float] | None],
+        default_up: NDArray[np.float64],
+        default_h: float,
+        cfg: RegisterConfig,
+    ) -> None:
+        self.track, self.times, self.levels = track, times, levels
+        self.default_up, self.default_h, self.cfg = default_up, default_h, cfg
+
+    def position(self, fid: int) -> NDArray[np.float64]:
+        """(2,) the track's position at the frame's time."""
+        return _interp_track(self.track, self.times[fid])
+
+    def pose(self, fid: int, offset: NDArray[np.float64], dyaw: float = 0.0) -> NDArray[np.float64]:
+        """(4, 4) depth camera → plan at the track position + `offset`, turned by `dyaw` from eq 3.17."""
+        up, h = self.levels[fid] or (self.default_up, self.default_h)
+        yaw = track_heading(self.track, self.times[fid], self.cfg.track_min_step_m) + dyaw
+        return track_pose(up, h, yaw, self.position(fid) + offset)
+
+
+class _PlanPlacement:
+    """The frames' fits to the plan walls (3.2.2.6) and the passes that improve them: restarts from the
+    neighbours' track drift, other start headings, and the capture's drift model with an ICP refit."""
+
+    def __init__(
+        self,
+        start: _TrackStart,
+        cam_points: dict[int, NDArray[np.float64]],
+        walls: NDArray[np.float64],
+        inside: list[int],
+        poses: dict[int, NDArray[np.float64]],
+    ) -> None:
+        self.start, self.cam_points, self.walls, self.cfg = start, cam_points, walls, start.cfg
+        self.fit = {fid: fit_to_plan(poses[fid], cam_points[fid], walls, self.cfg) for fid in inside}
+        self.starts = dict.fromkeys(inside, 0.0)
+        self.order = sorted(inside, key=lambda f: start.times[f])
+
+    def drift_of(self, f: int) -> NDArray[np.float64]:
+        """(2,) the frame's plan-fitted position less the track's."""
+        return self.fit[f].T[:2, 3] - self.start.position(f)
+
+    def neighbour_drift(self, k: int) -> NDArray[np.float64] | None:
+        """Median drift of the two frames either side of the k-th in time (None when there are none)."""
+        order = self.order
+        near = [self.drift_of(order[j]) for j in (k - 2, k - 1, k + 1, k + 2) if 0 <= j < len(order)]
+        return np.median(np.array(near), axis=0) if near else None
+
+    def merit(self, score: float, drift: NDArray[np.float64], prior: NDArray[np.float64] | None) -> float:
+        """Agreement with the plan, less a penalty for leaving the drift of the neighbours: a frame that
+        sees one corridor wall fits the plan as well one corridor width off."""
+        return score - (
+            0.0 if prior is None else self.cfg.drift_penalty_m_per_m * float(np.linalg.norm(drift - prior))
+        )
+
+    def retry(
+        self, fid: int, offset: NDArray[np.float64], dyaw: float, prior: NDArray[np.float64] | None
+    ) -> bool:
+        """Fit the frame again from another start; kept (True) when its merit is clearly better."""
+        cfg, fit = self.cfg, self.fit
+        new = fit_to_plan(self.start.pose(fid, offset, dyaw), self.cam_points[fid], self.walls, cfg)
+        gain = self.merit(new.score, new.T[:2, 3] - self.start.position(fid), prior)
+        if gain > self.merit(fit[fid].score, self.drift_of(fid), prior) + 0.5 * cfg.line_min_length_m:
+            fit[fid], self.starts[fid] = new, dyaw
+            return True
+        return False
+
+    def fits_well(self, f: int) -> bool:
+        return self.fit[f].score >= self.cfg.line_good_fraction * self.fit[f].length
+
+    def restart_from_neighbours(self) -> int:
+        """A frame whose wall lines lay too far from the plan for its position to be fixed starts again from
+        the track drift its neighbours in time measured (the drift changes slowly); the placement whose
+        lines agree better with the plan is kept. Returns how many restarts were kept."""
+        order, restarted = self.order, 0
+        for _sweep in range(2):
+            for k, fid in enumerate(order):
+                for j in (k - 1, k + 1, k - 2, k + 2):
+                    if (
+                        0 <= j < len(order)
+                        and np.linalg.norm(self.drift_of(order[j]) - self.drift_of(fid))
+                        >= 2 * self.cfg.voxel_size_m
+                    ):
+                        restarted += self.retry(fid, self.drift_of(order[j]), self.starts[fid], None)
+        return restarted
+
+    def search_headings(self) -> int:
+        """Frames still fitting poorly may look far off the walking direction (eq 3.17): other start
+        headings are tried, and kept only when the frame then fits the plan well. Returns the frames
+        searched."""
+        fit, starts, searched = self.fit, self.starts, 0
+        for k, fid in enumerate(self.order):
+            if self.fits_well(fid):
+                continue
+            searched += 1
+            keep = (fit[fid], starts[fid])
+            offset = self.drift_of(fid)
+            changed = False
+            for step in self.cfg.heading_search_deg:
+                for sign in (1.0, -1.0):
+                    changed |= self.retry(fid, offset, sign * np.radians(step), self.neighbour_drift(k))
+            if changed and not self.fits_well(fid):
+                fit[fid], starts[fid] = keep
+        return searched
+
+    def fit_drift_model(self) -> dict[str, Any]:
+        """One drift model for the whole capture (`track_drift`): each frame pins its position only across the
+        walls it sees (along a corridor it is free), so the frames that see end walls or door jambs correct
+        the track's scale and heading drift for all the others. Placed by the model, every frame is fitted
+        to the wall faces point by point (ICP): short wall pieces and door jambs that gave no Hough line then
+        pin it along a corridor too, and the model is fitted again. Returns the model's metrics."""
+        cfg, fit, order = self.cfg, self.fit, self.order
+        xy = np.array([self.start.position(f) for f in order])
+        t_s = np.array([self.start.times[f] for f in order], dtype=np.float64) * 1e-9
+        placed = np.array([fit[f].T[:2, 3] for f in order])
+        good = [self.fits_well(f) and fit[f].score >= cfg.line_min_length_m for f in order]
+        info = np.array(
+            [
+                _pinning(fit[f].information, cfg.track_pin_length_m) if g else np.zeros((2, 2))
+                for f, g in zip(order, good, strict=True)
+            ]
+        )
+        base = dict(fit)
+        faces = plan_faces(self.walls)
+        reach = cfg.track_refit_max_shift_m
+        drift_metrics: dict[str, Any] = {}
+        for _round in range(cfg.track_drift_rounds):
+            model, drift_metrics = track_drift(xy, t_s, placed, info, cfg)
+            refitted = 0
+            for k, (f, p) in enumerate(zip(order, model, strict=True)):
+                refitted += self._refit(k, f, p, base[f], faces, reach, placed, info)
+            drift_metrics["frames_refitted"] = refitted
+            # a frame the walls pull far from a model that fits the others well matched a wrong wall
+            spread = drift_metrics["residual_spread_m"] or reach
+            reach = min(cfg.track_refit_max_shift_m, max(3 * spread, 2 * cfg.track_drift_sigma_m))
+        return drift_metrics
+
+    def _refit(
+        self,
+        k: int,
+        f: int,
+        p: NDArray[np.float64],
+        base: PlanFit,
+        faces: tuple[NDArray[np.float64], NDArray[np.float64]],
+        reach: float,
+        placed: NDArray[np.float64],
+        info: NDArray[np.float64],
+    ) -> bool:
+        """The k-th frame (id f) put at the drift model's position p and fitted to the wall faces by ICP;
+        kept (True) when it moves at most `reach`. Updates its fit and its row of `placed` and `info`."""
+        cfg = self.cfg
+        T0 = base.T.copy()
+        T0[:2, 3] = p
+        T1, H, n, total = icp_to_plan(T0, self.cam_points[f], faces, cfg, reach)
+        if n < cfg.line_good_fraction * total:
+            # placed well, a frame fitting the walls poorly looks elsewhere than its start heading
+            # says (eq 3.17 follows the walk): all headings are tried
+            for dyaw in np.radians(np.arange(30.0, 360.0, 30.0)):
+                T2, H2, n2, _ = icp_to_plan(_turn(T0, dyaw), self.cam_points[f], faces, cfg, reach)
+                if n2 > max(n, cfg.line_good_fraction * total):
+                    T1, H, n = T2, H2, n2
+        shift = float(np.linalg.norm(T1[:2, 3] - p))
+        if n >= 10 and shift <= reach:
+            turned = T1[:3, :3] @ base.T[:3, :3].T
+            self.fit[f] = base._replace(T=T1, angle=base.angle + np.arctan2(turned[1, 0], turned[0, 0]))
+            placed[k], info[k] = T1[:2, 3], _pinning(H, cfg.track_pin_length_m / cfg.line_cell_m)
+            return True
+        self.fit[f] = base._replace(T=T0)
+        placed[k], info[k] = p, 0.0
+        return False
+
+
+def _turn(T: NDArray[np.float64], yaw_rad: float) -> NDArray[np.float64]:
+    """T (camera → plan) turned by `yaw_rad` about the vertical through the camera."""
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    D = np.eye(4)
+    D[:2, :2] = [[c, -s], [s, c]]
+    D[:2, 3] = T[:2, 3] - D[:2, :2] @ T[:2, 3]
+    return D @ T
+
+
+def _pinning(information: NDArray[np.float64], saturation: float) -> NDArray[np.float64]:
+    """(2, 2) information (sum of n n^T over lines (by length) or points) → pinning in [0, 1] per direction:
+    its eigenvalues divided by `saturation` and capped at 1 (a frame seeing much of one wall is not
+    surer of its position than one seeing enough of it: the plan is coarse)."""
+    vals, vecs = np.linalg.eigh(np.asarray(information, dtype=np.float64))
+    return (vecs * np.clip(vals / saturation, 0.0, 1.0)) @ vecs.T
+
+
+def track_drift(
+    track_xy: NDArray[np.float64],
+    t_s: NDArray[np.float64],
+    placed_xy: NDArray[np.float64],
+    information: NDArray[np.float64],
+    cfg: RegisterConfig,
+) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    """The track's drift over one capture (beyond the thesis). A foot-mounted IMU's position error over a
+    capture comes from its stride-scale error and its heading error, which grows with the gyro bias:
+    true increments ≈ s R(ψ0 + ψ1 τ) (track increments), τ the time from the capture's middle. To first
+    order in ψ1 that is linear: true_i ≈ c + t + s R(ψ0) (track_i − c) + ψ1 g_i, with
+    g_i = R(ψ0) J Σ_{j<i} τ_j Δtrack_j (J: a quarter turn; c: the track's centroid).
+
+    The frames (N, in time order; track positions and times (N,) s) are fitted by iteratively reweighted
+    least squares to their plan-fitted positions (N, 2), each counting only in the directions its walls
+    pin (`information`, (N, 2, 2) pinning in [0, 1], see `_pinning`; zeros for frames that did not fit),
+    with a weak prior at the track itself so that what no frame pins stays as the track has it.
+    Returns (the model's positions (N, 2), metrics)."""
+    track_xy = np.asarray(track_xy, dtype=np.float64)
+    n = len(track_xy)
+    c = track_xy.mean(axis=0)
+    u = track_xy - c
+    tau = np.asarray(t_s, dtype=np.float64) - 0.5 * (np.min(t_s) + np.max(t_s))
+    steps = np.diff(track_xy, axis=0) * (0.5 * (tau[1:] + tau[:-1]))[:, None]
+    swept = np.vstack([np.zeros(2), np.cumsum(steps, axis=0)])
+    swept = np.column_stack([-swept[:, 1], swept[:, 0]])  # J applied
+    rows = np.zeros((n, 2, 5))
+    rows[:, 0, :4] = np.column_stack([u[:, 0], -u[:, 1], np.ones(n), np.zeros(n)])
+    rows[:, 1, :4] = np.column_stack([u[:, 1], u[:, 0], np.zeros(n), np.ones(n)])
+    d = np.asarray(placed_xy, dtype=np.float64) - track_xy
+    H = np.asarray(information, dtype=np.float64)
+    used = np.trace(H, axis1=1, axis2=2) > 0
+    sig_s, sig_t = cfg.track_drift_prior
+    sig_rate = np.radians(cfg.track_heading_rate_prior_deg_s)
+    prior = np.diag([1 / sig_s**2, 1 / sig_s**2, 1 / sig_t**2, 1 / sig_t**2, 1 / sig_rate**2])
+    line_var = cfg.track_drift_sigma_m**2
+    w = np.ones(n)
+    theta = np.zeros(5)
+    r = np.zeros(n)
+    locked = prior.copy()
+    locked[4, 4] = 1e12
+    # the similarity first (its rate locked), then with the heading drift: from the track alone the drift
+    # rate is the weakest term and would otherwise absorb the first passes' outliers
+    for i, robust_m in enumerate(np.geomspace(16 * cfg.track_drift_sigma_m, 2 * cfg.track_drift_sigma_m, 20)):
+        psi0 = np.arctan2(theta[1], 1 + theta[0])
+        rot = np.array([[np.cos(psi0), -np.sin(psi0)], [np.sin(psi0), np.cos(psi0)]])
+        rows[:, :, 4] = swept @ rot.T
+        A = (locked if i < 10 else prior) + np.einsum("n,nji,njk,nkl->il", w / line_var, rows, H, rows)
+        b = np.einsum("n,nji,njk,nk->i", w / line_var, rows, H, d)
+        theta = np.linalg.solve(A, b)
+        e = np.einsum("nij,j->ni", rows, theta) - d
+        r = np.sqrt(np.maximum(np.einsum("ni,nij,nj->n", e, H, e), 0.0))
+        w = 1.0 / (1.0 + (r / robust_m) ** 2)  # Cauchy, annealed: frames fitted to a wrong wall lose weight
+    model = track_xy + np.einsum("nij,j->ni", rows, theta)
+
+    eig = np.linalg.eigvalsh(H[used].sum(axis=0)) if used.any() else np.zeros(2)
+    metrics = {
+        "scale": round(float(np.hypot(1 + theta[0], theta[1])), 5),
+        "angle_deg": round(float(np.degrees(np.arctan2(theta[1], 1 + theta[0]))), 3),
+        "heading_rate_deg_s": round(float(np.degrees(theta[4])), 4),
+        "shift_m": [round(float(v), 4) for v in theta[2:4]],
+        "frames_used": int(used.sum()),
+        "residual_spread_m": round(float(1.4826 * np.median(r[used])), 4) if used.any() else None,
+        "frames_pinned_both_ways": int((np.linalg.eigvalsh(H)[:, 0] > 0.5).sum()),
+        "pinning_eigenvalues": [round(float(v), 2) for v in eig],
+    }
+    return model, metrics
