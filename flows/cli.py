@@ -80,6 +80,16 @@ def _add_work(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_private_work(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--work",
+        type=Path,
+        default=None,
+        help="stage cache: the verb runs the pipeline's own stages there, so a repeat recomputes nothing "
+        "(default: OUT/.cache)",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="indoor-survey",
@@ -119,7 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("cloud", type=Path, help="registered room cloud (PLY or PCD, metres)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument("--work", type=Path, default=None, help="stage cache (default: OUT/.cache)")
+    _add_private_work(p)
     _add_config_args(p)
 
     p = sub.add_parser(
@@ -166,6 +176,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--flat", default=None, metavar="GLOB", help="raw disparity frames of a flat target")
     p.add_argument("--distances", default=None, help="their distances in metres, comma separated")
     p.add_argument("--out", type=Path, required=True, help="output folder")
+    _add_private_work(p)
 
     p = sub.add_parser(
         "parse-plan",
@@ -177,6 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
         "image", type=Path, help="plan raster (PNG or JPG): an evacuation plan photo or a CAD drawing"
     )
     p.add_argument("--out", type=Path, required=True)
+    _add_private_work(p)
     scale = p.add_mutually_exclusive_group(required=True)
     scale.add_argument("--m-per-px", type=float, help="metres per pixel")
     scale.add_argument(
@@ -192,6 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("capture", type=Path)
     p.add_argument("--out", type=Path, required=True)
+    _add_private_work(p)
     p.add_argument("--intrinsics", default=None, metavar="FX,FY,CX,CY", help="pinhole intrinsics (pixels)")
     p.add_argument(
         "--depth-scale", type=float, default=None, metavar="UNITS_PER_M", help="depth units per metre"
@@ -307,14 +320,13 @@ def cmd_config(args: argparse.Namespace) -> int:
 def cmd_model_room(args: argparse.Namespace) -> int:
     import json
 
-    from flows import planning
+    from flows import oneoff
     from tasks import config as cfgmod
 
     cfg = cfgmod.load_config(args.config, args.set)
     if not args.cloud.is_file():
         raise CliError(f"{args.cloud}: no such file")
-    work = args.work or args.out / ".cache"
-    metrics = planning.model_room(args.cloud, args.out, cfg, work)
+    metrics = oneoff.model_room(args.cloud, args.out, args.work, cfg)
     walls = metrics["walls"]
     pre = metrics["preprocess"]
     print(
@@ -362,7 +374,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from tasks.calibrate.stage import run_calibrate
+    from flows import oneoff
 
     distances = None
     if args.distances:
@@ -370,8 +382,14 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             distances = [float(v) for v in args.distances.split(",")]
         except ValueError as exc:
             raise CliError(f"--distances {args.distances!r}: expected metres separated by commas") from exc
-    path = run_calibrate(
-        args.ir, args.rgb, args.pattern, args.out, flat_glob=args.flat, known_distances=distances
+    path = oneoff.calibrate(
+        args.out,
+        args.ir,
+        args.rgb,
+        args.pattern,
+        flat_glob=args.flat,
+        known_distances=distances,
+        work=args.work,
     )
     print(f"calibration written to {path}")
     return 0
@@ -380,8 +398,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 def cmd_parse_plan(args: argparse.Namespace) -> int:
     import json
 
-    from tasks.plan.config import PlanScale
-    from tasks.plan.stage import run_parse_plan
+    from flows import oneoff
 
     known = None
     if args.known_distance:
@@ -393,8 +410,9 @@ def cmd_parse_plan(args: argparse.Namespace) -> int:
             raise CliError(
                 f"--known-distance {args.known_distance!r}: expected five numbers x0,y0,x1,y1,metres"
             )
-    scale = PlanScale(m_per_px=args.m_per_px, known_distance=known, outline_length_m=args.outline_length)
-    report = run_parse_plan(args.image, args.out, scale)
+    report = oneoff.parse_plan(
+        args.image, args.out, args.m_per_px, known, args.outline_length, work=args.work
+    )
     keep = {k: v for k, v in report.items() if isinstance(v, int | float | str)}
     print(json.dumps(keep, indent=2))
     return 0
@@ -403,16 +421,22 @@ def cmd_parse_plan(args: argparse.Namespace) -> int:
 def cmd_register_room(args: argparse.Namespace) -> int:
     import json
 
-    from tasks.register.stage import run_register_room
+    from flows import oneoff
+    from tasks import config as cfgmod
 
-    report = run_register_room(
-        args.capture,
-        args.out,
-        intrinsics=args.intrinsics,
-        depth_units_per_m=args.depth_scale,
-        calibration_path=args.calibration,
-        profile_name=args.sensor,
-    )
+    sets = []
+    if args.intrinsics is not None:
+        try:
+            values = [float(v) for v in args.intrinsics.split(",")]
+        except ValueError:
+            values = []
+        if len(values) != 4:
+            raise CliError(f"--intrinsics {args.intrinsics!r}: expected fx,fy,cx,cy in pixels")
+        sets.append(f"ingest.intrinsics_px={values}")
+    if args.depth_scale is not None:
+        sets.append(f"ingest.tum_depth_units_per_m={float(args.depth_scale)}")
+    cfg = cfgmod.load_config([], sets)
+    report = oneoff.register_room(args.capture, args.out, args.sensor, args.calibration, args.work, cfg)
     print(json.dumps(report, indent=2, default=str))
     return 0
 

@@ -148,7 +148,9 @@ def building_flow(req: RunRequest) -> list[StageOutcome]:
     results = {(r.room, r.stage): r.result for r in rows if r.result is not None}
     results.update(current_results(plan, plan.others))  # rooms outside the request: read, never run
     failures = room_failures(rows)
-    finished = {ref[1]: Executed(result, "stored", 0.0) for ref, result in results.items() if ref[0] == BUILDING}
+    finished = {
+        ref[1]: Executed(result, "stored", 0.0) for ref, result in results.items() if ref[0] == BUILDING
+    }
     for item in plan.after:
         fan_in = fan_in_for(item, results, failures, survey.room_ids)
         upstream = {name: finished[name] for name in item.upstream if name in finished}
@@ -183,7 +185,9 @@ def outcomes(futures: dict[tuple[str, str], PrefectFuture]) -> list[StageOutcome
         if state.is_completed():
             done: Executed = state.result()
             how = "cached" if state.name == "Cached" else done.how
-            rows.append(StageOutcome(room, stage, how, done.seconds if how == "computed" else 0.0, "", done.result))
+            rows.append(
+                StageOutcome(room, stage, how, done.seconds if how == "computed" else 0.0, "", done.result)
+            )
         elif state.is_failed() or state.is_crashed():
             rows.append(StageOutcome(room, stage, "failed", 0.0, _message(future)))
         else:  # never ran: an upstream stage failed

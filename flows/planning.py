@@ -24,7 +24,6 @@ from tasks.artefacts import (
     sha256_file,
     write_json,
 )
-from tasks.cloud import DegenerateInputError
 from tasks.context import StageContext
 from tasks.ingest.capture import capture_kind
 from tasks.stages import STAGES, downstream_of, load_class, stages_of
@@ -187,8 +186,10 @@ def survey_inputs(
             found[name] = str(room.capture)
         elif survey is None:
             continue
-        elif name == "calibration" and survey.calibration is not None and survey.calibration.is_dir():
-            found[name] = str(survey.calibration)
+        elif name == "calibration" and survey.calibration is not None:
+            # target images (a folder), or a calibration.json made earlier
+            if survey.calibration.is_dir() or survey.calibration.suffix == ".json":
+                found[name] = str(survey.calibration)
         elif name == "plan" and survey.plan is not None:
             found[name] = str(survey.plan.image)
         elif name == "track" and survey.track is not None and survey.track.is_file():
@@ -325,7 +326,10 @@ def plan_survey(
 
 
 def fan_in_for(
-    item: PlannedStage, results: dict[tuple[str, str], StageResult], failures: dict[str, str], room_ids: list[str]
+    item: PlannedStage,
+    results: dict[tuple[str, str], StageResult],
+    failures: dict[str, str],
+    room_ids: list[str],
 ) -> FanIn:
     """A building-after stage's rooms: each room's results of the stages it reads; a room whose chain did
     not finish is failed, with its first error."""
@@ -341,7 +345,9 @@ def fan_in_for(
     return fan
 
 
-def current_results(plan: SurveyPlan, chains: dict[str, list[PlannedStage]]) -> dict[tuple[str, str], StageResult]:
+def current_results(
+    plan: SurveyPlan, chains: dict[str, list[PlannedStage]]
+) -> dict[tuple[str, str], StageResult]:
     """The results of `chains` that are current for today's inputs, config and code, from the store alone
     (building-before results as the plan's own, when they are current)."""
     found: dict[tuple[str, str], StageResult] = {}
@@ -350,7 +356,9 @@ def current_results(plan: SurveyPlan, chains: dict[str, list[PlannedStage]]) -> 
         if any(ref not in found for ref in item.upstream.values()):
             continue
         store = store_for(call.work)
-        hit = store.lookup(call.room, call.stage, cache_key(call, {n: found[r] for n, r in item.upstream.items()}))
+        hit = store.lookup(
+            call.room, call.stage, cache_key(call, {n: found[r] for n, r in item.upstream.items()})
+        )
         if hit is not None:
             found[item.ref] = hit
     return found
@@ -415,7 +423,9 @@ def run_chain(
         call = make_call(work, cfg, profile, room, name)
         stage = STAGES[name]
         given = {k: v for k, v in (raw_inputs or {}).items() if k in stage.raw_inputs}
-        call = replace(call, raw_inputs={**call.raw_inputs, **given}, params={**call.params, **(params or {})})
+        call = replace(
+            call, raw_inputs={**call.raw_inputs, **given}, params={**call.params, **(params or {})}
+        )
         upstream = {n: results[n] for n in stage.upstream if n in results}
         results[name] = execute(call, upstream).result
     store_for(work).save_memo()
@@ -432,24 +442,6 @@ def export(result: StageResult, names: Iterable[str], out_dir: Path) -> list[Pat
             tmp.write_bytes(result.file(name).read_bytes())
         written.append(out_dir / name)
     return written
-
-
-def model_room(cloud: Path, out_dir: Path, cfg: cfgmod.PipelineConfig, work: Path) -> dict[str, Any]:
-    """ingest -> preprocess -> walls on one registered cloud, without Prefect (a one-off tool), through
-    the same cached stages; the room's deliverables and its levelling transform are copied to `out_dir`."""
-    room = cfgmod.RoomSpec("room", Path(cloud).resolve())
-    profile = cfgmod.load_sensor_profile("tls")
-    try:
-        results = run_chain(work, cfg, profile, room_stages(room.capture), room)
-    except ValueError as exc:  # bad input (DegenerateInputError, IngestError...): name the file
-        message = " ".join(str(exc).split())
-        raise DegenerateInputError(message if str(cloud) in message else f"{cloud}: {message}") from exc
-    export(results["walls"], STAGES["walls"].deliverables, out_dir)
-    export(results["preprocess"], ["levelling.json"], out_dir)
-    return {
-        "preprocess": results["preprocess"].manifest.get("metrics", {}),
-        "walls": results["walls"].manifest.get("metrics", {}),
-    }
 
 
 @dataclass(frozen=True)
@@ -478,7 +470,12 @@ def survey_state(req: RunRequest) -> list[StageState]:
         if item.room_upstream:
             chains = {**plan.rooms, **plan.others}
             waiting += sorted(
-                {r for r, chain in chains.items() for i in chain if i.call.stage in item.room_upstream and i.ref not in done}
+                {
+                    r
+                    for r, chain in chains.items()
+                    for i in chain
+                    if i.call.stage in item.room_upstream and i.ref not in done
+                }
             )
         if waiting:
             status = "stale" if previous else "missing"

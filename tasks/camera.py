@@ -28,8 +28,6 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from tasks.calibrate.config import CalibrateConfig
-
 DepthKind = Literal["disparity", "mm", "m", "tum5000"]
 DEPTH_KINDS: tuple[str, ...] = ("disparity", "mm", "m", "tum5000")
 RejectKind = Literal["no_target", "partial", "blurred", "high_residual"]
@@ -548,7 +546,9 @@ def colour_points(
     points_ir: NDArray[np.float64],
     rgb_image: NDArray,
     calib: Calibration,
-    cfg: CalibrateConfig | None = None,
+    occlusion_tol_m: float = 0.02,
+    occlusion_tol_rel: float = 0.02,
+    zbuffer_splat_px: int = 3,
 ) -> tuple[NDArray[np.uint8], NDArray[np.bool_]]:
     """Colour for each IR-frame point from the RGB image (eq 3.14 IR→RGB, eq 3.15 projection with the RGB
     intrinsics and distortion, bilinear sampling).
@@ -556,8 +556,9 @@ def colour_points(
     rgb_image: (H, W, 3) uint8 (colours come back in its channel order) or (H, W) grey, of the calibrated RGB
     size. Returns ((N, 3) uint8 colours, zero where uncoloured; (N,) valid mask). A point is uncoloured when it
     is not finite, behind the RGB camera, projects outside the image, or is hidden from the RGB camera by a
-    nearer point (z-buffer over the projected cloud, each point splatted over `zbuffer_splat_px`)."""
-    cfg = cfg or CalibrateConfig()
+    nearer point (z-buffer over the projected cloud, each point splatted over `zbuffer_splat_px`, odd, so
+    that background points cannot show through the gaps between projected foreground points): farther
+    than `occlusion_tol_m` plus `occlusion_tol_rel` times its depth behind the nearest point there."""
     if calib.rgb is None or calib.ir_to_rgb is None:
         raise ValueError(
             "the calibration has no RGB camera: calibrate with --rgb images or use a sensor profile"
@@ -590,10 +591,10 @@ def colour_points(
     vi = np.rint(uv[idx, 1]).astype(np.intp)
     zbuf = np.full((h, w), np.inf, np.float32)
     np.minimum.at(zbuf, (vi, ui), z[idx].astype(np.float32))
-    k = max(1, int(cfg.zbuffer_splat_px) | 1)
+    k = max(1, int(zbuffer_splat_px) | 1)
     if k > 1:
         zbuf = cv2.erode(zbuf, np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE)
-    tol = cfg.occlusion_tol_m + cfg.occlusion_tol_rel * z[idx]
+    tol = occlusion_tol_m + occlusion_tol_rel * z[idx]
     visible = z[idx] <= zbuf[vi, ui] + tol
     ok[idx[~visible]] = False
     idx = idx[visible]

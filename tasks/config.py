@@ -44,7 +44,9 @@ def _pipeline_config_class() -> type:
     for name, target in config_sections().items():
         cls = load_class(target)
         fields.append((name, cls, field(default_factory=cls)))
-    return dataclasses.make_dataclass("PipelineConfig", fields, frozen=True, module=__name__)
+    cls = dataclasses.make_dataclass("PipelineConfig", fields, frozen=True)
+    cls.__module__ = __name__  # picklable as tasks.config.PipelineConfig
+    return cls
 
 
 PipelineConfig = _pipeline_config_class()

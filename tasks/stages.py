@@ -252,4 +252,3 @@ def code_version(module: str) -> str:
         assert path is not None
         digest.update(name.encode() + b"\0" + path.read_bytes() + b"\0")
     return digest.hexdigest()[:16]
-

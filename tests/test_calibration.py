@@ -15,7 +15,6 @@ from tasks.calibrate.bundle import calibrate_camera, pair_names
 from tasks.calibrate.config import CalibrateConfig
 from tasks.calibrate.disparity import fit_disparity_model
 from tasks.calibrate.files import calibrate_folder, calibrate_images, read_gray
-from tasks.calibrate.stage import run_calibrate
 from tasks.calibrate.targets import TargetPattern, detect_targets, parse_pattern
 from tasks.camera import (
     DEPTH_KINDS,
@@ -279,9 +278,16 @@ def test_pairing_by_number_and_order():
 # Real stereo images (OpenCV's samples): left = "IR", right = "RGB"
 
 
+def calibrate_cli(ir, rgb, pattern, out, **kwargs):
+    """`indoor-survey calibrate` as the CLI runs it (the calibrate stage in a private work dir)."""
+    from flows.oneoff import calibrate
+
+    return calibrate(out, ir, rgb, pattern, **kwargs)
+
+
 def test_real_stereo_calibration(realdata, tmp_path):
     folder = realdata(REAL_STEREO)
-    path = run_calibrate(str(folder / "left*.jpg"), str(folder / "right*.jpg"), CHESS_9x6, tmp_path / "cal")
+    path = calibrate_cli(str(folder / "left*.jpg"), str(folder / "right*.jpg"), CHESS_9x6, tmp_path / "cal")
     assert path == tmp_path / "cal" / "calibration.json"
     d = json.loads(path.read_text())
     assert list(d) == ["ir", "rgb", "ir_to_rgb", "stereo_rms_px", "depth_model"]
@@ -310,7 +316,7 @@ def test_real_stereo_calibration(realdata, tmp_path):
 
 def test_real_mono_calibration(realdata, tmp_path):
     folder = realdata(REAL_STEREO)
-    d = json.loads(run_calibrate(str(folder / "left*.jpg"), None, CHESS_9x6, tmp_path).read_text())
+    d = json.loads(calibrate_cli(str(folder / "left*.jpg"), None, CHESS_9x6, tmp_path).read_text())
     assert list(d) == ["ir", "stereo_rms_px", "depth_model"]
     assert d["stereo_rms_px"] is None and d["depth_model"] is None
     assert abs(d["ir"]["K"][0][0] / 535.9 - 1) < 0.01 and d["ir"]["rms_px"] <= 0.5
@@ -397,13 +403,13 @@ def test_bad_input_unpaired_and_missing_files(realdata, tmp_path):
     with pytest.raises(
         ValueError, match=r"RGB without IR: right11\.jpg, right12\.jpg, right13\.jpg, right14\.jpg$"
     ):
-        run_calibrate(str(folder / "left0*.jpg"), str(folder / "right*.jpg"), CHESS_9x6, tmp_path)
+        calibrate_cli(str(folder / "left0*.jpg"), str(folder / "right*.jpg"), CHESS_9x6, tmp_path)
     with pytest.raises(ValueError, match=r"no files match --ir"):
-        run_calibrate(str(tmp_path / "nothing*.png"), None, CHESS_9x6, tmp_path)
+        calibrate_cli(str(tmp_path / "nothing*.png"), None, CHESS_9x6, tmp_path)
     bad = tmp_path / "broken.png"
     bad.write_bytes(b"not an image")
     with pytest.raises(ValueError, match=r"cannot read calibration image .*broken\.png"):
-        run_calibrate(str(bad), None, CHESS_9x6, tmp_path)
+        calibrate_cli(str(bad), None, CHESS_9x6, tmp_path)
     assert not (tmp_path / "calibration.json").exists()
 
 
@@ -506,7 +512,7 @@ def test_calibrate_folder_and_cli_files(synthetic_set, tmp_path):
     assert calib.depth_model.offset == pytest.approx(1090.0, rel=0.01)
     assert calib.depth_model.baseline_m == pytest.approx(0.075, rel=0.01)
     assert dict(calib.coverage)["rgb"] > 0.8  # the corner views fill the RGB image
-    path = run_calibrate(
+    path = calibrate_cli(
         str(folder / "ir" / "*.png"),
         None,
         str(SYNTH_PATTERN),

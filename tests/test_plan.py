@@ -12,13 +12,13 @@ import pytest
 import shapely
 from shapely.geometry import box
 
+from flows.oneoff import parse_plan as parse_plan_cli
 from tasks.artefacts import read_table
 from tasks.evaluate import evaluate_walls
 from tasks.plan.config import PlanConfig, PlanScale
 from tasks.plan.doors import _find_doors
 from tasks.plan.parse import parse_plan
 from tasks.plan.raster import load_plan_image
-from tasks.plan.stage import run_parse_plan
 from tasks.plan.truth import rectangle_centrelines, thickness_errors
 from tasks.plan.vectorize import _regularize
 
@@ -302,7 +302,7 @@ def test_bad_inputs(tmp_path):
     empty = tmp_path / "empty.png"
     empty.write_bytes(b"")
     with pytest.raises(ValueError, match=r"empty\.png"):
-        run_parse_plan(empty, tmp_path / "out", PlanScale(m_per_px=S))
+        parse_plan_cli(empty, tmp_path / "out", m_per_px=S)
 
 
 def test_outline_length_scale():
@@ -312,11 +312,11 @@ def test_outline_length_scale():
     assert res.m_per_px == pytest.approx(S, rel=0.01)
 
 
-def test_run_parse_plan_writes_outputs(tmp_path):
+def test_parse_plan_verb_writes_outputs(tmp_path):
     path = tmp_path / "plan.png"
     cv2.imwrite(str(path), cv2.cvtColor(evacuation_plan(), cv2.COLOR_RGB2BGR))
     out = tmp_path / "out"
-    metrics = run_parse_plan(path, out, PlanScale(m_per_px=S))
+    metrics = parse_plan_cli(path, out, m_per_px=S)
     table = read_table(out / "plan_walls.parquet")
     assert table.column_names == ["x0", "y0", "x1", "y1", "thickness_m"]
     assert table.num_rows == metrics["walls"]

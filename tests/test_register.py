@@ -21,7 +21,6 @@ from tasks.register.config import RegisterConfig, SfmConfig
 from tasks.register.fusion import VoxelAccumulator, estimate_radial_depth_error, frame_points, fuse_frames
 from tasks.register.plan_icp import icp_to_plan, plan_faces
 from tasks.register.room import calibration_from_camera_info, register_room
-from tasks.register.stage import run_register_room
 from tasks.register.track_fallback import level_frame, place_by_track, track_drift, track_heading, track_pose
 from tests.test_scale import BOX, box_hits, look_pose, small_camera
 
@@ -557,7 +556,7 @@ def test_real_7scenes_registered_accurate_and_metric(realdata, tmp_path):
 
 
 @pytest.mark.slow
-def test_run_register_room_writes_the_three_artefacts(realdata, tmp_path):
+def test_register_room_verb_writes_the_three_artefacts(realdata, tmp_path):
     """The CLI-level entry on a 7-Scenes subset made into its own folder (12 frames)."""
     import shutil
 
@@ -568,7 +567,11 @@ def test_run_register_room_writes_the_three_artefacts(realdata, tmp_path):
     for k in range(0, 120, 10):
         for ext in ("color.jpg", "depth.png", "pose.txt"):
             shutil.copy(src / f"frame-{k:06d}.{ext}", sub)
-    metrics = run_register_room(sub, tmp_path / "out", intrinsics="585,585,320,240", depth_units_per_m=1000)
+    from flows.oneoff import register_room as register_room_cli
+    from tasks.config import load_config
+
+    cfg = load_config([], ["ingest.intrinsics_px=[585, 585, 320, 240]", "ingest.tum_depth_units_per_m=1000"])
+    metrics = register_room_cli(sub, tmp_path / "out", cfg=cfg)
     cols = pq.read_table(tmp_path / "out" / "poses.parquet").to_pydict()
     assert len(cols["frame_id"]) == 12 and set(cols["method"]) <= {"sfm", "none"}
     assert sum(m == "sfm" for m in cols["method"]) >= 10

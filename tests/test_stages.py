@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from tasks import stages as stmod
 from tasks.stages import STAGES, module_closure, module_file, project_imports
 
@@ -63,7 +65,7 @@ def test_a_changed_code_version_recomputes_that_stage_and_only_what_follows(tmp_
     from tasks import config as cfgmod
     from tests.captures import write_box_room_ply
 
-    cloud = write_box_room_ply(tmp_path / "room.ply")
+    cloud = write_box_room_ply(tmp_path / "room.ply", np.random.default_rng(3))
     cfg = cfgmod.load_config()
     profile = cfgmod.load_sensor_profile("tls")
     room = cfgmod.RoomSpec("room", cloud)

@@ -54,11 +54,3 @@ class CalibrateConfig:
     size, so b·c splits into the baseline with the IR focal length scaled to this width."""
     flat_roi_fraction: float = 0.6
     """Central part (fraction of width and height) of flat-target disparity frames used for the model fit."""
-    occlusion_tol_m: float = 0.02
-    """Colouring: a point counts as hidden from the RGB camera when it lies farther than this plus
-    `occlusion_tol_rel` times its depth behind the nearest point projecting into its RGB neighbourhood."""
-    occlusion_tol_rel: float = 0.02
-    """Relative part of the occlusion tolerance (of the point's depth in the RGB camera)."""
-    zbuffer_splat_px: int = 3
-    """Neighbourhood (odd, pixels) over which each projected point claims the RGB z-buffer, so that background
-    points cannot show through the gaps between the projected foreground points."""

@@ -3,37 +3,42 @@ values (said so), written as calibration.json (the contract) and calibration_res
 
 from __future__ import annotations
 
-import glob
-import logging
-import os
-from collections.abc import Sequence
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from tasks.calibrate.config import CalibrateConfig
-from tasks.calibrate.files import calibrate_files, calibrate_folder
-from tasks.calibrate.targets import parse_pattern
+from tasks.calibrate.files import calibrate_folder
 from tasks.camera import Calibration, profile_calibration
 from tasks.context import StageContext
-
-log = logging.getLogger(__name__)
 
 
 def run(ctx: StageContext, cfg: CalibrateConfig, out: Path) -> dict[str, Any]:
     """The survey's calibration from its target images, else the sensor profile's values (said so)."""
-    folder = ctx.raw_inputs.get("calibration")
-    if folder:
-        ctx.progress(f"calibrating from {folder}")
-        calib = calibrate_folder(Path(folder), cfg)
+    given = ctx.raw_inputs.get("calibration")
+    if given and Path(given).is_file():  # a calibration.json made earlier (by this stage or `calibrate`)
+        ctx.progress(f"using the calibration in {given}")
+        calib = read_calibration(Path(given))
+    elif given:
+        ctx.progress(f"calibrating from {given}")
+        calib = calibrate_folder(Path(given), cfg)
     else:
         ctx.progress(f"no calibration data: using the {ctx.profile.get('name')} profile's values")
         calib = profile_calibration(ctx.profile)
     write_calibration(calib, out)
     data = calib.to_json()
     return {"metrics": {"source": calib.source, **_calibration_figures(data)}}
+
+
+def read_calibration(path: Path) -> Calibration:
+    """A calibration.json; a one-line error naming the file when it is not one."""
+    from tasks.artefacts import ArtefactError, read_json
+
+    try:
+        return Calibration.from_json(read_json(path))
+    except (ArtefactError, KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: not a calibration.json ({' '.join(str(exc).split())})") from exc
 
 
 def _calibration_figures(data: dict[str, Any]) -> dict[str, Any]:
@@ -70,35 +75,3 @@ def _json_safe(obj: Any) -> Any:
     if isinstance(obj, np.integer):
         return int(obj)
     return obj
-
-
-def _glob(pattern: str, what: str) -> list[str]:
-    """Sorted files matching a CLI glob (`~` expanded, `**` recursive); ValueError naming the option if none."""
-    files = sorted(f for f in glob.glob(os.path.expanduser(pattern), recursive=True) if os.path.isfile(f))
-    if not files:
-        raise ValueError(f"no files match {what} {pattern!r}")
-    return files
-
-
-# to be replaced by the CLI running the stage through the pipeline
-def run_calibrate(
-    ir_glob: str,
-    rgb_glob: str | None,
-    pattern: str,
-    out_dir: Path,
-    *,
-    flat_glob: str | None = None,
-    known_distances: Sequence[float] | None = None,
-    cfg: CalibrateConfig | None = None,
-) -> Path:
-    """`indoor-survey calibrate --ir GLOB [--rgb GLOB] --pattern P --out DIR`: writes DIR/calibration.json
-    (plus DIR/calibration_residuals.json) and returns its path. IR and RGB images pair by the numbers in
-    their names (else by sorted order); `--ir` alone calibrates one camera."""
-    cfg = replace(cfg or CalibrateConfig(), pattern=str(parse_pattern(pattern)))
-    ir = _glob(ir_glob, "--ir")
-    rgb = _glob(rgb_glob, "--rgb") if rgb_glob else None
-    flats = _glob(flat_glob, "flat-target") if flat_glob else None
-    calib = calibrate_files(ir, rgb, cfg, flat_paths=flats, known_distances=known_distances)
-    path = write_calibration(calib, Path(out_dir))
-    log.info("wrote %s (%s)", path, "IR+RGB" if rgb else "IR only")
-    return path

@@ -59,5 +59,11 @@ def run(ctx: StageContext, cfg: FloorIndexConfig, out: Path) -> dict[str, Any]:
     columns = {name: [row[name] for row in rows] for name in ROOMS_SCHEMA.names}
     art.write_table(out / "rooms.parquet", columns, ROOMS_SCHEMA)
     closed = sum(bool(row["closed"]) for row in rows)
-    return {"metrics": {"rooms": len(rows), "with_walls": sum(row["walls"] is not None for row in rows),
-                        "closed": closed, "failed": sorted(ctx.failed_rooms)}}
+    return {
+        "metrics": {
+            "rooms": len(rows),
+            "with_walls": sum(row["walls"] is not None for row in rows),
+            "closed": closed,
+            "failed": sorted(ctx.failed_rooms),
+        }
+    }

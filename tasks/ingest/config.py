@@ -28,6 +28,9 @@ class IngestConfig:
     """Stop after this many frames (0 = all)."""
     tum_depth_units_per_m: float = 5000.0
     """TUM RGB-D depth PNG units per metre."""
+    intrinsics_px: tuple[float, float, float, float] | None = None
+    """Pinhole intrinsics fx, fy, cx, cy (pixels, no distortion) for both streams, replacing what the
+    capture or the sensor profile gives (camera_info.json then says `source: config`)."""
     max_cloud_extent_m: float = 300.0
     """A registered cloud spreading wider than this (1st to 99th percentile, x or y) is not in metres."""
     max_cloud_height_m: float = 30.0

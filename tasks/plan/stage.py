@@ -23,23 +23,17 @@ def run(ctx: StageContext, cfg: PlanConfig, out: Path) -> dict[str, Any]:
         known_distance=tuple(known) if known else None,
         outline_length_m=ctx.params.get("outline_length_m"),
     )
-    metrics = run_parse_plan(Path(ctx.raw_inputs["plan"]), out, scale, cfg)
-    metrics.pop("outputs", None)
-    return {"metrics": metrics}
+    return {"metrics": write_parsed_plan(Path(ctx.raw_inputs["plan"]), out, scale, cfg)}
 
 
-# to be replaced by the CLI running the stage through the pipeline
-def run_parse_plan(image_path: Path, out_dir: Path, scale: PlanScale, cfg: PlanConfig | None = None) -> dict:
-    """CLI-level: parse IMAGE and write plan_walls.parquet, rooms.geojson, plan_preview.png into out_dir.
-    Returns the metrics (with the written paths)."""
-    cfg = cfg or PlanConfig()
-    image_path, out_dir = Path(image_path), Path(out_dir)
+def write_parsed_plan(image_path: Path, out_dir: Path, scale: PlanScale, cfg: PlanConfig) -> dict[str, Any]:
+    """Parse the image and write plan_walls.parquet, rooms.geojson and plan_preview.png into `out_dir`;
+    returns the metrics."""
     if not image_path.is_file():
         raise ValueError(f"{image_path}: no such image file")
     image = load_plan_image(image_path)
     res = parse_plan(image, scale, cfg, name=str(image_path))
-    out_dir.mkdir(parents=True, exist_ok=True)
-    walls_p = artefacts.write_table(
+    artefacts.write_table(
         out_dir / "plan_walls.parquet", artefacts.segments_table(res.walls, thickness_m=res.thickness_m)
     )
     features = [
@@ -58,6 +52,6 @@ def run_parse_plan(image_path: Path, out_dir: Path, scale: PlanScale, cfg: PlanC
         }
         for d in res.doors
     ]
-    rooms_p = artefacts.write_geojson(out_dir / "rooms.geojson", features, crs_note="plan frame, metres")
-    prev_p = artefacts.write_png(out_dir / "plan_preview.png", res.preview)
-    return {**res.metrics, "outputs": {"walls": str(walls_p), "rooms": str(rooms_p), "preview": str(prev_p)}}
+    artefacts.write_geojson(out_dir / "rooms.geojson", features, crs_note="plan frame, metres")
+    artefacts.write_png(out_dir / "plan_preview.png", res.preview)
+    return res.metrics

@@ -19,6 +19,15 @@ class RegisterConfig:
     """Depth readings farther than this are not fused. The noise grows with the square of the range, but
     the far walls are what the walls stage needs: on the synthetic rooms a 4 m cut left 30-40 % of the wall
     length unseen in two of four rooms (6 m: 85-90 %); outliers are the preprocess stage's job."""
+    colour_occlusion_tol_m: float = 0.02
+    """Colouring: a point counts as hidden from the RGB camera when it lies farther than this plus
+    `colour_occlusion_tol_rel` times its depth behind the nearest point projecting into its RGB
+    neighbourhood."""
+    colour_occlusion_tol_rel: float = 0.02
+    """Relative part of the occlusion tolerance (of the point's depth in the RGB camera)."""
+    colour_zbuffer_splat_px: int = 3
+    """Neighbourhood (odd, pixels) over which each projected point claims the RGB z-buffer, so that
+    background points cannot show through the gaps between the projected foreground points."""
     pixel_stride: int = 2
     """Fuse every n-th depth pixel in each direction (1 = all); the voxel grid is coarser anyway."""
     min_points_per_voxel: int = 1
@@ -109,6 +118,9 @@ class RegisterConfig:
     track_pin_length_m: float = 1.0
     """Drift model: the wall length (m) a frame must see across a direction for its position to count fully
     in that direction (less counts in proportion)."""
+    track_restart_min_shift_m: float = 0.04
+    """A poorly fitting frame restarts from a neighbour's track drift when the two drifts differ by at least
+    this (closer drifts would reproduce the same placement)."""
     track_refit_max_shift_m: float = 0.3
     """Drift model: a frame fitted to the walls again may move at most this far from the model's placement
     (else the model's placement stands); also the robust scale of the model's residuals."""

@@ -301,7 +301,14 @@ def fuse_frames(
             refined[int(frame_id)] = T
         colors = coloured = None
         if can_colour and rgb is not None and (rgb.shape[1], rgb.shape[0]) == calibration.rgb.size:
-            colors, coloured = colour_points(pts, rgb, calibration)
+            colors, coloured = colour_points(
+                pts,
+                rgb,
+                calibration,
+                cfg.colour_occlusion_tol_m,
+                cfg.colour_occlusion_tol_rel,
+                cfg.colour_zbuffer_splat_px,
+            )
         acc.add(transform_points(T, pts), colors, coloured)
         used += 1
     cloud = acc.cloud(cfg.min_points_per_voxel)

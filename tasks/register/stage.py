@@ -12,9 +12,8 @@ from numpy.typing import NDArray
 
 from tasks import artefacts as art
 from tasks.camera import Calibration
-from tasks.cloud import DegenerateInputError
 from tasks.context import StageContext
-from tasks.register.config import RegisterConfig, SfmConfig
+from tasks.register.config import RegisterConfig
 from tasks.register.room import register_room
 
 
@@ -71,73 +70,3 @@ def _starts_numeric(path: Path) -> bool:
     except ValueError:
         return False
     return True
-
-
-# to be replaced by the CLI running the stage through the pipeline
-def run_register_room(
-    capture: Path,
-    out_dir: Path,
-    intrinsics: tuple[float, float, float, float] | str | None = None,
-    depth_units_per_m: float | None = None,
-    calibration_path: Path | None = None,
-    profile_name: str = "kinect_v1",
-    track: NDArray[np.float64] | None = None,
-    plan_walls: NDArray[np.float64] | None = None,
-    cfg: RegisterConfig | None = None,
-    sfm_cfg: SfmConfig | None = None,
-) -> dict[str, Any]:
-    """`indoor-survey register-room CAPTURE --out DIR [--intrinsics fx,fy,cx,cy] [--depth-scale U]
-    [--calibration FILE]`: ingest → sfm → scale → register on one room; writes DIR/poses.parquet,
-    DIR/cloud.ply and DIR/scale.json and returns the metrics. `intrinsics` override both streams' pinhole
-    intrinsics (no distortion); `depth_units_per_m` overrides the depth PNG units."""
-    import json
-
-    from tasks.artefacts import POSES_SCHEMA, write_json, write_ply_points, write_table
-    from tasks.config import load_sensor_profile
-    from tasks.ingest.capture import ingest_capture
-    from tasks.ingest.config import IngestConfig
-
-    profile = load_sensor_profile(profile_name)
-    out_dir = Path(out_dir)
-    calibration = None
-    if calibration_path is not None:
-        calibration = Calibration.from_json(json.loads(Path(calibration_path).read_text()))
-    with tempfile.TemporaryDirectory(prefix="register-") as tmp:
-        stage = Path(tmp) / "ingest"
-        stage.mkdir()
-        icfg = IngestConfig(tum_depth_units_per_m=depth_units_per_m) if depth_units_per_m else IngestConfig()
-        ingest_metrics = ingest_capture(Path(capture), stage, profile, icfg)
-        if not (stage / "frames.parquet").exists():
-            raise DegenerateInputError(f"{capture}: a registered cloud needs no registration")
-        camera_info = json.loads((stage / "camera_info.json").read_text())
-        if intrinsics is not None:
-            vals = [float(v) for v in (intrinsics.split(",") if isinstance(intrinsics, str) else intrinsics)]
-            if len(vals) != 4:
-                raise ValueError(f"--intrinsics needs fx,fy,cx,cy, got {intrinsics!r}")
-            fx, fy, cx, cy = vals
-            for stream in ("depth", "rgb"):
-                if stream in camera_info:
-                    camera_info[stream] = {
-                        **camera_info[stream],
-                        "K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]],
-                        "dist": [0.0] * 5,
-                        "source": "cli",
-                    }
-        work = Path(tmp) / "sfm"
-        work.mkdir()
-        result = register_room(
-            stage / "frames.parquet",
-            camera_info,
-            calibration,
-            cfg or RegisterConfig(),
-            sfm_cfg or SfmConfig(),
-            work,
-            track=track,
-            plan_walls=plan_walls,
-            profile=profile,
-            depth_units_per_m=depth_units_per_m,
-        )
-    write_table(out_dir / "poses.parquet", result.poses, POSES_SCHEMA)
-    write_ply_points(out_dir / "cloud.ply", result.cloud.points, result.cloud.colors)
-    write_json(out_dir / "scale.json", result.scale)
-    return {"ingest": ingest_metrics, **result.metrics, "frame": result.frame}

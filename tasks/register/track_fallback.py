@@ -286,7 +286,7 @@ class _PlanPlacement:
                     if (
                         0 <= j < len(order)
                         and np.linalg.norm(self.drift_of(order[j]) - self.drift_of(fid))
-                        >= 2 * self.cfg.voxel_size_m
+                        >= self.cfg.track_restart_min_shift_m
                     ):
                         restarted += self.retry(fid, self.drift_of(order[j]), self.starts[fid], None)
         return restarted
