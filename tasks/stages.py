@@ -77,7 +77,11 @@ class Stage:
         return code_version(self.module)
 
     def applies(self, capture_kind: str) -> bool:
-        return self.applies_to == "any" or self.applies_to == capture_kind
+        """Whether the stage runs for a room whose capture is of this kind (tasks.ingest.capture_kind:
+        "cloud" for a registered cloud, else a kind of frame recording)."""
+        if self.applies_to == "any":
+            return True
+        return (capture_kind == "cloud") == (self.applies_to == "cloud")
 
 
 STAGES: dict[str, Stage] = {

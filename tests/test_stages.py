@@ -156,3 +156,12 @@ def test_loading_the_config_loads_no_stage_computation():
     allowed = {"tasks", "tasks.config", "tasks.stages", "tasks.artefacts", "tasks.cloud", "tasks.lines"}
     allowed |= {f"tasks.{name}" for name in STAGES} | {f"tasks.{name}.config" for name in STAGES}
     assert loaded <= allowed, sorted(loaded - allowed)
+
+
+def test_room_chains_follow_the_capture_kind(tmp_path):
+    from flows.planning import room_stages
+
+    (tmp_path / "room.ply").write_bytes(b"ply\n")
+    (tmp_path / "rec.mcap").write_bytes(b"")
+    assert room_stages(tmp_path / "room.ply") == ["ingest", "preprocess", "walls"]
+    assert room_stages(tmp_path / "rec.mcap") == ["ingest", "register", "preprocess", "walls"]
