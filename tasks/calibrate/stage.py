@@ -15,7 +15,21 @@ from tasks.context import StageContext
 
 
 def run(ctx: StageContext, cfg: CalibrateConfig, out: Path) -> dict[str, Any]:
-    """The survey's calibration from its target images, else the sensor profile's values (said so)."""
+    """The survey's calibration from its target images, else the sensor profile's values (said so).
+    OpenCV runs single-threaded meanwhile: its parallel corner refinement and calibration sum in an order
+    that changes from run to run (1e-8 px in the focal length), and every room's registration downstream
+    would see a new calibration each time."""
+    import cv2
+
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        return _calibrate(ctx, cfg, out)
+    finally:
+        cv2.setNumThreads(threads)
+
+
+def _calibrate(ctx: StageContext, cfg: CalibrateConfig, out: Path) -> dict[str, Any]:
     given = ctx.raw_inputs.get("calibration")
     if given and Path(given).is_file():  # a calibration.json made earlier (by this stage or `calibrate`)
         ctx.progress(f"using the calibration in {given}")
