@@ -14,11 +14,8 @@ class ChangesConfig:
     min_length_m: float = 0.30
     """Added or removed pieces shorter than this are not reported."""
     support_tol_m: float = 0.10
-    """A plan wall face is supported where a model wall runs within this of it, parallel."""
-    min_support: float = 0.5
-    """A plan wall with less than this share of its seen length supported is removed."""
-    min_coverage: float = 0.5
-    """A plan wall is judged (removed or kept) only where at least this share of its face was seen."""
+    """A plan wall is supported where a model wall passes within half its thickness plus this of its
+    centreline (inside the drawn wall or just beyond its face)."""
     coverage_cell_m: float = 0.10
     """Cell of the coverage grid (floor and ceiling points seen by the capture)."""
     coverage_reach_m: float = 0.30

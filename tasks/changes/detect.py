@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from shapely.geometry import LineString, Polygon
 
 from tasks.changes.config import ChangesConfig
-from tasks.lines import Segments, angle_difference, angles, as_segments, lengths, room_polygons
+from tasks.lines import Segments, as_segments, lengths, room_polygons
 
 ADDED, REMOVED, UNKNOWN = "added", "removed", "unknown"
 
@@ -163,28 +163,35 @@ def _side_samples(c: NDArray, t: float, side: float, step: float) -> tuple[NDArr
     return a + s[:, None] * u + (t / 2) * n, n, s
 
 
-def face_support(
-    face: NDArray, normal: NDArray, room: PlacedRoom, tol_m: float, angle_tol_deg: float = 5.0
-) -> tuple[NDArray[np.bool_], float]:
-    """(K,) whether each face sample has a parallel model wall of the room within tol_m (door spans cut
-    out), and the distance of the nearest parallel wall (inf: none)."""
-    walls = as_segments(room.walls)
-    if len(walls) == 0:
-        return np.zeros(len(face), dtype=bool), math.inf
-    wall_dir = math.atan2(-normal[0], normal[1])
-    par = np.abs(angle_difference(angles(walls), wall_dir)) <= math.radians(angle_tol_deg)
-    if not par.any():
-        return np.zeros(len(face), dtype=bool), math.inf
-    lines = shapely.linestrings(walls[par].reshape(-1, 2, 2))
-    geom = shapely.union_all(lines)
-    if len(room.doors):
-        geom = geom.difference(
-            shapely.union_all(
-                [LineString(d.reshape(2, 2)).buffer(0.15, cap_style="flat") for d in as_segments(room.doors)]
-            )
-        )
-    d = shapely.distance(shapely.points(face), geom)
-    return d <= tol_m, float(np.min(d)) if len(d) else math.inf
+def centre_support(centre: NDArray, reach: float, rooms: list[PlacedRoom]) -> tuple[NDArray[np.bool_], float]:
+    """(K,) whether a model wall (of any placed room, its doors cut out) runs past each centreline sample
+    within `reach` of it, measured across the model wall (the sample projects onto it): inside the drawn
+    wall or just beyond its face, so a wall drawn thicker than built is still there while a door's
+    opening is not bridged by the wall ends beside it. Also the nearest such distance (inf: none)."""
+    pieces = []
+    for room in rooms:
+        walls = as_segments(room.walls)
+        if len(walls) == 0:
+            continue
+        g = shapely.union_all(shapely.linestrings(walls.reshape(-1, 2, 2)))
+        if len(room.doors):
+            cut = [
+                LineString(d.reshape(2, 2)).buffer(0.15, cap_style="flat") for d in as_segments(room.doors)
+            ]
+            g = g.difference(shapely.union_all(cut))
+        pieces += _pieces(g, 0.0)
+    if not pieces:
+        return np.zeros(len(centre), dtype=bool), math.inf
+    w = np.array(pieces)
+    a, d = w[:, :2], w[:, 2:] - w[:, :2]
+    length = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
+    u = d / length[:, None]
+    rel = centre[:, None, :] - a[None]
+    along = (rel * u[None]).sum(-1)
+    across = np.abs(rel[..., 0] * u[None, :, 1] - rel[..., 1] * u[None, :, 0])
+    across = np.where((along >= 0) & (along <= length[None]), across, np.inf)
+    best = across.min(axis=1)
+    return best <= reach, float(best.min()) if len(best) else math.inf
 
 
 def removed_walls(
@@ -194,37 +201,34 @@ def removed_walls(
     cfg: ChangesConfig,
     step_m: float = 0.05,
 ) -> list[Change]:
-    """Plan walls (per face sample) that no placed room supports: removed where some room's coverage sees
-    the face from its side, unknown where none does; runs shorter than min_length_m are dropped."""
+    """Stretches of plan walls (per centreline sample) that no placed room's walls support: removed where
+    some room's coverage sees the wall's face from its side, unknown where none does (only plan walls
+    beside a placed room are judged); runs shorter than min_length_m are dropped. A door seen in the
+    model where the plan has a wall is such a stretch (a door moved there)."""
     out: list[Change] = []
     for c, t in zip(as_segments(centrelines), thickness_m, strict=True):
         length = float(lengths(c[None])[0])
         if length < cfg.min_length_m:
             continue
-        supported = None
-        seen = None
-        nearest = math.inf
-        judged_by = []
+        centre, _, _ = _side_samples(c, 0.0, 1.0, step_m)
+        near = [
+            r
+            for r in rooms
+            if r.polygon is None or r.polygon.distance(LineString(c.reshape(2, 2))) <= t / 2 + 0.3
+        ]
+        if not near:
+            continue
+        supported, nearest = centre_support(centre, float(t) / 2 + cfg.support_tol_m, near)
+        seen = np.zeros(len(centre), dtype=bool)
+        votes: dict[str, int] = {}
         for side in (1.0, -1.0):
             face, n, _ = _side_samples(c, float(t), side, step_m)
-            for room in rooms:
-                if room.polygon is not None:
-                    probe = face + 0.15 * n
-                    if not shapely.contains_xy(room.polygon.buffer(0.3), probe[:, 0], probe[:, 1]).any():
-                        continue
-                sup, dist = face_support(face, n, room, cfg.support_tol_m)
+            for room in near:
                 cov = _seen(face, n, room, cfg)
-                if not (sup.any() or cov.any()):
-                    continue
-                judged_by.append(room.id)
-                supported = sup if supported is None else supported | sup
-                seen = cov if seen is None else seen | cov
-                nearest = min(nearest, dist)
-        if supported is None or seen is None:
-            continue
+                seen |= cov
+                votes[room.id] = votes.get(room.id, 0) + int(cov.sum())
         share = float(supported.mean())
-        if share >= cfg.min_support and seen.mean() >= cfg.min_coverage:
-            continue
+        owner = max(votes, key=lambda r: votes[r])
         a = c[:2]
         u = (c[2:] - a) / length
         for kind, mask in ((REMOVED, ~supported & seen), (UNKNOWN, ~supported & ~seen)):
@@ -232,7 +236,7 @@ def removed_walls(
                 if (i1 - i0) * step_m < cfg.min_length_m:
                     continue
                 p0, p1 = a + (i0 * step_m) * u, a + min(i1 * step_m, length) * u
-                out.append(Change(*p0, *p1, kind, judged_by[0], share, nearest))
+                out.append(Change(*p0, *p1, kind, owner, share, nearest))
     return out
 
 

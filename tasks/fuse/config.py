@@ -52,5 +52,9 @@ class FuseConfig:
     """Narrowest opening in a model wall taken for a door."""
     door_max_m: float = 1.6
     """Widest opening in a model wall taken for a door."""
+    closed_door_share: float = 0.9
+    """A plan door gap is closed in the capture when the model wall's face across it is seen low down at
+    least this densely relative to the face beside it (an open door: about 0; a capture whose frames
+    disagree by centimetres still smears some points into an opening, up to about 0.7)."""
     door_band_m: tuple[float, float] = (0.15, 0.75)
     """Height band above the floor where a door is open and a window's parapet is not."""

@@ -136,6 +136,8 @@ def _shell_graph(
         node = ("end", k)
         g.add_node(node, xy=tuple(p))
         end_nodes.append(node)
+        foot = ring.interpolate(ring.project(Point(*p)))
+        hits.append((k, np.asarray(foot.coords[0])))  # an end on the shell joins it where it lies
         for direction in (d, np.array([-d[1], d[0]]), np.array([d[1], -d[0]])):
             h = _first_hit(ring, p, direction, reach_m)
             if h is not None:
@@ -158,7 +160,9 @@ def _shell_graph(
         g.add_edge(a[1], b[1], weight=length * (1000.0 if cov else 1.0), segment=seg, covered=bool(cov))
     for n, (k, h) in enumerate(hits):
         seg = np.array([*ends[k][0], *h])
-        g.add_edge(("end", k), ("h", n), weight=float(lengths(seg[None])[0]), segment=seg, covered=False)
+        g.add_edge(
+            ("end", k), ("h", n), weight=float(lengths(seg[None])[0]) + 1e-9, segment=seg, covered=False
+        )
     return g, end_nodes
 
 
