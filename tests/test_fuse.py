@@ -232,3 +232,24 @@ def test_doors_from_the_cloud_low_down() -> None:
     assert doors[0].segment[0] == pytest.approx(1.0, abs=0.06) and doors[0].segment[2] == pytest.approx(
         1.9, abs=0.06
     )
+
+
+def test_room_labels_are_read_from_the_plan_raster() -> None:
+    """Labels drawn as the survey generator draws them (OpenCV's simplex font), among walls and a green
+    arrow, are read per room; a room without text has none."""
+    import shutil
+
+    import cv2
+
+    from tasks.room_labels import read_room_labels
+
+    if shutil.which("tesseract") is None:
+        pytest.skip("tesseract-ocr is not installed (.ci/setup installs it)")
+    s = 0.02
+    img = np.full((300, 700, 3), 255, np.uint8)
+    cv2.rectangle(img, (10, 10), (690, 290), (0, 0, 0), 8)
+    cv2.line(img, (350, 10), (350, 290), (0, 0, 0), 6)
+    cv2.putText(img, "104", (150, 150), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.arrowedLine(img, (420, 200), (520, 200), (0, 150, 60), 8)
+    rooms = [box(14 * s, -286 * s, 347 * s, -14 * s), box(353 * s, -286 * s, 686 * s, -14 * s)]
+    assert read_room_labels(img, rooms, s) == ["104", None]
