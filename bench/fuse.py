@@ -7,7 +7,8 @@ and changes stages into DIR (default WORK/bench-fuse), and prints per room: corr
 registration error against the derived true transform (tasks/fuse/truth.py), fit score, closure; the
 thickness errors of both methods on walls captured from both sides; change precision and recall; with
 --starts N the spread of the fine registration from N random starts within +-45 degrees and +-1 m.
---labels takes the plan rooms' labels from truth/planned_rooms.geojson (when the plan stage reads none).
+--labels reads the plan rooms' labels on the plan raster (tasks/room_labels.py) when the plan stage has
+none, and checks them against truth/planned_rooms.geojson.
 """
 
 from __future__ import annotations
@@ -49,21 +50,28 @@ def _run_stage(run, ctx: StageContext, cfg: Any, out: Path, room: str, stage: st
     return _result(out, room, stage)
 
 
-def _labelled_plan(plan: art.StageResult, truth: Path, out: Path) -> art.StageResult:
-    """A copy of the plan's files whose rooms carry the label printed in them (from the as-planned truth)."""
+def _labelled_plan(plan: art.StageResult, survey: Path, doc: dict, out: Path) -> tuple[art.StageResult, dict]:
+    """A copy of the plan's files whose rooms carry the label read on the plan raster (tasks/room_labels.py,
+    what the plan stage will store), and how the labels compare with the as-planned truth."""
+    from tasks.room_labels import read_room_labels
+
     out.mkdir(parents=True, exist_ok=True)
     data = art.read_json(plan.file("rooms.geojson"))
-    planned = art.read_json(truth / "planned_rooms.geojson")["features"]
-    for f in data["features"]:
-        if f["geometry"]["type"] != "Polygon":
-            continue
+    polys = [f for f in data["features"] if f["geometry"]["type"] == "Polygon"]
+    image = art.read_image(survey / doc["plan"]["image"])
+    labels = read_room_labels(image, [shape(f["geometry"]) for f in polys], float(doc["plan"]["m_per_px"]))
+    planned = art.read_json(survey / "truth" / "planned_rooms.geojson")["features"]
+    check = {}
+    for f, label in zip(polys, labels, strict=True):
+        f["properties"]["label"] = label
         p = shape(f["geometry"]).representative_point()
-        for g in planned:
-            if shape(g["geometry"]).contains(Point(p)):
-                f["properties"]["label"] = g["properties"]["plan_room"]
+        printed = next(
+            (g["properties"]["plan_room"] for g in planned if shape(g["geometry"]).contains(Point(p))), None
+        )
+        check[f["properties"]["room_id"]] = {"read": label, "printed": printed, "ok": label == printed}
     art.write_json(out / "rooms.geojson", data)
     (out / "plan_walls.parquet").write_bytes(plan.file("plan_walls.parquet").read_bytes())
-    return _result(out, art.BUILDING, "plan")
+    return _result(out, art.BUILDING, "plan"), check
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -79,8 +87,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     survey = yaml.safe_load((args.survey / "survey.yaml").read_text())
     plan = store.latest(art.BUILDING, "plan")
     assert plan is not None, "no plan result in the work dir"
+    label_check = None
     if args.labels:
-        plan = _labelled_plan(plan, args.survey / "truth", out / "plan")
+        plan, label_check = _labelled_plan(plan, args.survey, survey, out / "plan")
     rooms = {}
     for entry in survey["rooms"]:
         res = {s: store.latest(entry["id"], s) for s in ("ingest", "register", "preprocess", "walls")}
@@ -92,6 +101,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ctx2 = StageContext(art.BUILDING, {"plan": plan, "fuse": fuse}, {}, {}, print)
     changes = _run_stage(run_changes, ctx2, ChangesConfig(), out / "changes", art.BUILDING, "changes")
     figures = evaluate(args.survey, rooms, plan, fuse, changes, args.starts)
+    figures["labels"] = label_check
     print(json.dumps(figures, indent=1, default=float))
     art.write_json(out / "figures.json", figures)
     return figures

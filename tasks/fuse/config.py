@@ -18,6 +18,9 @@ class FuseConfig:
     (the approximate registration is trusted within +-45 degrees)."""
     angle_tol_deg: float = 10.0
     """Correspondence window once the first rotation update has been applied."""
+    start_shift_m: float = 0.5
+    """The fine fit also starts this far off the approximate position along both principal directions
+    (the approximate registration is trusted within +-1 m)."""
     max_iterations: int = 30
     """Iterations of the rotation + Gauss-Newton translation loop (eq 7.4, 7.9, 7.10)."""
     converge_m: float = 1e-4

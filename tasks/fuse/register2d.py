@@ -580,14 +580,22 @@ def fine_register(
     cfg: FuseConfig,
     doors: list[DoorPair] | None = None,
 ) -> Fit:
-    """The optimal fit from an approximate start that may be off by up to +-45 degrees: the rotation
-    corrections that put the principal wall direction onto a plan direction are each tried (the thesis'
-    'most similar orientation'), and the best fit score wins (ties: the smallest correction)."""
+    """The optimal fit from an approximate start that may be off by up to +-45 degrees and +-1 m: the
+    rotation corrections that put the principal wall direction onto a plan direction are each tried (the
+    thesis' 'most similar orientation'), each also from the start shifted by half a metre along the plan's
+    principal directions (a wall may first pair with the parallel face of a notch or an alcove); the best
+    fit score wins (ties: the first, i.e. the smallest correction without shift)."""
     best: Fit | None = None
     c = start.points(centre)[0]
+    axis = principal_directions(faces.segments, max_dirs=1)[0]
+    u = np.array([math.cos(axis), math.sin(axis)])
+    shifts = [np.zeros(2)] + [
+        sign * cfg.start_shift_m * v for v in (u, np.array([-u[1], u[0]])) for sign in (1, -1)
+    ]
     for d in rotation_candidates(shell, faces, start, cfg.approx_angle_tol_deg):
-        fit = optimal_fit(shell, inward, centre, faces, start.then(d, c, np.zeros(2)), cfg, doors)
-        if best is None or fit.score > best.score + 1e-3:
-            best = fit
+        for shift in shifts:
+            fit = optimal_fit(shell, inward, centre, faces, start.then(d, c, shift), cfg, doors)
+            if best is None or fit.score > best.score + 1e-3:
+                best = fit
     assert best is not None
     return best
