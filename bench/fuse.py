@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyarrow.compute as pc
 import yaml
 from shapely.geometry import Point, shape
 
@@ -34,6 +33,7 @@ from tasks.fuse.place import describe
 from tasks.fuse.register2d import Placement, fine_register
 from tasks.fuse.stage import load_room, read_plan
 from tasks.fuse.stage import run as run_fuse
+from tasks.fuse.truth import fusion_figures
 
 
 def _result(folder: Path, room: str, stage: str) -> art.StageResult:
@@ -100,90 +100,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     fuse = _run_stage(run_fuse, ctx, FuseConfig(), out / "fuse", art.BUILDING, "fuse")
     ctx2 = StageContext(art.BUILDING, {"plan": plan, "fuse": fuse}, {}, {}, print)
     changes = _run_stage(run_changes, ctx2, ChangesConfig(), out / "changes", art.BUILDING, "changes")
-    figures = evaluate(args.survey, rooms, plan, fuse, changes, args.starts)
+    figures = fusion_figures(args.survey / "truth", rooms, fuse, changes)
+    if args.starts:
+        report = art.read_json(fuse.file("fuse.json"))
+        for rid, rep in report["rooms"].items():
+            if rep.get("placed"):
+                room = load_room(rid, rooms[rid], None)
+                est = Placement(math.radians(rep["theta_deg"]), tuple(rep["t_m"]))
+                figures["rooms"][rid].update(
+                    _spread(room, describe(room, FuseConfig()), plan, rep, est, args.starts, FuseConfig())
+                )
     figures["labels"] = label_check
     print(json.dumps(figures, indent=1, default=float))
     art.write_json(out / "figures.json", figures)
     return figures
-
-
-def true_placement(room: str, results: dict, walls: np.ndarray, truth_dir: Path) -> Placement:
-    """The derived true transform (tasks/fuse/truth.py)."""
-    table = art.read_table(truth_dir / "walls.parquet")
-    mine = table.filter(pc.equal(table["room_id"], room))
-    tw = np.column_stack([mine[c].to_numpy() for c in ("x0", "y0", "x1", "y1")]).astype(np.float64)
-    start = Placement(0.0, (0.0, 0.0))
-    if "register" in results and (truth_dir / "poses" / f"{room}.parquet").is_file():
-        from tasks.fuse.stage import _camera_txy
-
-        est = _camera_txy(results["register"].file("poses.parquet"), results.get("preprocess"))
-        tru = art.read_table(truth_dir / "poses" / f"{room}.parquet").to_pydict()
-        tt = np.asarray(tru["t_ns"], dtype=np.float64)
-        k = np.abs(est[:, :1] - tt[None, :]).argmin(axis=1)  # float times: nearest within 1 ms
-        ok = np.abs(tt[k] - est[:, 0]) < 1e6
-        if ok.sum() >= 3:
-            dst = np.column_stack([np.asarray(tru["tx"])[k[ok]], np.asarray(tru["ty"])[k[ok]]])
-            start = T.rigid_fit(est[ok, 1:3], dst)
-    return T.refine_on_walls(walls, tw, start)
-
-
-def evaluate(survey: Path, rooms: dict, plan, fuse, changes, starts: int) -> dict[str, Any]:
-    truth_dir = survey / "truth"
-    report = art.read_json(fuse.file("fuse.json"))
-    cfg = FuseConfig()
-    out: dict[str, Any] = {"rooms": {}}
-    for rid, rep in report["rooms"].items():
-        row: dict[str, Any] = {
-            k: rep.get(k)
-            for k in (
-                "plan_room",
-                "source",
-                "placed",
-                "reason",
-                "fit_score",
-                "closed",
-                "open_reason",
-                "start",
-            )
-        }
-        if rep.get("placed"):
-            room = load_room(rid, rooms[rid], None)
-            model = describe(room, cfg)
-            true = true_placement(rid, rooms[rid], room.walls, truth_dir)
-            est = Placement(math.radians(rep["theta_deg"]), tuple(rep["t_m"]))
-            row.update(T.registration_error(est, true, model.centre))
-            if starts:
-                row.update(_spread(room, model, plan, rep, est, starts, cfg))
-            # walls in the plan frame against the truth (the walls issue's figures)
-            from tasks.evaluate import evaluate_walls
-
-            table = art.read_table(truth_dir / "walls.parquet")
-            mine = table.filter(pc.equal(table["room_id"], rid))
-            tw = np.column_stack([mine[c].to_numpy() for c in ("x0", "y0", "x1", "y1")]).astype(np.float64)
-            segs, _ = art.read_segments(fuse.file(f"{rid}.walls.parquet"))
-            ev = evaluate_walls(segs, tw)
-            row.update({k: ev[k] for k in ("completeness", "correctness", "accuracy_mean_m")})
-        out["rooms"][rid] = row
-    # thickness
-    tc, tt = art.read_segments(truth_dir / "plan_walls.parquet")
-    tthick = tt["thickness_m"].to_numpy()
-    faces = art.read_table(truth_dir / "walls.parquet")
-    fsegs = np.column_stack([faces[c].to_numpy() for c in ("x0", "y0", "x1", "y1")]).astype(np.float64)
-    both = T.both_sides_truth(tc, tthick, fsegs, np.asarray(faces["room_id"].to_pylist()))
-    fc, ft = art.read_segments(fuse.file("thickness.parquet"))
-    for name, col in (("both_sides", "thickness_m"), ("residuals", "thickness_residuals_m")):
-        err = T.thickness_errors(fc, ft[col].to_numpy(), tc, tthick)
-        e = err[both & np.isfinite(err)]
-        out[f"thickness_{name}"] = {
-            "walls": len(e),
-            "max_m": float(e.max()) if len(e) else None,
-            "mean_m": float(e.mean()) if len(e) else None,
-            "errors_m": e.round(4).tolist(),
-        }
-    pred = art.read_table(changes.file("changes.parquet")).to_pylist()
-    true_changes = art.read_table(truth_dir / "changes.parquet").to_pylist()
-    out["changes"] = T.change_scores(pred, true_changes)
-    return out
 
 
 def _spread(room, model, plan, rep, est: Placement, n: int, cfg: FuseConfig) -> dict[str, float]:

@@ -27,6 +27,7 @@ def overlay_png(
     pts = [segs.reshape(-1, 2)] + [np.array([[c.x0, c.y0], [c.x1, c.y1]]) for c in changes]
     xy = np.concatenate(pts) if len(segs) or changes else np.zeros((1, 2))
     lo, hi = xy.min(axis=0) - margin_m, xy.max(axis=0) + margin_m
+    hi[1] += 100 / px_per_m  # a band above the floor for the legend
     w, h = (np.ceil((hi - lo) * px_per_m)).astype(int) + 1
     img = np.full((h, w, 3), 255, np.uint8)
 

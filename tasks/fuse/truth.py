@@ -12,12 +12,19 @@ between where the two put the model's centroid.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow.compute as pc
 from numpy.typing import NDArray
 
+from tasks import artefacts as art
+from tasks.evaluate import evaluate_walls
+from tasks.fuse.config import FuseConfig
+from tasks.fuse.place import describe
 from tasks.fuse.register2d import Placement
+from tasks.fuse.stage import _camera_txy, load_room
 from tasks.lines import Segments, as_segments, lengths, point_segment_distances, sample_segments
 
 
@@ -149,3 +156,81 @@ def _covered_share(a: Segments, b: Segments, tol_m: float) -> NDArray[np.float64
     pts, owner = sample_segments(a, 0.05)
     near = point_segment_distances(pts, b).min(axis=1) <= tol_m
     return np.bincount(owner, near, len(a)) / np.bincount(owner, minlength=len(a))
+
+
+def true_placement(room: str, results: dict, walls: np.ndarray, truth_dir: Path) -> Placement:
+    """The derived true transform of a room model (the module doc)."""
+    table = art.read_table(truth_dir / "walls.parquet")
+    mine = table.filter(pc.equal(table["room_id"], room))
+    tw = np.column_stack([mine[c].to_numpy() for c in ("x0", "y0", "x1", "y1")]).astype(np.float64)
+    start = Placement(0.0, (0.0, 0.0))
+    if "register" in results and (truth_dir / "poses" / f"{room}.parquet").is_file():
+        est = _camera_txy(results["register"].file("poses.parquet"), results.get("preprocess"))
+        tru = art.read_table(truth_dir / "poses" / f"{room}.parquet").to_pydict()
+        tt = np.asarray(tru["t_ns"], dtype=np.float64)
+        k = np.abs(est[:, :1] - tt[None, :]).argmin(axis=1)  # float times: nearest within 1 ms
+        ok = np.abs(tt[k] - est[:, 0]) < 1e6
+        if ok.sum() >= 3:
+            dst = np.column_stack([np.asarray(tru["tx"])[k[ok]], np.asarray(tru["ty"])[k[ok]]])
+            start = rigid_fit(est[ok, 1:3], dst)
+    return refine_on_walls(walls, tw, start)
+
+
+def fusion_figures(
+    truth_dir: Path, rooms: dict, fuse: art.StageResult, changes: art.StageResult | None
+) -> dict[str, Any]:
+    """metrics.json's fusion figures: per room, the correspondence, registration error against the
+    derived true transform, fit score, closure and the walls in the plan frame against truth/walls;
+    the thickness errors of both methods on walls captured from both sides; change precision and
+    recall. `rooms`: room id -> {stage name -> result}."""
+    report = art.read_json(fuse.file("fuse.json"))
+    cfg = FuseConfig()
+    out: dict[str, Any] = {"rooms": {}}
+    for rid, rep in report["rooms"].items():
+        row: dict[str, Any] = {
+            k: rep.get(k)
+            for k in (
+                "plan_room",
+                "source",
+                "placed",
+                "reason",
+                "fit_score",
+                "closed",
+                "open_reason",
+                "start",
+            )
+        }
+        if rep.get("placed"):
+            room = load_room(rid, rooms[rid], None)
+            model = describe(room, cfg)
+            true = true_placement(rid, rooms[rid], room.walls, truth_dir)
+            est = Placement(math.radians(rep["theta_deg"]), tuple(rep["t_m"]))
+            row.update(registration_error(est, true, model.centre))
+            # walls in the plan frame against the truth (the walls issue's figures)
+            table = art.read_table(truth_dir / "walls.parquet")
+            mine = table.filter(pc.equal(table["room_id"], rid))
+            tw = np.column_stack([mine[c].to_numpy() for c in ("x0", "y0", "x1", "y1")]).astype(np.float64)
+            segs, _ = art.read_segments(fuse.file(f"{rid}.walls.parquet"))
+            ev = evaluate_walls(segs, tw)
+            row.update({k: ev[k] for k in ("completeness", "correctness", "accuracy_mean_m")})
+        out["rooms"][rid] = row
+    # thickness
+    tc, tt = art.read_segments(truth_dir / "plan_walls.parquet")
+    tthick = tt["thickness_m"].to_numpy()
+    faces = art.read_table(truth_dir / "walls.parquet")
+    fsegs = np.column_stack([faces[c].to_numpy() for c in ("x0", "y0", "x1", "y1")]).astype(np.float64)
+    both = both_sides_truth(tc, tthick, fsegs, np.asarray(faces["room_id"].to_pylist()))
+    fc, ft = art.read_segments(fuse.file("thickness.parquet"))
+    for name, col in (("both_sides", "thickness_m"), ("residuals", "thickness_residuals_m")):
+        err = thickness_errors(fc, ft[col].to_numpy(), tc, tthick)
+        e = err[both & np.isfinite(err)]
+        out[f"thickness_{name}"] = {
+            "walls": len(e),
+            "max_m": float(e.max()) if len(e) else None,
+            "mean_m": float(e.mean()) if len(e) else None,
+            "errors_m": e.round(4).tolist(),
+        }
+    if changes is not None and (truth_dir / "changes.parquet").is_file():
+        pred = art.read_table(changes.file("changes.parquet")).to_pylist()
+        out["changes"] = change_scores(pred, art.read_table(truth_dir / "changes.parquet").to_pylist())
+    return out
