@@ -125,6 +125,7 @@ def _spread(room, model, plan, rep, est: Placement, n: int, cfg: FuseConfig) -> 
     rng = np.random.default_rng(0)
     shell = room.walls[model.shell]
     inward = model.inward[model.shell]
+    est = fine_register(shell, inward, model.centre, faces, est, cfg).placement  # the same fit without doors
     dth, dt = [], []
     for _ in range(n):
         turn = math.radians(rng.uniform(-45, 45))

@@ -5,7 +5,7 @@ correspondence).
 
 Only dark, unsaturated ink in small connected components counts (letters; walls, green arrows and red
 symbols do not), inside the room's outline shrunk by 0.1 m; the crop around them is enlarged three
-times and read as sparse text of letters and digits. The token read with the highest confidence is the
+times and read as sparse text of letters and digits. The line read with the highest confidence is the
 room's label; a room with no readable text has none (its correspondence falls back to the track or its
 shape).
 """
@@ -74,6 +74,22 @@ def read_room_labels(
                 "tesseract is not installed (apt-get install tesseract-ocr): plan room labels are not read"
             )
             return [None] * len(rooms)
-        tokens = [(float(c), t.strip()) for t, c in zip(data["text"], data["conf"], strict=True) if t.strip()]
-        out.append(max(tokens)[1] if tokens else None)
+        out.append(_label(data))
     return out
+
+
+def _label(data: dict) -> str | None:
+    """The line of text read with the highest confidence, its tokens joined left to right (sparse-text
+    mode may split 'WC' into 'W' and 'C')."""
+    tokens = [
+        (float(c), t.strip(), int(x), int(y), int(h))
+        for t, c, x, y, h in zip(
+            data["text"], data["conf"], data["left"], data["top"], data["height"], strict=True
+        )
+        if t.strip()
+    ]
+    if not tokens:
+        return None
+    best = max(tokens)
+    line = [t for t in tokens if abs((t[3] + t[4] / 2) - (best[3] + best[4] / 2)) <= best[4] / 2]
+    return "".join(t[1] for t in sorted(line, key=lambda t: t[2]))

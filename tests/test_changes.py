@@ -111,3 +111,65 @@ def test_change_scores() -> None:
     ]
     got = change_scores(pred, truth)
     assert got["precision"] == pytest.approx(0.5) and got["recall"] == pytest.approx(0.5)
+
+
+def test_fuse_and_changes_stage_bodies_on_a_two_room_plan(tmp_path) -> None:
+    """The stage bodies on small artefacts: a room given in its own frame is placed by its label, a room
+    whose walls are empty is reported, and the changes stage finds the partition added in the first."""
+    import json
+    import math
+
+    from tasks import artefacts as art
+    from tasks.changes.stage import run as run_changes
+    from tasks.context import StageContext
+    from tasks.fuse.config import FuseConfig
+    from tasks.fuse.register2d import Placement
+    from tasks.fuse.stage import run as run_fuse
+
+    def result(folder, room, stage, manifest=None):
+        files = {p.name: art.sha256_file(p) for p in folder.iterdir() if p.name != "manifest.json"}
+        art.write_json(folder / "manifest.json", manifest or {})
+        return art.StageResult(room, stage, "k", str(folder), files, art.hash_json(files))
+
+    plan_dir = tmp_path / "plan"
+    plan_dir.mkdir()
+    art.write_table(plan_dir / "plan_walls.parquet", art.segments_table(CENTRE, thickness_m=THICK))
+    feats = [
+        {
+            "type": "Feature",
+            "geometry": json.loads(json.dumps(box(0, 0, 6, 4).__geo_interface__)),
+            "properties": {"room_id": "R1", "label": "101"},
+        }
+    ]
+    art.write_geojson(plan_dir / "rooms.geojson", feats)
+    plan = result(plan_dir, art.BUILDING, "plan")
+    truth = Placement(math.radians(40.0), (3.0, -1.0))
+    walls = np.vstack([FACES, [[0, 2.0, 2.0, 2.0], [2.0, 2.0, 2.0, 2.1], [2.0, 2.1, 0, 2.1]]])
+    ends = (walls.reshape(-1, 2) - np.asarray(truth.t)) @ truth.rotation
+    rooms = {}
+    for rid, w in (("a", ends.reshape(-1, 4)), ("b", np.zeros((0, 4)))):
+        folder = tmp_path / rid
+        folder.mkdir()
+        art.write_table(
+            folder / "walls.parquet",
+            art.segments_table(
+                w, height=np.full(len(w), 2.5), origin=["observed"] * len(w), support=np.ones(len(w))
+            ),
+            art.WALLS_SCHEMA,
+        )
+        rooms[rid] = {"walls": result(folder, rid, "walls")}
+    params = {"rooms": [{"id": "a", "plan_room": "101"}, {"id": "b", "plan_room": "102"}]}
+    ctx = StageContext(art.BUILDING, {"plan": plan}, {}, {}, lambda m: None, params=params, rooms=rooms)
+    out = tmp_path / "fuse"
+    out.mkdir()
+    report = run_fuse(ctx, FuseConfig(), out)
+    assert report["metrics"]["placed"] == 1 and "walls are empty" in report["metrics"]["not_placed"]["b"]
+    fused = result(out, art.BUILDING, "fuse", report)
+    placed, _ = art.read_segments(fused.file("a.walls.parquet"))
+    assert np.abs(placed - walls).max() < 1e-6 or report["metrics"]["fit_scores"]["a"] == pytest.approx(1.0)
+    ctx2 = StageContext(art.BUILDING, {"plan": plan, "fuse": fused}, {}, {}, lambda m: None)
+    out2 = tmp_path / "changes"
+    out2.mkdir()
+    metrics = run_changes(ctx2, CFG, out2)["metrics"]
+    assert metrics["added"] == 2 and metrics["removed"] == 0
+    assert {"changes.parquet", "changes.geojson", "changes.png"} <= {p.name for p in out2.iterdir()}
