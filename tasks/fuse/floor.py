@@ -1,0 +1,249 @@
+"""The fused floor: every placed room's walls in the plan frame with the gaps filled from the plan, the
+plan's walls with their fused thickness and the rooms on either side, doors, and floor.geojson."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import shapely
+import shapely.geometry
+from numpy.typing import NDArray
+from shapely.geometry import Polygon
+
+from tasks.fuse.config import FuseConfig
+from tasks.fuse.correspond import PlanRoom
+from tasks.fuse.gaps import GAP_FILLED, GapFill, fill_gaps, shell_polygon
+from tasks.fuse.openings import face_share
+from tasks.fuse.place import Placed, RoomInput, RoomModel, place_rooms
+from tasks.fuse.thickness import PlacedWalls, WallThickness, both_sides_thickness, residual_thickness
+from tasks.lines import Segments, as_segments, lengths
+
+
+@dataclass(frozen=True)
+class FusedRoom:
+    """One room after fusion."""
+
+    placed: Placed
+    walls: Segments
+    """(N, 4) plan frame when placed (own frame otherwise), gap-filled walls appended."""
+    origin: NDArray[np.str_]
+    support: NDArray[np.float64]
+    height_m: float
+    inward: NDArray[np.float64]
+    doors: Segments
+    """(D, 4) doors seen in the model, same frame as the walls."""
+    gaps: GapFill | None
+    closed_plan_doors: tuple[int, ...] = ()
+
+    @property
+    def in_plan(self) -> bool:
+        return self.placed.placement is not None
+
+
+@dataclass(frozen=True)
+class FusedFloor:
+    rooms: dict[str, FusedRoom]
+    models: dict[str, RoomModel]
+    thickness: WallThickness
+    thickness_residuals: WallThickness
+    """The thesis' per-room residual thickness, kept for the comparison."""
+    centrelines: Segments
+    plan_doors: Segments
+    plan_rooms: list[PlanRoom]
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+
+def fuse_floor(
+    rooms: list[RoomInput],
+    plan_rooms: list[PlanRoom],
+    centrelines: Segments,
+    plan_thickness_m: NDArray,
+    plan_doors: Segments,
+    track: NDArray | None,
+    cfg: FuseConfig,
+) -> FusedFloor:
+    """Place every room, measure wall thickness, fill the gaps (see the package's modules)."""
+    centrelines = as_segments(centrelines)
+    placed, models = place_rooms(rooms, plan_rooms, centrelines, plan_doors, track, cfg)
+    by_id = {r.id: r for r in rooms}
+    on_plan = []
+    for rid, p in placed.items():
+        if p.placement is not None:
+            m = models[rid]
+            on_plan.append(
+                PlacedWalls(rid, p.placement.segments(by_id[rid].walls), m.inward @ p.placement.rotation.T)
+            )
+    args = (
+        centrelines,
+        np.asarray(plan_thickness_m),
+        on_plan,
+        cfg.thickness_range_m,
+        cfg.default_thickness_m,
+    )
+    both, resid = both_sides_thickness(*args), residual_thickness(*args)
+    thickness = both if cfg.thickness_method == "both_sides" else resid
+    plan_by_id = {p.id: p for p in plan_rooms}
+    fused = {}
+    for rid, p in placed.items():
+        fused[rid] = _fuse_room(
+            by_id[rid], p, models.get(rid), plan_by_id, centrelines, thickness, plan_doors, cfg
+        )
+    return FusedFloor(fused, models, thickness, resid, centrelines, as_segments(plan_doors), plan_rooms)
+
+
+def _fuse_room(
+    room: RoomInput,
+    placed: Placed,
+    model: RoomModel | None,
+    plan_rooms: dict[str, PlanRoom],
+    centrelines: Segments,
+    thickness: WallThickness,
+    plan_doors: Segments,
+    cfg: FuseConfig,
+) -> FusedRoom:
+    walls = as_segments(room.walls)
+    doors = np.array([d.segment for d in model.doors]).reshape(-1, 4) if model else np.zeros((0, 4))
+    inward = model.inward if model else np.zeros((len(walls), 2))
+    if placed.placement is None or model is None:
+        return FusedRoom(placed, walls, room.origin, room.support, room.height_m, inward, doors, None)
+    pl = placed.placement
+    walls_p, doors_p, inward_p = pl.segments(walls), pl.segments(doors), inward @ pl.rotation.T
+    plan_room = plan_rooms[placed.correspondence.plan_room or ""]
+    shell = shell_polygon(plan_room.polygon, centrelines, thickness.thickness_m, plan_doors)
+    gaps = fill_gaps(walls_p, shell, cfg.gap_end_tol_m)
+    closed_doors = _closed_plan_doors(room, pl, walls, inward, plan_doors, cfg)
+    return FusedRoom(
+        placed,
+        np.concatenate([walls_p, gaps.walls]),
+        np.concatenate([np.asarray(room.origin, dtype=str), np.full(len(gaps.walls), GAP_FILLED)]),
+        np.concatenate([np.asarray(room.support, dtype=np.float64), np.zeros(len(gaps.walls))]),
+        room.height_m,
+        np.concatenate([inward_p, _filled_inward(gaps.walls, gaps.polygon)]),
+        doors_p,
+        gaps,
+        closed_doors,
+    )
+
+
+def _filled_inward(walls: Segments, polygon: Polygon | None) -> NDArray:
+    from tasks.fuse.register2d import inward_normals
+
+    return inward_normals(walls, polygon) if len(walls) else np.zeros((0, 2))
+
+
+def _closed_plan_doors(
+    room: RoomInput, placement, walls: Segments, inward: NDArray, plan_doors: Segments, cfg: FuseConfig
+) -> tuple[int, ...]:
+    """Plan doors that this room's capture shows closed: a model wall runs along the door gap and its face
+    is seen there low down about as densely as beside it (closed_door_share)."""
+    if room.points is None or len(plan_doors) == 0 or len(walls) == 0:
+        return ()
+    out = []
+    back_r = placement.rotation.T
+    for k, d in enumerate(as_segments(plan_doors)):
+        ends = (d.reshape(2, 2) - np.asarray(placement.t)) @ back_r.T  # into the room frame
+        mid = ends.mean(axis=0)
+        u = (ends[1] - ends[0]) / max(float(np.hypot(*(ends[1] - ends[0]))), 1e-12)
+        best = None
+        for j, w in enumerate(walls):
+            v = (w[2:] - w[:2]) / max(float(lengths(w[None])[0]), 1e-12)
+            n = np.array([-v[1], v[0]])
+            if abs(float(u @ v)) < 0.99 or abs(float((mid - w[:2]) @ n)) > 0.25:
+                continue
+            best = j
+            break
+        if best is None:
+            continue
+        n_in = inward[best]
+        w = walls[best]
+        v = (w[2:] - w[:2]) / max(float(lengths(w[None])[0]), 1e-12)
+        # the span on the wall's face line
+        a = w[:2] + ((ends[0] - w[:2]) @ v) * v
+        b = w[:2] + ((ends[1] - w[:2]) @ v) * v
+        share = face_share(room.points, room.floor_z, np.concatenate([a, b]), n_in, cfg.door_band_m)
+        if share is not None and share >= cfg.closed_door_share:
+            out.append(k)
+    return tuple(out)
+
+
+# --------------------------------------------------------------------------------------------- geojson
+
+
+def rooms_on_sides(
+    centrelines: Segments, thickness_m: NDArray, plan_rooms: list[PlanRoom], survey_of: dict[str, str]
+) -> list[tuple[str | None, str | None]]:
+    """(room on the left, room on the right) of every plan wall: the survey room placed in the plan room
+    found 5 cm beyond the wall's face on that side (the plan room id when no survey room is there)."""
+    out = []
+    for c, t in zip(as_segments(centrelines), thickness_m, strict=True):
+        a, b = c[:2], c[2:]
+        u = (b - a) / max(float(np.hypot(*(b - a))), 1e-12)
+        n = np.array([-u[1], u[0]])
+        mid = 0.5 * (a + b)
+        sides = []
+        for side in (1.0, -1.0):
+            p = mid + side * (t / 2 + 0.05) * n
+            hit = next((r.id for r in plan_rooms if r.polygon.buffer(0.02).contains(shapely.Point(*p))), None)
+            sides.append(survey_of.get(hit, hit) if hit else None)
+        out.append((sides[0], sides[1]))
+    return out
+
+
+def floor_features(floor: FusedFloor) -> list[dict[str, Any]]:
+    """floor.geojson: placed rooms (polygon, id, plan room, area), their walls (inner faces with origin),
+    the plan walls (centrelines with thickness, its source and the room on each side) and doors."""
+    survey_of = {f.placed.correspondence.plan_room: rid for rid, f in floor.rooms.items() if f.in_plan}
+    feats: list[dict[str, Any]] = []
+    for rid, f in floor.rooms.items():
+        if not f.in_plan:
+            continue
+        poly = f.gaps.polygon if f.gaps is not None else None
+        if poly is not None:
+            feats.append(
+                {
+                    "type": "Feature",
+                    "geometry": shapely.geometry.mapping(poly),
+                    "properties": {
+                        "kind": "room",
+                        "room_id": rid,
+                        "plan_room": f.placed.correspondence.plan_room,
+                        "area_m2": float(poly.area),
+                        "closed": bool(f.gaps.closed),
+                    },
+                }
+            )
+        for w, o in zip(f.walls, f.origin, strict=True):
+            feats.append(_line(w, {"kind": "wall_face", "room_id": rid, "origin": str(o)}))
+        for d in f.doors:
+            feats.append(_line(d, {"kind": "door", "room_id": rid, "source": "model"}))
+    sides = rooms_on_sides(floor.centrelines, floor.thickness.thickness_m, floor.plan_rooms, survey_of)
+    for c, t, s, (left, right) in zip(
+        floor.centrelines, floor.thickness.thickness_m, floor.thickness.source, sides, strict=True
+    ):
+        feats.append(
+            _line(
+                c,
+                {
+                    "kind": "wall",
+                    "thickness_m": float(t),
+                    "thickness_source": str(s),
+                    "origin": "plan",
+                    "room_left": left,
+                    "room_right": right,
+                },
+            )
+        )
+    for d in floor.plan_doors:
+        feats.append(_line(d, {"kind": "door", "source": "plan"}))
+    return feats
+
+
+def _line(seg: NDArray, props: dict[str, Any]) -> dict[str, Any]:
+    s = [float(v) for v in seg]
+    return {
+        "type": "Feature",
+        "geometry": {"type": "LineString", "coordinates": [[s[0], s[1]], [s[2], s[3]]]},
+        "properties": props,
+    }

@@ -1,0 +1,255 @@
+"""Known answers for the fuse stage's pure parts: registration (eq 7.1-7.10, fig 7.4), correspondence,
+thickness, gap filling and doors."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from shapely.geometry import Polygon, box
+
+from tasks.fuse.config import FuseConfig
+from tasks.fuse.correspond import PlanRoom, RoomEvidence, correspond_rooms, turning_distance
+from tasks.fuse.gaps import GAP_FILLED, fill_gaps, shell_polygon
+from tasks.fuse.openings import find_doors
+from tasks.fuse.place import RoomInput, place_rooms
+from tasks.fuse.register2d import (
+    Placement,
+    best_fit,
+    centroid_start,
+    correspond,
+    fine_register,
+    inward_normals,
+    polygon_faces,
+    shell_mask,
+)
+from tasks.fuse.thickness import PlacedWalls, both_sides_thickness, room_thickness_from_residuals
+
+CFG = FuseConfig()
+
+
+def ring_segments(poly: Polygon) -> np.ndarray:
+    xy = np.asarray(poly.exterior.coords)
+    return np.column_stack([xy[:-1], xy[1:]])
+
+
+def to_room_frame(segments: np.ndarray, truth: Placement) -> np.ndarray:
+    """Plan-frame segments expressed in a room frame that `truth` maps back to the plan."""
+    r = truth.rotation
+    ends = (segments.reshape(-1, 2) - np.asarray(truth.t)) @ r
+    return ends.reshape(-1, 4)
+
+
+def errors(est: Placement, truth: Placement, centre: np.ndarray) -> tuple[float, float]:
+    d = math.degrees(math.atan2(math.sin(est.theta - truth.theta), math.cos(est.theta - truth.theta)))
+    return abs(d), float(np.hypot(*(est.points(centre)[0] - truth.points(centre)[0])))
+
+
+TRUTH = Placement(math.radians(30.0), (12.0, -4.0))
+
+# an asymmetric cell: walls 0.30 thick in the west, 0.10 in the east, 0.20 north and south
+CELL = box(0.0, 0.0, 5.0, 3.0)
+FACES = Polygon([(0.15, 0.10), (4.95, 0.10), (4.95, 2.90), (0.15, 2.90)])
+
+
+def test_optimal_fit_keeps_an_asymmetric_room_off_centre_fig_7_4() -> None:
+    """The optimal fit on the plan's faces puts the room where it is; the thesis' springs on the
+    centrelines (best fit) pull it to the centre of its cell by a quarter of the thickness difference."""
+    model = to_room_frame(ring_segments(FACES), TRUTH)
+    shell = shell_mask(model, CFG.shell_tol_m)
+    assert shell.all()
+    centre = model.reshape(-1, 2).mean(axis=0)
+    inward = inward_normals(model, None, centre)
+    faces = polygon_faces(FACES)
+    start = centroid_start(math.radians(-10.0), centre, np.array(FACES.centroid.coords[0]))
+    fit = fine_register(model, inward, centre, faces, start, CFG)
+    rot, shift = errors(fit.placement, TRUTH, centre)
+    assert rot < 1e-6 and shift < 1e-6
+    assert fit.score == pytest.approx(1.0)
+    centrelines = polygon_faces(CELL)
+    cl_fit = fine_register(model, inward, centre, centrelines, start, replace(CFG, max_residual_m=1.0))
+    springs = best_fit(model, centrelines, cl_fit.matched, cl_fit.placement)
+    _, pulled = errors(springs, TRUTH, centre)
+    assert pulled == pytest.approx((0.30 - 0.10) / 4, abs=1e-3)
+
+
+L_ROOM = Polygon([(0, 0), (6, 0), (6, 2.5), (3.5, 2.5), (3.5, 5), (0, 5)])
+
+
+def test_fine_registration_converges_from_any_start_within_45_deg_and_1_m() -> None:
+    model = to_room_frame(ring_segments(L_ROOM), TRUTH)
+    centre = np.array(Polygon(model.reshape(-1, 4)[:, :2]).centroid.coords[0])
+    inward = inward_normals(model, Polygon(model[:, :2]), centre)
+    shell = shell_mask(model, CFG.shell_tol_m)
+    assert shell.all()  # the notch's walls look out of the model: shell, though off the convex hull
+    faces = polygon_faces(L_ROOM)
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        start = TRUTH.then(math.radians(rng.uniform(-45, 45)), TRUTH.points(centre)[0], rng.uniform(-1, 1, 2))
+        fit = fine_register(model, inward, centre, faces, start, CFG)
+        rot, shift = errors(fit.placement, TRUTH, centre)
+        assert rot < 1e-4 and shift < 1e-4, (rot, shift)
+
+
+def test_correspondence_prefers_the_face_the_ray_meets_among_parallel_ones() -> None:
+    faces = polygon_faces(L_ROOM)
+    wall = np.array([[1.0, 4.95, 3.0, 4.95]])  # the top of the tall leg, 5 cm low
+    j = correspond(wall, np.array([[0.0, -1.0]]), np.array([2.0, 2.0]), faces, math.radians(10))[0]
+    assert np.allclose(faces.segments[j][[1, 3]], 5.0)
+
+
+def test_a_partition_inside_the_room_is_not_shell() -> None:
+    walls = np.vstack(
+        [ring_segments(box(0, 0, 5, 4)), [[0.0, 2.0, 1.5, 2.0], [1.5, 2.0, 1.5, 2.1], [1.5, 2.1, 0.0, 2.1]]]
+    )
+    assert shell_mask(walls, CFG.shell_tol_m).tolist() == [True] * 4 + [False] * 3
+
+
+def plan_rooms() -> list[PlanRoom]:
+    return [
+        PlanRoom("R1", "101", box(0, 0, 4, 3)),
+        PlanRoom("R2", "102", box(4.2, 0, 10, 3)),
+        PlanRoom("R3", None, Polygon([(0, 3.2), (6, 3.2), (6, 5), (3, 5), (3, 7), (0, 7)])),
+    ]
+
+
+def test_correspondence_sources_and_bad_input() -> None:
+    rooms = [
+        RoomEvidence("a", "101"),
+        RoomEvidence("b", "999", track_xy=np.array([[5.0, 1.0], [6.0, 1.5], [7.0, 2.0]])),
+        RoomEvidence("c", None, outline=plan_rooms()[2].polygon, area_m2=plan_rooms()[2].polygon.area * 0.97),
+        RoomEvidence("d", "101", area_m2=1.0),
+    ]
+    got = correspond_rooms(rooms, plan_rooms(), fit_score=lambda r, p: {"a": 0.9, "d": 0.5}.get(r, 0.0))
+    assert (got["a"].plan_room, got["a"].source) == ("R1", "label")
+    assert (got["b"].plan_room, got["b"].source) == ("R2", "track")
+    assert "'999' is not a label read on the plan" in got["b"].notes[0]
+    assert (got["c"].plan_room, got["c"].source) == ("R3", "shape")
+    assert got["d"].plan_room is None
+    assert any("also claimed by room a" in n for n in got["d"].notes)
+
+
+def test_turning_distance_tells_an_l_from_a_rectangle() -> None:
+    l_shape = plan_rooms()[2].polygon
+    assert turning_distance(l_shape, l_shape) < 1e-9
+    assert turning_distance(box(0, 0, 2, 1), box(5, 5, 9, 7)) < 1e-9  # scale and position do not matter
+    assert turning_distance(l_shape, box(0, 0, 6, 4)) > 0.3
+
+
+def test_place_rooms_reports_empty_and_unknown_rooms_and_places_the_others() -> None:
+    truth = Placement(math.radians(90.0), (1.0, 2.0))
+    faces_r1 = box(0.0, 0.0, 4.0, 3.0)
+    rooms = [
+        RoomInput(
+            "ok",
+            to_room_frame(ring_segments(faces_r1), truth),
+            np.full(4, "observed"),
+            np.ones(4),
+            plan_room="101",
+        ),
+        RoomInput("empty", np.zeros((0, 4)), np.zeros(0, dtype=str), np.zeros(0), plan_room="102"),
+        RoomInput(
+            "lost",
+            to_room_frame(ring_segments(box(0, 0, 1, 1)), truth),
+            np.full(4, "observed"),
+            np.ones(4),
+            plan_room="777",
+        ),
+    ]
+    placed, _ = place_rooms(rooms, plan_rooms(), np.zeros((0, 4)), np.zeros((0, 4)), None, CFG)
+    assert placed["ok"].placement is not None and placed["ok"].correspondence.source == "label"
+    centre = np.array([2.0, 1.5])
+    p = placed["ok"].placement
+    # a 3.8 x 2.8 rectangle: the 180 degree turn fits as well, and is reported as ambiguous
+    assert placed["ok"].ambiguous or errors(p, truth, truth.points(centre)[0])[1] < 1e-6
+    assert placed["empty"].placement is None and "walls are empty" in placed["empty"].reason
+    assert placed["lost"].placement is None and "'777'" in placed["lost"].reason
+
+
+def test_both_sides_thickness_and_the_thesis_residuals() -> None:
+    centre = np.array([[5.0, 0.0, 5.0, 4.0]])  # a wall 0.16 thick between two rooms, drawn 0.20
+    left = PlacedWalls("west", np.array([[4.92, 0.0, 4.92, 4.0]]), np.array([[-1.0, 0.0]]))
+    right = PlacedWalls("east", np.array([[5.08, 4.0, 5.08, 0.0]]), np.array([[1.0, 0.0]]))
+    got = both_sides_thickness(centre, np.array([0.20]), [left, right], (0.05, 0.6), 0.15)
+    assert got.thickness_m[0] == pytest.approx(0.16) and got.source[0] == "measured"
+    one = both_sides_thickness(centre, np.array([0.20]), [left], (0.05, 0.6), 0.15)
+    assert one.thickness_m[0] == pytest.approx(0.20) and one.source[0] == "plan"
+    none = both_sides_thickness(centre, np.array([np.nan]), [left], (0.05, 0.6), 0.15)
+    assert none.thickness_m[0] == pytest.approx(0.15) and none.source[0] == "default"
+    assert room_thickness_from_residuals(left.walls, centre, (0.05, 0.6)) == pytest.approx(0.16)
+
+
+def test_an_l_shaped_gap_is_closed_along_the_shell() -> None:
+    """The outer corner of an L (both walls' ends near it) was never seen: the gap is filled along the
+    shell between the two free ends, and the room closes."""
+    cell = Polygon([(0, 0), (6, 0), (6, 3), (3, 3), (3, 6), (0, 6)])
+    centrelines = ring_segments(cell)
+    shell = shell_polygon(cell.buffer(-0.1, join_style="mitre"), centrelines, np.full(6, 0.2))
+    assert shell.area == pytest.approx(cell.buffer(-0.1, join_style="mitre").area, rel=1e-6)
+    faces = ring_segments(shell)
+    # drop the corner at (5.9, 0.1): cut the bottom wall at x=4.5 and the right wall at y=1.6
+    model = []
+    for s in faces:
+        a, b = s[:2], s[2:]
+        if np.isclose(a[1], 0.1) and np.isclose(b[1], 0.1):  # bottom wall, left to right
+            model.append([min(a[0], b[0]), 0.1, 4.5, 0.1])
+        elif np.isclose(a[0], 5.9) and np.isclose(b[0], 5.9):
+            model.append([5.9, 1.6, 5.9, max(a[1], b[1])])
+        else:
+            model.append(s.tolist())
+    got = fill_gaps(np.array(model), shell, CFG.gap_end_tol_m)
+    assert got.closed and got.free_ends == 2
+    assert got.polygon.area == pytest.approx(shell.area, rel=1e-3)
+    filled_len = np.hypot(*(got.walls[:, 2:] - got.walls[:, :2]).T).sum()
+    assert filled_len == pytest.approx(1.4 + 1.5, abs=1e-6)
+    assert GAP_FILLED == "gap_filled"
+
+
+def test_a_room_that_cannot_close_says_why() -> None:
+    shell = box(0, 0, 4, 3)
+    got = fill_gaps(np.array([[0.0, 0.0, 4.0, 0.0]]), shell, CFG.gap_end_tol_m)
+    assert got.closed  # one wall on the shell: the path around closes it
+    inside = fill_gaps(np.array([[1.0, 1.0, 3.0, 1.0]]), shell, CFG.gap_end_tol_m)
+    assert not inside.closed and "inside the room" in inside.reason
+
+
+def test_doors_from_the_cloud_low_down() -> None:
+    """A wall with an opening from the floor to 2 m (a door) and one with a parapet (a window): only
+    the door is found."""
+    rng = np.random.default_rng(1)
+    pts = []
+    for x in np.arange(0, 5, 0.02):
+        for z in np.arange(0.0, 2.6, 0.05):
+            door = 1.0 <= x <= 1.9 and z < 2.05
+            window = 3.0 <= x <= 4.2 and 0.9 <= z <= 2.1
+            if not door and not window:
+                pts.append([x, 0.0 + rng.normal(0, 0.005), z])
+    walls = np.array([[0.0, 0.0, 5.0, 0.0]])
+    doors = find_doors(np.array(pts), 0.0, walls, np.array([[0.0, 1.0]]), CFG.door_band_m, (0.6, 1.6))
+    assert len(doors) == 1
+    assert doors[0].segment[0] == pytest.approx(1.0, abs=0.06) and doors[0].segment[2] == pytest.approx(
+        1.9, abs=0.06
+    )
+
+
+def test_room_labels_are_read_from_the_plan_raster() -> None:
+    """Labels drawn as the survey generator draws them (OpenCV's simplex font), among walls and a green
+    arrow, are read per room; a room without text has none."""
+    import shutil
+
+    import cv2
+
+    from tasks.room_labels import read_room_labels
+
+    if shutil.which("tesseract") is None:
+        pytest.skip("tesseract-ocr is not installed (.ci/setup installs it)")
+    s = 0.02
+    img = np.full((300, 700, 3), 255, np.uint8)
+    cv2.rectangle(img, (10, 10), (690, 290), (0, 0, 0), 8)
+    cv2.line(img, (350, 10), (350, 290), (0, 0, 0), 6)
+    cv2.putText(img, "104", (150, 150), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.arrowedLine(img, (420, 200), (520, 200), (0, 150, 60), 8)
+    rooms = [box(14 * s, -286 * s, 347 * s, -14 * s), box(353 * s, -286 * s, 686 * s, -14 * s)]
+    assert read_room_labels(img, rooms, s) == ["104", None]
