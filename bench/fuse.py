@@ -7,7 +7,7 @@ and changes stages into DIR (default WORK/bench-fuse), and prints per room: corr
 registration error against the derived true transform (tasks/fuse/truth.py), fit score, closure; the
 thickness errors of both methods on walls captured from both sides; change precision and recall; with
 --starts N the spread of the fine registration from N random starts within +-45 degrees and +-1 m.
---labels reads the plan rooms' labels on the plan raster (tasks/room_labels.py) when the plan stage has
+--labels reads the plan rooms' labels on the plan raster (tasks/plan/labels.py) when the plan stage has
 none, and checks them against truth/planned_rooms.geojson.
 """
 
@@ -51,9 +51,9 @@ def _run_stage(run, ctx: StageContext, cfg: Any, out: Path, room: str, stage: st
 
 
 def _labelled_plan(plan: art.StageResult, survey: Path, doc: dict, out: Path) -> tuple[art.StageResult, dict]:
-    """A copy of the plan's files whose rooms carry the label read on the plan raster (tasks/room_labels.py,
+    """A copy of the plan's files whose rooms carry the label read on the plan raster (tasks/plan/labels.py,
     what the plan stage will store), and how the labels compare with the as-planned truth."""
-    from tasks.room_labels import read_room_labels
+    from tasks.plan.labels import read_room_labels
 
     out.mkdir(parents=True, exist_ok=True)
     data = art.read_json(plan.file("rooms.geojson"))

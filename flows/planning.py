@@ -384,17 +384,31 @@ def room_failures(rows: list[StageOutcome]) -> dict[str, str]:
     return failures
 
 
-def publish_deliverables(store: ArtefactStore, rows: list[StageOutcome]) -> None:
-    """Copy finished deliverables to outputs/ (rooms' to outputs/rooms/<id>/), only what changed."""
+def deliverable_files(rows: list[StageOutcome]) -> dict[tuple[str, ...], tuple[Path, str]]:
+    """outputs/-relative path -> (artefact file, sha256) of every finished deliverable; a later stage's
+    file replaces an earlier one of the same name (fusion's plan-frame walls replace the room frame's)."""
+    files: dict[tuple[str, ...], tuple[Path, str]] = {}
     for row in rows:
         if row.result is None:
             continue
+        stage = STAGES[row.stage]
         folder = () if row.room == BUILDING else ("rooms", row.room)
-        for name in STAGES[row.stage].deliverables:
-            dest = store.outputs.joinpath(*folder, name)
-            digest = row.result.files.get(name)
-            if digest and not (dest.is_file() and sha256_file(dest) == digest):
-                store.publish(row.result.file(name), *folder, name)
+        for name in stage.deliverables:
+            if name in row.result.files:
+                files[(*folder, name)] = (row.result.file(name), row.result.files[name])
+        for name in stage.room_deliverables:
+            for room in (f[: -len(name) - 1] for f in row.result.files if f.endswith(f".{name}")):
+                source = f"{room}.{name}"
+                files[("rooms", room, name)] = (row.result.file(source), row.result.files[source])
+    return files
+
+
+def publish_deliverables(store: ArtefactStore, rows: list[StageOutcome]) -> None:
+    """Copy finished deliverables to outputs/ (rooms' to outputs/rooms/<id>/), only what changed."""
+    for relative, (source, digest) in deliverable_files(rows).items():
+        dest = store.outputs.joinpath(*relative)
+        if not (dest.is_file() and sha256_file(dest) == digest):
+            store.publish(source, *relative)
 
 
 def save_resolved_config(work: Path, cfg: cfgmod.PipelineConfig, argv: Iterable[str]) -> Path:
@@ -540,4 +554,13 @@ def write_truth_metrics(req: RunRequest, rows: list[StageOutcome]) -> Path | Non
     if not runs:
         return None
     metrics = evaluate_runs(runs, survey.truth)
+    fuse = results.get((BUILDING, "fuse"))
+    if fuse is not None:
+        from tasks.fuse.truth import fusion_figures
+
+        rooms = {
+            room: {stage: result for (r, stage), result in results.items() if r == room}
+            for room in survey.room_ids
+        }
+        metrics["fusion"] = fusion_figures(survey.truth, rooms, fuse, results.get((BUILDING, "changes")))
     return write_json(store_for(req.work).outputs / "metrics.json", metrics)

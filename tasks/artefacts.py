@@ -544,6 +544,28 @@ class ArtefactStore:
         return dest
 
 
+def read_track(path: Path) -> NDArray[np.float64]:
+    """(K, 3) t_ns, x, y of a foot-mounted IMU track CSV (header line allowed)."""
+    try:
+        data = np.loadtxt(path, delimiter=",", ndmin=2, skiprows=1 if not _starts_numeric(path) else 0)
+    except ValueError as exc:
+        raise ArtefactError(f"{path}: not a track CSV of t_ns,x,y ({exc})") from exc
+    if data.shape[1] < 3:
+        raise ArtefactError(f"{path}: a track needs three columns t_ns,x,y")
+    return data[:, :3]
+
+
+def _starts_numeric(path: Path) -> bool:
+    """Whether the file's first field is a number (no header line)."""
+    with open(path) as fh:
+        first = fh.readline().split(",")[0].strip()
+    try:
+        float(first)
+    except ValueError:
+        return False
+    return True
+
+
 def ply_vertex_count(path: Path) -> int:
     """The vertex count declared in a PLY header (cheap check without loading the file)."""
     with open(path, "rb") as fh:
@@ -574,6 +596,7 @@ __all__ = [
     "read_json",
     "read_segments",
     "read_table",
+    "read_track",
     "segments_table",
     "sha256_file",
     "write_bytes",

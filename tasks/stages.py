@@ -58,6 +58,9 @@ class Stage:
     """Room stages: the captures it applies to ("frames": RGB-D recordings, "cloud": registered clouds)."""
     deliverables: tuple[str, ...] = ()
     """Files published to outputs/ (a room stage's to outputs/rooms/<id>/)."""
+    room_deliverables: tuple[str, ...] = ()
+    """"after" stages: per-room files `<id>.<name>` published as outputs/rooms/<id>/<name>, in place of
+    the room stage's file of that name (fusion puts a placed room's walls into the plan frame)."""
 
     @property
     def section(self) -> str:
@@ -150,6 +153,27 @@ STAGES: dict[str, Stage] = {
             room_upstream=("ingest", "register", "preprocess", "walls"),
             params=("rooms",),
             deliverables=("rooms.parquet",),
+        ),
+        Stage(
+            "fuse",
+            "after",
+            "tasks.fuse.stage",
+            "tasks.fuse.config:FuseConfig",
+            upstream=("plan",),
+            room_upstream=("walls", "preprocess", "register"),
+            raw_inputs=("track",),
+            params=("rooms",),
+            deliverables=("floor.geojson", "thickness.parquet", "fuse.json"),
+            room_deliverables=("walls.parquet", "plan.geojson"),
+        ),
+        Stage(
+            "changes",
+            "after",
+            "tasks.changes.stage",
+            "tasks.changes.config:ChangesConfig",
+            upstream=("fuse", "plan"),
+            room_upstream=("walls",),
+            deliverables=("changes.parquet", "changes.geojson", "changes.png"),
         ),
     )
 }

@@ -241,7 +241,7 @@ def test_room_labels_are_read_from_the_plan_raster() -> None:
 
     import cv2
 
-    from tasks.room_labels import read_room_labels
+    from tasks.plan.labels import read_room_labels
 
     if shutil.which("tesseract") is None:
         pytest.skip("tesseract-ocr is not installed (.ci/setup installs it)")

@@ -59,14 +59,6 @@ def read_plan(plan: art.StageResult) -> tuple[list[PlanRoom], np.ndarray, np.nda
     return rooms, segments, thickness, np.asarray(doors, dtype=np.float64).reshape(-1, 4)
 
 
-def read_track(path: str | Path) -> np.ndarray:
-    """(K, 3) t_ns, x, y of a track CSV (header line allowed)."""
-    with open(path) as fh:
-        first = fh.readline()
-    skip = 0 if first.split(",")[0].strip().lstrip("-").replace(".", "", 1).isdigit() else 1
-    return np.loadtxt(path, delimiter=",", ndmin=2, skiprows=skip)[:, :3]
-
-
 def load_room(room_id: str, results: dict[str, art.StageResult], plan_room: str | None) -> RoomInput:
     """A finished room's walls, cloud (in the walls' frame), floor and ceiling, camera times and positions."""
     walls_res = results["walls"]
@@ -122,7 +114,7 @@ def run(ctx: StageContext, cfg: FuseConfig, out: Path) -> dict[str, Any]:
             rooms.append(load_room(rid, ctx.rooms[rid], labels.get(rid)))
         except (art.ArtefactError, KeyError, ValueError) as exc:
             ctx.progress(f"room {rid}: cannot be read ({exc}); the others still fuse")
-    track = read_track(ctx.raw_inputs["track"]) if "track" in ctx.raw_inputs else None
+    track = art.read_track(Path(ctx.raw_inputs["track"])) if "track" in ctx.raw_inputs else None
     ctx.progress(f"fusing {len(rooms)} rooms into {len(plan_rooms)} plan rooms")
     floor = fuse_floor(rooms, plan_rooms, centrelines, thickness, doors, track, cfg)
     return write_outputs(floor, rooms, ctx.failed_rooms, out)

@@ -11,6 +11,7 @@ import shapely.geometry
 from tasks import artefacts
 from tasks.context import StageContext
 from tasks.plan.config import PlanConfig, PlanScale
+from tasks.plan.labels import read_room_labels
 from tasks.plan.parse import parse_plan
 from tasks.plan.raster import load_plan_image
 
@@ -36,13 +37,18 @@ def write_parsed_plan(image_path: Path, out_dir: Path, scale: PlanScale, cfg: Pl
     artefacts.write_table(
         out_dir / "plan_walls.parquet", artefacts.segments_table(res.walls, thickness_m=res.thickness_m)
     )
+    polygons = [poly for poly, _ in res.rooms]
+    if scale.corners_px is None:  # the printed room numbers, read where the rooms lie on the input image
+        printed = read_room_labels(image, polygons, res.m_per_px)
+    else:  # a rectified photo: the polygons are not on the input image's pixels
+        printed = [None] * len(polygons)
     features = [
         {
             "type": "Feature",
             "geometry": shapely.geometry.mapping(poly),
-            "properties": {"room_id": f"R{n + 1}", "label": label, "area_m2": float(poly.area)},
+            "properties": {"room_id": f"R{n + 1}", "label": label or text, "area_m2": float(poly.area)},
         }
-        for n, (poly, label) in enumerate(res.rooms)
+        for n, ((poly, label), text) in enumerate(zip(res.rooms, printed, strict=True))
     ]
     features += [
         {
@@ -54,4 +60,4 @@ def write_parsed_plan(image_path: Path, out_dir: Path, scale: PlanScale, cfg: Pl
     ]
     artefacts.write_geojson(out_dir / "rooms.geojson", features, crs_note="plan frame, metres")
     artefacts.write_png(out_dir / "plan_preview.png", res.preview)
-    return res.metrics
+    return {**res.metrics, "labels_read": sum(t is not None for t in printed)}

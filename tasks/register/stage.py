@@ -8,7 +8,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from tasks import artefacts as art
 from tasks.camera import Calibration
@@ -24,7 +23,7 @@ def run(ctx: StageContext, cfg: RegisterConfig, out: Path) -> dict[str, Any]:
     calibration = None
     if "calibrate" in ctx.upstream:
         calibration = Calibration.from_json(art.read_json(ctx.upstream["calibrate"].file("calibration.json")))
-    track = read_track(Path(ctx.raw_inputs["track"])) if "track" in ctx.raw_inputs else None
+    track = art.read_track(Path(ctx.raw_inputs["track"])) if "track" in ctx.raw_inputs else None
     plan_walls = None
     if "plan" in ctx.upstream:
         segments, table = art.read_segments(ctx.upstream["plan"].file("plan_walls.parquet"))
@@ -48,25 +47,3 @@ def run(ctx: StageContext, cfg: RegisterConfig, out: Path) -> dict[str, Any]:
     art.write_ply_points(out / "cloud.ply", result.cloud.points, result.cloud.colors)
     art.write_json(out / "scale.json", result.scale)
     return {"metrics": {**result.metrics, "frame": result.frame}}
-
-
-def read_track(path: Path) -> NDArray[np.float64]:
-    """(K, 3) t_ns, x, y of a foot-mounted IMU track CSV (header line allowed)."""
-    try:
-        data = np.loadtxt(path, delimiter=",", ndmin=2, skiprows=1 if not _starts_numeric(path) else 0)
-    except ValueError as exc:
-        raise art.ArtefactError(f"{path}: not a track CSV of t_ns,x,y ({exc})") from exc
-    if data.shape[1] < 3:
-        raise art.ArtefactError(f"{path}: a track needs three columns t_ns,x,y")
-    return data[:, :3]
-
-
-def _starts_numeric(path: Path) -> bool:
-    """Whether the file's first field is a number (no header line)."""
-    with open(path) as fh:
-        first = fh.readline().split(",")[0].strip()
-    try:
-        float(first)
-    except ValueError:
-        return False
-    return True
