@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import subprocess
 import sys
 import tempfile
@@ -114,22 +113,25 @@ def _child(path: Path, out: Path, voxel_m: float, chunk_points: int | None) -> N
     from tasks.ingest.config import IngestConfig
     from tasks.ingest.scanners import CHUNK_POINTS, ingest_scanner_cloud
 
-    baseline = _rss_mib()
-    started = time.perf_counter()
+    baseline = _status_mib("VmRSS")
+    started, cpu_started = time.perf_counter(), time.process_time()
     metrics = ingest_scanner_cloud(
         path, out, IngestConfig(cloud_voxel_m=voxel_m), None, chunk_points or CHUNK_POINTS
     )
     seconds = time.perf_counter() - started
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    cpu = time.process_time() - cpu_started
+    peak = _status_mib("VmHWM")
     print(
         json.dumps(
             {
                 "baseline_rss_mib": round(baseline, 1),
                 "peak_rss_mib": round(peak, 1),
                 "seconds": round(seconds, 2),
+                "cpu_seconds": round(cpu, 2),
                 "points_read": metrics["points_read"],
                 "points_kept": metrics["points"],
                 "points_per_second": round(metrics["points_read"] / seconds),
+                "points_per_cpu_second": round(metrics["points_read"] / max(cpu, 1e-9)),
                 "local_origin_m": metrics["local_origin_m"],
                 "crs": metrics["crs"],
             }
@@ -137,10 +139,12 @@ def _child(path: Path, out: Path, voxel_m: float, chunk_points: int | None) -> N
     )
 
 
-def _rss_mib() -> float:
-    """The current resident set size (MiB), from /proc."""
+def _status_mib(field: str) -> float:
+    """A memory figure of this process from /proc (MiB): VmRSS now, VmHWM its peak. The peak is read
+    there, not from getrusage: ru_maxrss survives exec, so a child would report its parent's size at the
+    fork when that was larger."""
     for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
+        if line.startswith(f"{field}:"):
             return int(line.split()[1]) / 1024.0
     return float("nan")
 
@@ -163,14 +167,14 @@ def main(argv: list[str] | None = None) -> None:
         made = time.perf_counter() - started
         print(f"wrote {path} ({path.stat().st_size / 2**20:.0f} MiB) in {made:.1f} s")
     result = ingest_in_child(path, args.voxel, args.chunk or None)
-    children_peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
     print(
         f"{result['points_read']:,} points read, {result['points_kept']:,} kept at a {args.voxel} m voxel, "
-        f"in {result['seconds']} s: {result['points_per_second']:,} points/s"
+        f"in {result['seconds']} s: {result['points_per_second']:,} points/s "
+        f"({result['cpu_seconds']} CPU s, all threads: {result['points_per_cpu_second']:,} points per CPU second)"
     )
     print(
-        f"peak RSS {children_peak:.0f} MiB (child's own: {result['peak_rss_mib']:.0f} MiB, "
-        f"{result['baseline_rss_mib']:.0f} MiB of it after imports)"
+        f"peak RSS {result['peak_rss_mib']:.0f} MiB (the child's VmHWM; {result['baseline_rss_mib']:.0f} MiB "
+        "of it after the imports)"
     )
     print(f"local origin {result['local_origin_m']} m, CRS {result['crs']}")
 
