@@ -79,9 +79,9 @@ def test_cloud_capture(tmp_path, profile, rng):
 
 
 def test_unknown_capture_kinds(tmp_path):
-    (tmp_path / "x.las").write_bytes(b"")
-    with pytest.raises(IngestError, match=r"x\.las: LAS/LAZ"):
-        capture_kind(tmp_path / "x.las")
+    (tmp_path / "x.obj").write_bytes(b"")
+    with pytest.raises(IngestError, match=r"x\.obj: unknown capture format"):
+        capture_kind(tmp_path / "x.obj")
     with pytest.raises(IngestError, match="no such capture"):
         capture_kind(tmp_path / "missing.mcap")
     with pytest.raises(IngestError, match="neither a TUM"):

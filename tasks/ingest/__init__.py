@@ -6,7 +6,9 @@ Captures come in these shapes, each behind a reader:
   (`mcap_reader`);
 - a TUM RGB-D folder (rgb.txt, depth.txt, associated by timestamp) or a 7-Scenes folder
   (frame-XXXXXX.color.jpg / .depth.png / .pose.txt) (`folders`);
-- a registered room cloud (PLY or PCD, metres) (`clouds`).
+- a registered room cloud: PLY or PCD (metres) as it is (`clouds`), or what laser scanners export, E57
+  (several setups merged by their poses) and LAS / LAZ (national-grid offsets moved to a local origin),
+  voxel-reduced while streamed in (`scanners`, `e57_reader`, `las_reader`, `voxels`).
 
 RGB-D captures become `frames.parquet` (one row per depth frame with its nearest colour image, depth as a
 lossless 16-bit PNG) plus `camera_info.json`, and, when the capture has them, `imu.parquet` and

@@ -14,6 +14,7 @@ from tasks.ingest.errors import IngestError
 from tasks.ingest.folders import SevenScenesReader, TumReader
 from tasks.ingest.frames import write_frames
 from tasks.ingest.mcap_reader import McapReader
+from tasks.ingest.scanners import SCANNER_SUFFIXES, ingest_scanner_cloud
 
 CAPTURE_KINDS = ("mcap", "tum", "7scenes", "cloud")
 
@@ -25,11 +26,11 @@ def capture_kind(path: Path) -> str:
         suffix = path.suffix.lower()
         if suffix == ".mcap":
             return "mcap"
-        if suffix in {".ply", ".pcd"}:
+        if suffix in {".ply", ".pcd", *SCANNER_SUFFIXES}:
             return "cloud"
-        if suffix in {".las", ".laz"}:
-            raise IngestError(f"{path}: LAS/LAZ clouds are not supported; convert to PLY or PCD")
-        raise IngestError(f"{path}: unknown capture format {suffix!r} (MCAP, PLY, PCD or a TUM folder)")
+        raise IngestError(
+            f"{path}: unknown capture format {suffix!r} (MCAP, PLY, PCD, E57, LAS, LAZ or a TUM / 7-Scenes folder)"
+        )
     if path.is_dir():
         if (path / "rgb.txt").is_file() and (path / "depth.txt").is_file():
             return "tum"
@@ -49,11 +50,13 @@ def ingest_capture(
     """Read one capture into `out_dir` (a fresh folder the artefact store commits). Returns metrics."""
     kind = capture_kind(path)
     started = time.perf_counter()
-    if kind == "cloud":
+    if kind == "cloud" and Path(path).suffix.lower() in SCANNER_SUFFIXES:
+        metrics: dict[str, Any] = ingest_scanner_cloud(path, out_dir, cfg, progress)
+    elif kind == "cloud":
         cloud = read_cloud(path)
         check_cloud_units(cloud.points, path, cfg)
         write_cloud(out_dir / "cloud.ply", cloud)
-        metrics: dict[str, Any] = {"points": len(cloud), "coloured": cloud.colors is not None}
+        metrics = {"points": len(cloud), "coloured": cloud.colors is not None}
     else:
         reader = {"mcap": McapReader, "tum": TumReader, "7scenes": SevenScenesReader}[kind](
             path, profile, cfg
