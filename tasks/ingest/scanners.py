@@ -87,7 +87,7 @@ class ScannerReader:
         return []
 
     def colour_scale(self, largest: float) -> float:
-        """Factor from the chunks' colour units to 0-255, given the largest mean colour seen."""
+        """Factor from the chunks' colour units to 0-255, given the largest colour value read."""
         return 1.0
 
     def close(self) -> None:
