@@ -123,11 +123,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "model-room",
-        help="ingest -> preprocess -> walls on one registered cloud (PLY/PCD, metres, z roughly up)",
+        help="ingest -> preprocess -> walls on one registered cloud (PLY/PCD/E57/LAS/LAZ, metres, z roughly up)",
         description="Model one room from a registered cloud. Writes walls.parquet, plan.geojson, model.ply, "
         "preview.png and levelling.json to --out; wall coordinates are in the cloud's own x-y frame.",
     )
-    p.add_argument("cloud", type=Path, help="registered room cloud (PLY or PCD, metres)")
+    p.add_argument("cloud", type=Path, help="registered room cloud (PLY, PCD, E57, LAS or LAZ; metres)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     _add_private_work(p)
     _add_config_args(p)
