@@ -536,6 +536,10 @@ def write_truth_metrics(req: RunRequest, rows: list[StageOutcome]) -> Path | Non
     if survey.truth is None or not (survey.truth / "walls.parquet").is_file():
         return None
     results = {(r.room, r.stage): r.result for r in rows if r.result is not None}
+    if req.rooms:  # a partial run: the other rooms count with their current results
+        cfg = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets))
+        plan = plan_survey(req, cfg, survey, cfgmod.load_sensor_profile(survey.sensor))
+        results = {**current_results(plan, plan.others), **results}
     runs = []
     for room in survey.room_ids:
         walls = results.get((room, "walls"))

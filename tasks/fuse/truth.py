@@ -200,7 +200,7 @@ def fusion_figures(
                 "start",
             )
         }
-        if rep.get("placed"):
+        if rep.get("placed") and "walls" in rooms.get(rid, {}):
             room = load_room(rid, rooms[rid], None)
             model = describe(room, cfg)
             true = true_placement(rid, rooms[rid], room.walls, truth_dir)
