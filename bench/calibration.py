@@ -1,7 +1,7 @@
 """Calibrate-stage benchmark: target detection, the joint stereo adjustment, and depth → points → colour per
 frame, on the real data in ../shared/realdata.
 
-    python bench/calibration.py [--repeat 5]
+    python -m bench.calibration [--repeat 5]
 
 Prints CPU and wall seconds; the per-frame figures are what the register stage pays for every frame.
 """
@@ -9,21 +9,18 @@ Prints CPU and wall seconds; the per-frame figures are what the register stage p
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from tasks.calibrate.config import CalibrateConfig
+from tasks.calibrate.files import calibrate_images, read_gray
+from tasks.calibrate.targets import detect_targets
+from tasks.camera import colour_points, depth_to_points, profile_calibration
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from tasks.calibrate.config import CalibrateConfig  # noqa: E402
-from tasks.calibrate.files import calibrate_images, read_gray  # noqa: E402
-from tasks.calibrate.targets import detect_targets  # noqa: E402
-from tasks.camera import colour_points, depth_to_points, profile_calibration  # noqa: E402
-
 REALDATA = REPO.parent / "shared" / "realdata"
 
 

@@ -1,10 +1,11 @@
-"""Benchmark of the preprocess stage on a synthetic furnished room (the test suite's generator, scaled up).
+"""Benchmark of the preprocess stage on a synthetic furnished room (`tasks.synth.rooms.tilted_box_room`, the
+preprocess tests' room, scaled up).
 
     python -m bench.preprocess                      # 5 M points: points/s per step and overall, peak memory
     python -m bench.preprocess --points 1000000 --order-study --level-study --voxel-study
 
-Run from the repository root (the room generator lives in tests/test_preprocess.py, so pytest must be
-installed). Wall-clock figures depend on what else runs on the machine: CPU seconds are printed beside them.
+Run from the repository root. Wall-clock figures depend on what else runs on the machine: CPU seconds are
+printed beside them.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from tasks.preprocess.config import PreprocessConfig
 from tasks.preprocess.filters import mls_smooth, statistical_outliers, voxel_grid
 from tasks.preprocess.levelling import level_by_normals
 from tasks.preprocess.pipeline import preprocess
-from tests.test_preprocess import (
+from tasks.synth.rooms import (
     FAR_M,
     residual_tilt_deg,
     surface_distance,

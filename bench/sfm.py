@@ -1,7 +1,7 @@
 """Register benchmark: seconds per frame of SfM and of the metric scale at 640x480 on 2 cores, and the peak
 memory of the whole register stage for a long capture.
 
-    python bench/sfm.py [--frames 30] [--register-frames 300] [--threads 2]
+    python -m bench.sfm [--frames 30] [--register-frames 300] [--threads 2]
 
 SfM and scale run on real Kinect v1 frames (7-Scenes redkitchen, ../shared/realdata). The memory figure
 comes from a child process running `register_room` (ingest's frames.parquet in, room cloud out) on a
@@ -21,14 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
+from tasks.camera import Calibration, CameraModel, RigidPose
+from tasks.register.config import ScaleConfig, SfmConfig
+from tasks.register.scale import estimate_scale
+from tasks.register.sfm import run_sfm
+from tasks.synth.box_views import look_pose, render, write_rendered_frames
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(REPO)]
-
-from tasks.camera import Calibration, CameraModel, RigidPose  # noqa: E402
-from tasks.register.config import ScaleConfig, SfmConfig  # noqa: E402
-from tasks.register.scale import estimate_scale  # noqa: E402
-from tasks.register.sfm import run_sfm  # noqa: E402
-
 REALDATA = REPO.parent / "shared" / "realdata" / "rgbd_7scenes_redkitchen"
 
 
@@ -68,10 +67,6 @@ def bench_sfm_and_scale(n: int, threads: int) -> dict:
 
 def write_walk(path: Path, n: int) -> dict:
     """A rendered 640x480 walk (n frames) around a textured box room as ingest's frames.parquet."""
-    sys.path.insert(0, str(REPO / "tests"))
-    from test_register import write_frames  # the frames.parquet writer of the register tests
-    from test_scale import look_pose, render
-
     f = 520.0
     cam = CameraModel(np.array([[f, 0, 319.5], [0, f, 239.5], [0, 0, 1]]), np.zeros(5), (640, 480))
 
@@ -85,7 +80,7 @@ def write_walk(path: Path, n: int) -> dict:
             z, rgb = render(cam, look_pose(position, a + 0.4, -0.45), box)
             yield int(k * 1e8), z, rgb
 
-    write_frames(path, list(frames()))
+    write_rendered_frames(path, list(frames()))
     # the foot track of the walk, so that frames SfM cannot chain in the synthetic texture still get placed
     # (by the fallback) and fused: the memory figure covers SfM on every frame plus fusing every frame
     a = 2 * np.pi * np.arange(n) / n
@@ -125,12 +120,14 @@ def bench_register_memory(n: int, threads: int) -> dict:
         proc = subprocess.run(
             [
                 sys.executable,
-                __file__,
+                "-m",
+                "bench.sfm",
                 "--child",
                 str(frames),
                 str(Path(tmp) / "camera_info.json"),
                 str(threads),
             ],
+            cwd=REPO,
             capture_output=True,
             text=True,
         )

@@ -1,8 +1,8 @@
 """Wall-modelling benchmark: time per room (I/O excluded) next to the accuracy figures.
 
-    python bench/walls.py [--seeds 3] [--grid 0.01]
+    python -m bench.walls [--seeds 3] [--grid 0.01]
 
-Rooms come from tests/rooms.py (Kinect v1-like and TLS-like noise, a door, a window, a tall cabinet and
+Rooms come from tasks/synth/rooms.py (Kinect v1-like and TLS-like noise, a door, a window, a tall cabinet and
 a plant); the 10 m x 10 m room at a 1 cm grid is the issue's timing target (<= 2 s on one core). The
 slice is cut at 1.5-2.5 m above the floor, as the preprocess stage does. Wall-clock time and the
 process's CPU time are both printed: on a machine shared with other work the CPU time is the fair
@@ -13,9 +13,7 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
-from pathlib import Path
 
 # one core, as the target says (set before numpy / OpenCV start their thread pools)
 for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -24,13 +22,10 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))  # the room generator lives with the tests (tests/rooms.py)
-
 from tasks.evaluate import evaluate_walls  # noqa: E402
+from tasks.synth.rooms import furniture_slice, make_room, sample_room, truth_walls  # noqa: E402
 from tasks.walls.config import WallsConfig  # noqa: E402
 from tasks.walls.model import model_walls  # noqa: E402
-from tests.rooms import furniture_slice, make_room, sample_room, truth_walls  # noqa: E402
 
 ROOMS = ("square10", "rectangle", "l_shape", "wall70", "alcove_column")
 

@@ -9,12 +9,10 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tasks.artefacts import FRAMES_SCHEMA, encode_png
 from tasks.camera import Calibration, RigidPose
 from tasks.cloud import DegenerateInputError
 from tasks.register.config import RegisterConfig, SfmConfig
@@ -22,7 +20,8 @@ from tasks.register.fusion import VoxelAccumulator, estimate_radial_depth_error,
 from tasks.register.plan_icp import icp_to_plan, plan_faces
 from tasks.register.room import calibration_from_camera_info, register_room
 from tasks.register.track_fallback import level_frame, place_by_track, track_drift, track_heading, track_pose
-from tests.test_scale import BOX, box_hits, look_pose, small_camera
+from tasks.synth.box_views import BOX, box_hits, look_pose, write_rendered_frames
+from tests.scenes import ate_after_similarity, rendered_views, small_camera
 
 CORRIDOR = (np.array([0.0, 0.0, 0.0]), np.array([14.0, 2.0, 2.6]))
 """A 14 m x 2 m corridor, floor at z = 0."""
@@ -38,25 +37,6 @@ CORRIDOR_WALLS = np.array(
 """The corridor's plan walls: centrelines x0 y0 x1 y1 and thickness (inner faces at the corridor's box)."""
 
 
-def umeyama(X: np.ndarray, Y: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    mx, my = X.mean(0), Y.mean(0)
-    Xc, Yc = X - mx, Y - my
-    U, S, Vt = np.linalg.svd(Yc.T @ Xc / len(X))
-    D = np.eye(3)
-    if np.linalg.det(U @ Vt) < 0:
-        D[2, 2] = -1
-    R = U @ D @ Vt
-    s = np.trace(np.diag(S) @ D) / Xc.var(0).sum()
-    return s, R, my - s * R @ mx
-
-
-def ate_after_similarity(est: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    """(ATE RMSE after the best similarity, that similarity's scale)."""
-    s, R, t = umeyama(est, truth)
-    e = np.linalg.norm(s * est @ R.T + t - truth, axis=1)
-    return float(np.sqrt((e**2).mean())), float(s)
-
-
 def pose_matrices(columns: dict) -> dict[int, np.ndarray]:
     out = {}
     for k, fid in enumerate(columns["frame_id"]):
@@ -69,23 +49,6 @@ def pose_matrices(columns: dict) -> dict[int, np.ndarray]:
         T[:3, 3] = [columns["tx"][k], columns["ty"][k], columns["tz"][k]]
         out[int(fid)] = T
     return out
-
-
-def write_frames(path: Path, frames: list[tuple[int, np.ndarray, np.ndarray | None]]) -> Path:
-    """frames.parquet (ingest's schema) from (t_ns, depth m, RGB or None)."""
-    rows = {name: [] for name in FRAMES_SCHEMA.names}
-    for k, (t, depth, rgb) in enumerate(frames):
-        mm = np.where(np.isfinite(depth), np.round(depth * 1000), 0).clip(0, 65534).astype(np.uint16)
-        rows["frame_id"].append(k)
-        rows["t_ns"].append(int(t))
-        rows["rgb_t_ns"].append(int(t) if rgb is not None else -1)
-        rows["rgb"].append(encode_png(rgb) if rgb is not None else b"")
-        rows["rgb_format"].append("png" if rgb is not None else "")
-        rows["depth"].append(encode_png(mm))
-        rows["depth_kind"].append("mm")
-        rows["depth_units_per_m"].append(1000.0)
-    pq.write_table(pa.table(rows, schema=FRAMES_SCHEMA), path)
-    return path
 
 
 def camera_info(cam) -> dict:
@@ -286,7 +249,7 @@ def test_register_room_bad_input_gives_a_clear_error_or_the_fallback(tmp_path):
     poses, track = corridor_walk(8)
     black = np.zeros((120, 160, 3), np.uint8)
     frames = [(int(track[k, 0]), box_hits(cam, T, CORRIDOR)[0], black) for k, T in enumerate(poses)]
-    path = write_frames(tmp_path / "frames.parquet", frames)
+    path = write_rendered_frames(tmp_path / "frames.parquet", frames)
     info = camera_info(cam)
     # all-black colour frames and no track: a clear error, no cloud
     with pytest.raises(DegenerateInputError, match="no IMU track"):
@@ -297,7 +260,7 @@ def test_register_room_bad_input_gives_a_clear_error_or_the_fallback(tmp_path):
     assert res.frame == "plan" and len(res.cloud) > 1000
     assert "blank or all-black" in res.metrics["fallback_reason"]
     # too few frames
-    few = write_frames(tmp_path / "few.parquet", frames[:2])
+    few = write_rendered_frames(tmp_path / "few.parquet", frames[:2])
     with pytest.raises(DegenerateInputError, match="at least 3"):
         register_room(few, info, None, RegisterConfig(), SfmConfig(), tmp_path / "w3")
 
@@ -311,7 +274,7 @@ def test_register_room_without_overlap_falls_back_or_fails(tmp_path, rng):
     for k, T in enumerate(poses):
         noise = (rng.uniform(0, 255, size=(30, 40, 3))).astype(np.uint8).repeat(4, 0).repeat(4, 1)
         frames.append((int(track[k, 0]), box_hits(cam, T, CORRIDOR)[0], noise))
-    path = write_frames(tmp_path / "frames.parquet", frames)
+    path = write_rendered_frames(tmp_path / "frames.parquet", frames)
     with pytest.raises(DegenerateInputError, match="cannot register the room"):
         register_room(path, camera_info(cam), None, RegisterConfig(), SfmConfig(), tmp_path / "w1")
     res = register_room(
@@ -330,7 +293,7 @@ def test_register_room_maps_again_when_the_per_frame_scales_drift(tmp_path, rng,
     poses, track = corridor_walk(4)
     grey = np.full((120, 160, 3), 128, np.uint8)
     frames = [(int(track[k, 0]), box_hits(cam, T, CORRIDOR)[0], grey) for k, T in enumerate(poses)]
-    path = write_frames(tmp_path / "frames.parquet", frames)
+    path = write_rendered_frames(tmp_path / "frames.parquet", frames)
     trends = {0: -0.05, 1: 0.002}
     seeds: list[int] = []
 
@@ -604,11 +567,9 @@ def test_icp_refinement_pulls_a_perturbed_frame_back():
 @pytest.mark.slow
 def test_register_room_without_depth_is_an_error_not_an_empty_cloud(tmp_path):
     """Good colour frames (SfM registers them) but no depth: no metric scale, a clear error."""
-    from tests.test_sfm import rendered_views
-
     images, _poses, cam = rendered_views(8)
     frames = [(k * 10**8, np.zeros((240, 320)), rgb) for k, (_n, rgb) in enumerate(images)]
-    path = write_frames(tmp_path / "frames.parquet", frames)
+    path = write_rendered_frames(tmp_path / "frames.parquet", frames)
     with pytest.raises(DegenerateInputError, match="no metric scale"):
         register_room(path, camera_info(cam), None, RegisterConfig(), SfmConfig(), tmp_path / "w")
 

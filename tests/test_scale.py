@@ -1,7 +1,5 @@
-"""Scale stage (eq 3.16, appendix A): Horn's closed form, RANSAC, per-frame scales from depth, metric poses.
-
-The scene helpers here (an analytic box room rendered to depth and textured colour) are also used by
-test_sfm.py and test_register.py."""
+"""Scale stage (eq 3.16, appendix A): Horn's closed form, RANSAC, per-frame scales from depth, metric poses,
+on the analytic box room of tasks/synth/box_views.py and a canned SfM reconstruction of it."""
 
 from __future__ import annotations
 
@@ -23,65 +21,8 @@ from tasks.register.scale import (
     ransac_similarity,
 )
 from tasks.register.sfm import SfmResult
-
-BOX = (np.array([-2.0, -1.5, 0.0]), np.array([2.5, 2.0, 2.6]))
-"""A room 4.5 x 3.5 x 2.6 m, floor at z = 0 (world frame, z up)."""
-
-
-def small_camera(w: int = 160, h: int = 120, f: float = 140.0) -> CameraModel:
-    return CameraModel(np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1]]), np.zeros(5), (w, h))
-
-
-def look_pose(position: NDArray, yaw_rad: float, pitch_rad: float = -0.15) -> NDArray[np.float64]:
-    """Camera → world (4, 4) for an OpenCV camera at `position` looking along `yaw_rad` (from +x, CCW),
-    tilted down by -pitch."""
-    fwd = np.array(
-        [np.cos(yaw_rad) * np.cos(pitch_rad), np.sin(yaw_rad) * np.cos(pitch_rad), np.sin(pitch_rad)]
-    )
-    right = np.cross(fwd, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(fwd, right)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([right, down, fwd], axis=1)
-    T[:3, 3] = position
-    return T
-
-
-def box_hits(camera: CameraModel, world_from_cam: NDArray, box=BOX) -> tuple[NDArray, NDArray]:
-    """Ray cast of the inside of the box: ((H, W) depth z in the camera frame, (H, W, 3) world points)."""
-    w, h = camera.size
-    rays = camera.pixel_rays()
-    d_cam = np.concatenate([rays, np.ones((h, w, 1))], axis=2)
-    R, o = world_from_cam[:3, :3], world_from_cam[:3, 3]
-    d = d_cam @ R.T
-    lo, hi = box
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (lo - o) / d
-        t2 = (hi - o) / d
-    t = np.where(t1 > 0, t1, np.inf)
-    t = np.minimum(t, np.where(t2 > 0, t2, np.inf)).min(axis=2)
-    pts = o + d * t[..., None]
-    return t, pts  # d_cam has z = 1, so the ray parameter is the depth z
-
-
-def texture(pts: NDArray) -> NDArray[np.uint8]:
-    """A deterministic, feature-rich colour for world points: blobs of value noise on every wall."""
-    p = pts * 7.0
-    v = (
-        np.sin(p[..., 0] * 1.7 + np.cos(p[..., 1] * 2.3)) * np.cos(p[..., 2] * 2.1 + np.sin(p[..., 0] * 1.3))
-        + 0.5 * np.sin(p[..., 1] * 5.1 + p[..., 2] * 3.7) * np.cos(p[..., 0] * 4.3 - p[..., 2] * 1.9)
-        + 0.3 * np.sin((p[..., 0] + p[..., 1] + p[..., 2]) * 9.7)
-    )
-    g = np.clip(128 + 80 * v, 0, 255)
-    return np.stack([g, np.clip(255 - g * 0.7, 0, 255), np.clip(g * 0.5 + 60, 0, 255)], axis=-1).astype(
-        np.uint8
-    )
-
-
-def render(camera: CameraModel, world_from_cam: NDArray, box=BOX) -> tuple[NDArray, NDArray]:
-    """((H, W) depth in metres, (H, W, 3) RGB) of the textured box from one camera."""
-    z, pts = box_hits(camera, world_from_cam, box)
-    return z, texture(pts)
+from tasks.synth.box_views import BOX, box_hits, look_pose
+from tests.scenes import small_camera
 
 
 def scene_points(n: int, rng: np.random.Generator, box=BOX) -> NDArray[np.float64]:

@@ -11,25 +11,12 @@ from tasks.camera import CameraModel
 from tasks.cloud import DegenerateInputError
 from tasks.register.config import SfmConfig
 from tasks.register.sfm import _loop_pairs, run_sfm
-from tests.test_register import ate_after_similarity
-from tests.test_scale import look_pose, render
+from tests.scenes import ate_after_similarity, rendered_views
 
 
 def sim3_rmse(A: np.ndarray, B: np.ndarray) -> float:
     """RMS distance after the best similarity mapping A onto B."""
     return ate_after_similarity(A, B)[0]
-
-
-def rendered_views(n: int) -> tuple[list[tuple[str, np.ndarray]], list[np.ndarray], CameraModel]:
-    w, h, f = 320, 240, 260.0
-    cam = CameraModel(np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1]]), np.zeros(5), (w, h))
-    poses, images = [], []
-    for k in range(n):
-        a = 0.5 + 0.12 * k
-        T = look_pose(np.array([0.2 + 0.15 * k, -0.3, 1.3]), a, pitch_rad=-0.2)
-        poses.append(T)
-        images.append((f"view{k:02d}.png", render(cam, T)[1]))
-    return images, poses, cam
 
 
 def test_too_few_or_blank_frames_are_clear_errors(tmp_path):

@@ -12,12 +12,12 @@ import pytest
 from tasks.cloud import DegenerateInputError
 from tasks.evaluate import evaluate_walls
 from tasks.lines import angles
+from tasks.synth.rooms import KINDS, furniture_slice, make_room, sample_room, truth_walls
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import refine_offsets
 from tasks.walls.image import binarize, hough_segments, projection_image, skeleton
 from tasks.walls.model import extrude, model_walls
 from tasks.walls.topology import choose_alpha, same_walls
-from tests.rooms import KINDS, furniture_slice, make_room, sample_room, truth_walls
 
 CFG = WallsConfig()
 

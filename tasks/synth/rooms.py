@@ -1,8 +1,9 @@
-"""Synthetic rooms with known inner wall faces, sampled as a registered cloud with a sensor's errors.
+"""Synthetic rooms with known answers, sampled as registered clouds: the inputs of the walls and preprocess
+tests and benchmarks (the survey generator beside this module renders whole buildings instead).
 
-Reusable by any test or benchmark: `make_room(kind, rng)` gives a `Room` (outline, openings, clutter) in
-a random position and heading, `truth_walls(room)` its inner wall faces (M, 4) (what a room model should
-find), and `sample_room(room, sensor, rng)` a cloud (N, 3) in metres with z up, floor at z = 0.
+Polygon rooms: `make_room(kind, rng)` gives a `Room` (outline, openings, clutter) in a random position and
+heading, `truth_walls(room)` its inner wall faces (M, 4) (what a room model should find), and
+`sample_room(room, sensor, rng)` a cloud (N, 3) in metres with z up, floor at z = 0.
 
 Sensors:
 - "kinect_v1": range noise along the ray sigma = 3 mm at 1 m growing with H^2 (thesis 6.1: 3 / 7 / 15 mm at
@@ -12,6 +13,10 @@ Sensors:
 - "tls": 2 mm range noise from two scanner stations, 1 mm registration error.
 Doors and windows leave gaps (glass gives no return); furniture against a wall hides the wall behind
 it; a plant is a loose cloud of leaves. Only what lies inside `z_range` is sampled, to keep tests fast.
+
+A tilted furnished box room: `tilted_box_room(n_points, seed)` gives a whole-room cloud (floor, ceiling,
+furniture, outliers) in a tilted sensor-like frame and its `RoomTruth` (the true room frame, the surfaces,
+which points are injected outliers), for the preprocess stage.
 """
 
 from __future__ import annotations
@@ -22,6 +27,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from tasks.cloud import Cloud
 
 
 @dataclass(frozen=True)
@@ -390,3 +398,143 @@ def furniture_slice(points: NDArray, floor_z: float = 0.0, lo_m: float = 1.5, hi
     filter, thesis 5.1.5)."""
     z = points[:, 2] - floor_z
     return np.ascontiguousarray(points[(z >= lo_m) & (z <= hi_m)])
+
+
+# ------------------------------------------------------------------------------- tilted box room
+
+
+@dataclass(frozen=True)
+class RoomTruth:
+    """What `tilted_box_room` knows about the cloud it made."""
+
+    room_to_input: NDArray[np.float64]
+    """(4, 4) true room frame (floor z = 0, walls axis-aligned) -> the cloud's frame."""
+    boxes: NDArray[np.float64]
+    """(B, 2, 3) min/max corners of the room and the furniture, room frame: surfaces are their faces."""
+    height_m: float
+    outliers: NDArray[np.bool_]
+    """(N,) the injected outliers."""
+    far_outliers: NDArray[np.bool_]
+    """(N,) injected outliers more than FAR_M from every true surface."""
+
+
+FAR_M = 0.10
+"""Injected outliers farther than this from every true surface are "far" (the outlier filter must remove
+them all)."""
+
+
+def surface_distance(points: NDArray[np.float64], boxes: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Distance (N,) from each room-frame point to the nearest face of any box."""
+    best = np.full(len(points), np.inf)
+    for lo, hi in boxes:
+        outside = np.linalg.norm(np.maximum(np.maximum(lo - points, points - hi), 0), axis=1)
+        inside = np.minimum(points - lo, hi - points).min(axis=1)
+        best = np.minimum(best, np.where(inside > 0, inside, outside))
+    return best
+
+
+def tilted_box_room(
+    n_points: int = 400_000,
+    seed: int = 7,
+    *,
+    size: tuple[float, float, float] = (5.0, 4.0, 2.70),
+    tilt_deg: float = 3.0,
+    tilt_axis: tuple[float, float, float] = (0.8, 0.6, 0.0),
+    outlier_ratio: float = 0.02,
+    floor_fraction: float = 1.0,
+    ceiling_fraction: float = 1.0,
+    noise_scale: float = 1.0,
+    colors: bool = True,
+) -> tuple[Cloud, RoomTruth]:
+    """A furnished box room captured like a Kinect room cloud, in a tilted sensor-like frame.
+
+    Surfaces (room faces, a table, a tall cabinet, a sofa, a hanging lamp) are sampled evenly by area;
+    `floor_fraction`/`ceiling_fraction` keep only that share of floor/ceiling (a strip by a wall).
+    Noise is along the ray from a viewpoint in the middle of the room, σ = 2 mm + 1.5 mm per metre
+    (3-7 mm), times `noise_scale`. Outliers, `outlier_ratio` of all points: a third spread through the
+    room's volume grown by 0.5 m, a third flying pixels (surface points pushed 0.1-1 m along their ray),
+    a third far (5-20 m). The room frame is tilted `tilt_deg` about `tilt_axis` (not a coordinate axis),
+    turned 20° about z and shifted so the floor sits about 1.3 m below the origin, as in a capture whose
+    frame is the first camera's."""
+    rng = np.random.default_rng(seed)
+    sx, sy, sz = size
+    boxes = [
+        ((0, 0, 0), (sx, sy, sz)),  # the room, seen from inside
+        ((1.2, 1.0, 0.71), (2.8, 1.9, 0.75)),  # table top
+        *[((x, y, 0), (x + 0.05, y + 0.05, 0.71)) for x in (1.25, 2.7) for y in (1.05, 1.8)],  # legs
+        ((sx - 0.45, 0.5, 0), (sx, 1.5, 1.95)),  # tall cabinet against a wall: reaches into the slice
+        ((0.3, sy - 0.95, 0), (2.3, sy, 0.45)),  # sofa
+        ((2.3, 2.3, 2.45), (2.7, 2.7, 2.55)),  # lamp under the ceiling
+    ]
+    faces = []  # (origin, u edge, v edge, normal axis) of every visible face
+    for b, (lo, hi) in enumerate(boxes):
+        lo, hi = np.array(lo, float), np.array(hi, float)
+        for axis in range(3):
+            for side in (0, 1):
+                if b > 0 and axis == 2 and side == 0 and lo[2] == 0:
+                    continue  # furniture bottoms on the floor are hidden
+                u_ax, v_ax = [a for a in range(3) if a != axis]
+                origin = lo.copy()
+                origin[axis] = (lo, hi)[side][axis]
+                u = np.zeros(3)
+                v = np.zeros(3)
+                u[u_ax] = hi[u_ax] - lo[u_ax]
+                v[v_ax] = hi[v_ax] - lo[v_ax]
+                if b == 0 and axis == 2:  # partial floor or ceiling: a strip along the y = 0 wall
+                    v *= floor_fraction if side == 0 else ceiling_fraction
+                faces.append((origin, u, v))
+    areas = np.array([np.linalg.norm(np.cross(u, v)) for _, u, v in faces])
+    n_out = round(outlier_ratio * n_points)
+    n_surf = n_points - n_out
+    which = rng.choice(len(faces), n_surf, p=areas / areas.sum())
+    st = rng.random((n_surf, 2))
+    origins = np.array([f[0] for f in faces])[which]
+    us = np.array([f[1] for f in faces])[which]
+    vs = np.array([f[2] for f in faces])[which]
+    surface = origins + st[:, :1] * us + st[:, 1:] * vs
+
+    eye = np.array([sx / 2, sy / 2, 1.4])
+    ray = surface - eye
+    rng_m = np.linalg.norm(ray, axis=1, keepdims=True)
+    ray /= rng_m
+    surface = surface + ray * rng.normal(0, 1, (n_surf, 1)) * noise_scale * (0.002 + 0.0015 * rng_m)
+
+    thirds = [n_out // 3, n_out // 3, n_out - 2 * (n_out // 3)]
+    volume = rng.uniform((-0.5, -0.5, -0.5), (sx + 0.5, sy + 0.5, sz + 0.5), (thirds[0], 3))
+    src = surface[rng.choice(n_surf, thirds[1])]
+    src_ray = (src - eye) / np.linalg.norm(src - eye, axis=1, keepdims=True)
+    flying = src + src_ray * rng.uniform(0.1, 1.0, (thirds[1], 1)) * rng.choice([-1, 1], (thirds[1], 1))
+    direction = rng.normal(size=(thirds[2], 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    far = eye + direction * rng.uniform(5, 20, (thirds[2], 1))
+    points = np.concatenate([surface, volume, flying, far])
+    outliers = np.r_[np.zeros(n_surf, bool), np.ones(n_out, bool)]
+    boxes_arr = np.array(boxes, float)
+    far_outliers = outliers & (surface_distance(points, boxes_arr) > FAR_M)
+
+    order = rng.permutation(len(points))
+    points, outliers, far_outliers = points[order], outliers[order], far_outliers[order]
+    axis = np.asarray(tilt_axis, float) / np.linalg.norm(tilt_axis)
+    tilt = Rotation.from_rotvec(math.radians(tilt_deg) * axis)
+    yaw = Rotation.from_euler("z", 20, degrees=True)
+    transform = np.eye(4)
+    transform[:3, :3] = (yaw * tilt).as_matrix()
+    transform[:3, 3] = (-1.0, 0.5, -1.3)
+    cloud_pts = points @ transform[:3, :3].T + transform[:3, 3]
+    rgb = rng.integers(0, 256, (len(points), 3), dtype=np.uint8) if colors else None
+    truth = RoomTruth(transform, boxes_arr, sz, outliers, far_outliers)
+    return Cloud(cloud_pts, rgb), truth
+
+
+def residual_tilt_deg(levelling: NDArray[np.float64], truth: RoomTruth) -> float:
+    """Angle between the room's true up and z after levelling."""
+    up = levelling[:3, :3] @ truth.room_to_input[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    return math.degrees(math.acos(min(1.0, up[2])))
+
+
+def to_room_frame(
+    points: NDArray[np.float64], levelling: NDArray[np.float64], truth: RoomTruth
+) -> NDArray[np.float64]:
+    """Levelled-frame points (N, 3) back in the true room frame."""
+    full = levelling @ truth.room_to_input
+    return (points - full[:3, 3]) @ full[:3, :3]
