@@ -288,8 +288,11 @@ MAX_HEADER_BYTES = 1 << 20
 """A PLY or PCD header longer than this is not a header (a real one is a few hundred bytes; comments
 may make it a few kilobytes)."""
 
-ASCII_CHUNK_ROWS = 1 << 16
+ASCII_CHUNK_ROWS = 1 << 13
 """ASCII records parsed at a time (bounded working memory whatever the file's size)."""
+
+BINARY_CHUNK_RECORDS = 1 << 18
+"""Binary records read at a time (a few MB of working memory beside the cloud itself)."""
 
 _PLY_TYPES = {
     "char": "i1",
@@ -392,24 +395,34 @@ def _read_ply(path: Path) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None
                 else "longer than its header says"
             )
         )
+    # Read in slices into the result: memory is the cloud's own (points and colours) plus one slice.
+    points = np.empty((vertex.count, 3), dtype=np.float64)
+    coloured = {"red", "green", "blue"} <= set(names)
+    colors = np.empty((vertex.count, 3), dtype=np.uint8) if coloured else None
     with open(path, "rb") as fh:
         fh.seek(offset)
-        rec = np.fromfile(fh, dtype=record, count=vertex.count)
-    if len(rec) != vertex.count:  # the file changed while being read
-        raise ArtefactError(f"{path}: {len(rec)} of {vertex.count} vertices could be read")
-    points = np.empty((vertex.count, 3), dtype=np.float64)
-    for axis, name in enumerate("xyz"):
-        points[:, axis] = rec[name]
-    colors = None
-    if {"red", "green", "blue"} <= set(names):
-        colors = _colour_bytes(np.column_stack([rec[c] for c in ("red", "green", "blue")]))
+        for start in range(0, vertex.count, BINARY_CHUNK_RECORDS):
+            want = min(BINARY_CHUNK_RECORDS, vertex.count - start)
+            rec = np.fromfile(fh, dtype=record, count=want)
+            if len(rec) != want:  # the file changed while being read
+                raise ArtefactError(f"{path}: {start + len(rec)} of {vertex.count} vertices could be read")
+            stop = start + want
+            for axis, name in enumerate("xyz"):
+                points[start:stop, axis] = rec[name]
+            if colors is not None:
+                colors[start:stop] = _colour_bytes(
+                    np.column_stack([rec[c] for c in ("red", "green", "blue")])
+                )
     return points, colors
 
 
 def _colour_bytes(values: NDArray[Any]) -> NDArray[np.uint8]:
     """Colour values as uint8, rounded as Open3D's readers do (value / 255 stored, times 255 read back),
     so that a cloud read here and one read by Open3D are the same bytes."""
-    scaled = np.asarray(values, dtype=np.float64) / 255.0
+    values = np.asarray(values)
+    if values.dtype == np.uint8:  # the round trip is exact for bytes: no float copies of the colours
+        return np.ascontiguousarray(values)
+    scaled = values.astype(np.float64) / 255.0
     return np.clip(scaled * 255.0 + 0.5, 0, 255).astype(np.uint8)
 
 
@@ -489,16 +502,18 @@ def _read_ply_ascii(
     colour_cols = (
         [names.index(c) for c in ("red", "green", "blue")] if {"red", "green", "blue"} <= set(names) else []
     )
-    points, colours = [], []
+    points = np.empty((vertex.count, 3), dtype=np.float64)  # the header's count fits the file: checked
+    colours = np.empty((vertex.count, 3), dtype=np.uint8) if colour_cols else None
+    start = 0
     for values in reader.rows(vertex.count, len(names), codes, "vertex"):
-        points.append(values[:, columns])
-        if colour_cols:
-            colours.append(values[:, colour_cols])
+        points[start : start + len(values)] = values[:, columns]
+        if colours is not None:
+            colours[start : start + len(values)] = _colour_bytes(values[:, colour_cols])
+        start += len(values)
     for element in elements[index + 1 :]:
         reader.skip(element.count, element.name)
     reader.end()
-    pts = np.concatenate(points) if points else np.zeros((0, 3))
-    return pts, _colour_bytes(np.concatenate(colours)) if colour_cols and colours else None
+    return points, colours
 
 
 class _AsciiRows:
@@ -674,9 +689,12 @@ def _read_pcd(path: Path) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None
             )
         codes = [np.dtype(code) for _, code, c in layout for _ in range(c)]
         reader = _AsciiRows(path, body, len(lines))
-        blocks = list(reader.rows(points_n, width_values, codes, "point"))
+        values = np.empty((points_n, width_values), dtype=np.float64)
+        start = 0
+        for block in reader.rows(points_n, width_values, codes, "point"):
+            values[start : start + len(block)] = block
+            start += len(block)
         reader.end()
-        values = np.concatenate(blocks) if blocks else np.zeros((0, width_values))
         starts = np.cumsum([0] + [c for _, _, c in layout])
         columns = {name: values[:, starts[i]] for i, (name, _, _) in enumerate(layout)}
     elif mode == "binary_compressed":

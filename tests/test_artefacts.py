@@ -250,3 +250,34 @@ def test_malformed_geojson_walls_name_the_file(tmp_path, content, message):
     (tmp_path / "w.geojson").write_text(json.dumps(content))
     with pytest.raises(art.ArtefactError, match=rf"w\.geojson: .*{message}"):
         art.read_segments(tmp_path / "w.geojson")
+
+
+@pytest.mark.parametrize("ascii_body", [False, True])
+def test_reading_a_cloud_takes_at_most_twice_its_size(tmp_path, rng, ascii_body):
+    """Memory follows the file's real size: the cloud itself plus a bounded slice."""
+    import tracemalloc
+
+    pts = rng.uniform(0, 4, (200_000 if not ascii_body else 60_000, 3))
+    cols = rng.integers(0, 255, (len(pts), 3)).astype(np.uint8)
+    path = art.write_ply_points(tmp_path / "a.ply", pts, cols)
+    if ascii_body:
+        head = "ply\nformat ascii 1.0\nelement vertex 60000\nproperty double x\nproperty double y\n"
+        head += (
+            "property double z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
+        )
+        rows = "".join(
+            f"{x!r} {y!r} {z!r} {r} {g} {b}\n"
+            for (x, y, z), (r, g, b) in zip(pts.tolist(), cols.tolist(), strict=True)
+        )
+        path.write_text(head + rows)
+    tracemalloc.start()
+    try:
+        cloud = art.read_cloud(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    np.testing.assert_array_equal(cloud.points, pts)
+    np.testing.assert_array_equal(cloud.colors, cols)
+    justified = cloud.points.nbytes + cloud.colors.nbytes
+    slice_bytes = 6 << 20 if ascii_body else 1 << 20  # one slice of parsed lines, whatever the size
+    assert peak < 2 * max(justified, path.stat().st_size) + slice_bytes, (peak, justified)
