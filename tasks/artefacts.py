@@ -74,7 +74,7 @@ def is_input_error(exc: BaseException) -> bool:
 def stage_error(room: str, stage: str, inputs: dict[str, Any], exc: Exception) -> StageError:
     """The one line an unexpected exception inside a stage becomes: room, stage, inputs, the exception's
     type and message, and how to see the traceback."""
-    named = ", ".join(f"{name} {value}" for name, value in inputs.items()) or "no raw input"
+    named = ", ".join(f"{name} {value}" for name, value in inputs.items()) or "none"
     return StageError(
         f"unexpected {type(exc).__name__} (inputs: {named}): {one_line(exc)[:300]} "
         f"(set {DEBUG_VARIABLE}=1 for the traceback)",
@@ -991,6 +991,9 @@ class ArtefactStore:
                     for name, entry in (manifest.get("raw_inputs") or {}).items()
                 }
                 inputs.update({name: "result" for name in manifest.get("inputs") or {}})
+                if manifest.get("rooms") or manifest.get("failed_rooms"):  # a building-after stage
+                    read = sorted({*(manifest.get("rooms") or {}), *(manifest.get("failed_rooms") or {})})
+                    inputs["rooms"] = " ".join(read)
                 raise stage_error(room, stage, inputs, exc) from exc
             files = {
                 p.name: sha256_file(p)
