@@ -1,16 +1,21 @@
 """The `indoor-survey` command line.
 
-Every command checks its inputs before any work starts (a bad survey, config key or file gives one line
-naming it and exit code 2), prints progress on long work to stderr, and leaves what was computed before
-untouched when it fails.
+Every command checks its inputs before any work starts (a bad survey, config key, file or work dir gives
+one line naming it and exit code 2), prints progress on long work to stderr, and leaves what was computed
+before untouched when it fails. Whatever goes wrong, a command ends with one line, never a traceback
+(INDOOR_SURVEY_DEBUG=1 shows it): exit 0 done, 1 a stage failed (or an unexpected error), 2 bad input or
+invocation.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
+import tempfile
 import time
+import traceback
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -37,6 +42,39 @@ class CliError(Exception):
     """A one-line error for the user (exit code 2)."""
 
 
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+"""README "Exit codes": done; a stage failed or an unexpected error; bad input or invocation."""
+
+DEBUG_VARIABLE = "INDOOR_SURVEY_DEBUG"
+
+
+def check_folder(path: Path, what: str) -> Path:
+    """`path` as a folder to use (it may not exist yet): a one-line error when it, or a folder above it,
+    is a file. Writes nothing."""
+    path = Path(path).expanduser()
+    for folder in (path, *path.parents):
+        if folder.exists() or folder.is_symlink():
+            if not folder.is_dir():
+                where = "is a file" if folder == path else f"lies below {folder}, which is a file"
+                raise CliError(f"{what} {path}: {where}, not a folder")
+            break
+    return path
+
+
+def writable_folder(path: Path, what: str) -> Path:
+    """`path` created if needed and probed with a file that is removed again: a one-line error when
+    nothing can be written there (a read-only or foreign folder). Call it after every other check, just
+    before the first write."""
+    path = check_folder(path, what)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-test-"):
+            pass
+    except OSError as exc:
+        raise CliError(f"{what} {path}: cannot write there ({exc.strerror or exc})") from None
+    return path
+
+
 def _user_errors() -> tuple[type[BaseException], ...]:
     from tasks.artefacts import ArtefactError
     from tasks.cloud import DegenerateInputError
@@ -52,6 +90,10 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         ValueError,
         FileNotFoundError,
     )
+
+
+def _one_line(text: object) -> str:
+    return " ".join(str(text).split())
 
 
 def _add_config_args(p: argparse.ArgumentParser) -> None:
@@ -228,9 +270,11 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     from flows import planning
     from tasks import config as cfgmod
 
+    work = check_folder(args.work, "--work").resolve()
     cfg = cfgmod.load_config(args.config, args.set)
     survey = cfgmod.load_survey(args.survey)
     rooms = list(getattr(args, "rooms", []) or ([args.room] if getattr(args, "room", None) else []))
+    rooms = list(dict.fromkeys(rooms))  # --rooms r5 r5: once
     for room in rooms:
         survey.room(room)
     for room in survey.rooms:
@@ -238,17 +282,23 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
             raise CliError(
                 f"{survey.root / 'survey.yaml'}: room {room.id}: capture {room.capture} does not exist"
             )
+        planning.capture_kind(room.capture)  # a capture of a kind no reader takes: refused now
+    if survey.plan is not None and not survey.plan.image.is_file():
+        raise CliError(f"{survey.root / 'survey.yaml'}: plan.image {survey.plan.image} does not exist")
     force: list[tuple[str, str]] = []
     if force_stage:
         if force_stage not in planning.STAGES:
             raise CliError(f"unknown stage {force_stage!r} (stages: {', '.join(planning.STAGES)})")
         if planning.STAGES[force_stage].partition == "room":
             force = [(r, force_stage) for r in (rooms or survey.room_ids)]
+        elif rooms:
+            raise CliError(
+                f"--room {rooms[0]}: stage {force_stage} is a building stage (one run for the whole "
+                "survey); drop --room"
+            )
         else:
             force = [(planning.BUILDING, force_stage)]
-    work = args.work.resolve()
     argv = ["indoor-survey", *sys.argv[1:]]
-    saved = planning.save_resolved_config(work, cfg, argv)
     req = planning.RunRequest(
         survey=str(survey.root),
         work=str(work),
@@ -257,15 +307,18 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
         rooms=tuple(rooms),
         force=tuple(force),
     )
+    writable_folder(work, "--work")  # the last check: from here on the run writes
     started = time.perf_counter()
     rows = planning.all_current(req)
+    saved = planning.save_resolved_config(work, cfg, argv)
     if rows is None:
         from flows import prefect_env
 
         prefect_env.apply()
-        from flows import pipeline  # starts Prefect only when there is work
+        with prefect_env.embedded_server(work):  # Prefect's server lives and dies with this run
+            from flows import pipeline  # starts Prefect only when there is work
 
-        rows = pipeline.run_survey(req)
+            rows = pipeline.run_survey(req)
     else:
         print("every stage is current: nothing to compute (Prefect not started)", file=sys.stderr)
     elapsed = time.perf_counter() - started
@@ -277,6 +330,8 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
         s: sum(r.state == s for r in rows) for s in ("computed", "cached", "stored", "failed", "skipped")
     }
     summary = ", ".join(f"{n} {s}" for s, n in counts.items() if n)
+    for what, path in survey.outside_inputs():
+        print(f"note: {what} {path} lies outside the survey folder {survey.root}")
     print(f"{len(rows)} stage runs: {summary}; {elapsed:.1f} s; config saved to {saved}")
     metrics = planning.write_truth_metrics(req, rows)
     if metrics is not None:
@@ -295,14 +350,16 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
         )
     failed = [r for r in rows if r.state == "failed"]
     for row in failed:
-        print(f"error: room {row.room}, stage {row.stage}: {row.error}", file=sys.stderr)
-    return 1 if failed else 0
+        print(f"error: room {row.room}, stage {row.stage}: {_one_line(row.error)}", file=sys.stderr)
+    return EXIT_FAILED if failed else EXIT_OK
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from flows import status
+    from flows import planning, status
 
-    states = status.survey_status(args.survey, args.work, args.config, args.set)
+    work = check_folder(args.work, "--work")
+    planning.store_for(work).read_only = True  # status reads: it writes nothing into the work dir
+    states = status.survey_status(args.survey, work, args.config, args.set)
     print(f"{'room':<12} {'stage':<12} {'status':<8} detail")
     for state in states:
         call = state.planned.call
@@ -326,6 +383,7 @@ def cmd_model_room(args: argparse.Namespace) -> int:
     cfg = cfgmod.load_config(args.config, args.set)
     if not args.cloud.is_file():
         raise CliError(f"{args.cloud}: no such file")
+    _out_and_work(args)
     metrics = oneoff.model_room(args.cloud, args.out, args.work, cfg)
     walls = metrics["walls"]
     pre = metrics["preprocess"]
@@ -360,6 +418,10 @@ def cmd_evaluate_walls(args: argparse.Namespace) -> int:
 def cmd_synth(args: argparse.Namespace) -> int:
     from tasks.synth.survey import generate_survey
 
+    out = check_folder(args.out, "OUT")
+    if out.is_dir() and any(out.iterdir()) and not args.overwrite:
+        raise CliError(f"OUT {out}: the folder is not empty; pass --overwrite to replace its survey files")
+    writable_folder(out, "OUT")
     started = time.perf_counter()
     out = generate_survey(
         args.out,
@@ -382,6 +444,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             distances = [float(v) for v in args.distances.split(",")]
         except ValueError as exc:
             raise CliError(f"--distances {args.distances!r}: expected metres separated by commas") from exc
+    _out_and_work(args)
     path = oneoff.calibrate(
         args.out,
         args.ir,
@@ -410,6 +473,12 @@ def cmd_parse_plan(args: argparse.Namespace) -> int:
             raise CliError(
                 f"--known-distance {args.known_distance!r}: expected five numbers x0,y0,x1,y1,metres"
             )
+    for option, value in (("--m-per-px", args.m_per_px), ("--outline-length", args.outline_length)):
+        if value is not None and not 0 < value < float("inf"):
+            raise CliError(f"{option} {value}: expected a positive number")
+    if not args.image.is_file():
+        raise CliError(f"{args.image}: no such image file")
+    _out_and_work(args)
     report = oneoff.parse_plan(
         args.image, args.out, args.m_per_px, known, args.outline_length, work=args.work
     )
@@ -430,15 +499,48 @@ def cmd_register_room(args: argparse.Namespace) -> int:
             values = [float(v) for v in args.intrinsics.split(",")]
         except ValueError:
             values = []
-        if len(values) != 4:
-            raise CliError(f"--intrinsics {args.intrinsics!r}: expected fx,fy,cx,cy in pixels")
+        if len(values) != 4 or not all(abs(v) < float("inf") for v in values):
+            raise CliError(f"--intrinsics {args.intrinsics!r}: expected four numbers fx,fy,cx,cy in pixels")
+        if values[0] <= 0 or values[1] <= 0:
+            raise CliError(f"--intrinsics {args.intrinsics!r}: the focal lengths fx, fy must be positive")
         sets.append(f"ingest.intrinsics_px={values}")
     if args.depth_scale is not None:
+        if not 0 < args.depth_scale < float("inf"):
+            raise CliError(f"--depth-scale {args.depth_scale}: expected positive depth units per metre")
         sets.append(f"ingest.tum_depth_units_per_m={float(args.depth_scale)}")
     cfg = cfgmod.load_config([], sets)
+    if not args.capture.exists():
+        raise CliError(f"{args.capture}: no such capture")
+    if args.calibration is not None:
+        _check_calibration(args.calibration)
+    cfgmod.load_sensor_profile(args.sensor)
+    _out_and_work(args)
     report = oneoff.register_room(args.capture, args.out, args.sensor, args.calibration, args.work, cfg)
     print(json.dumps(report, indent=2, default=str))
     return 0
+
+
+def _check_calibration(path: Path) -> None:
+    """--calibration: a calibration.json `calibrate` could have written, or a one-line error naming it."""
+    from tasks.calibrate.stage import read_calibration
+
+    if not path.is_file():
+        raise CliError(f"--calibration {path}: no such file")
+    try:
+        read_calibration(path)
+    except ValueError:
+        raise
+    except Exception as exc:  # a JSON of another shape: {"ir": 5}, a list...
+        raise CliError(f"{path}: not a calibration.json ({type(exc).__name__}: {_one_line(exc)})") from None
+
+
+def _out_and_work(args: argparse.Namespace) -> None:
+    """A one-off verb's OUT and private work dir: folders (not files) that can be written."""
+    check_folder(args.out, "--out")
+    if args.work is not None:
+        check_folder(args.work, "--work")
+    writable_folder(args.out, "--out")
+    writable_folder(args.work if args.work is not None else Path(args.out) / ".cache", "--work")
 
 
 COMMANDS = {
@@ -451,26 +553,48 @@ COMMANDS = {
 }
 
 
+def _dispatch(args: argparse.Namespace) -> int:
+    if args.command == "run":
+        return cmd_run(args)
+    if args.command == "rerun":
+        return cmd_run(args, force_stage=args.stage)
+    if args.command == "status":
+        return cmd_status(args)
+    if args.command == "config":
+        return cmd_config(args)
+    return COMMANDS[args.command](args)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """The error boundary of every verb: whatever fails, one line on stderr and the README's exit code."""
+    from tasks.artefacts import StageError
+
     parser = build_parser()
     args = parser.parse_args(argv)
     _setup_logging(args.quiet)
+    debug = bool(os.environ.get(DEBUG_VARIABLE))
     try:
-        if args.command == "run":
-            return cmd_run(args)
-        if args.command == "rerun":
-            return cmd_run(args, force_stage=args.stage)
-        if args.command == "status":
-            return cmd_status(args)
-        if args.command == "config":
-            return cmd_config(args)
-        if args.command in COMMANDS:
-            return COMMANDS[args.command](args)
+        return _dispatch(args)
+    except StageError as exc:  # a stage's unexpected failure, already one line naming its inputs
+        if debug:
+            traceback.print_exc()
+        where = f"room {exc.room}, stage {exc.stage}: " if exc.stage else ""
+        print(f"error: {where}{_one_line(exc)}", file=sys.stderr)
+        return EXIT_FAILED
     except _user_errors() as exc:
-        print(f"error: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2
-    parser.error(f"unknown command {args.command}")
-    return 2
+        if debug:
+            traceback.print_exc()
+        print(f"error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception as exc:
+        if debug:
+            traceback.print_exc()
+        print(
+            f"error: {args.command}: unexpected {type(exc).__name__}: {_one_line(exc)[:300]} "
+            f"(set {DEBUG_VARIABLE}=1 for the traceback)",
+            file=sys.stderr,
+        )
+        return EXIT_FAILED
 
 
 if __name__ == "__main__":

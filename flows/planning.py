@@ -317,6 +317,9 @@ def plan_survey(
         (rooms if room.id in requested else others)[room.id] = chain
     after = []
     for stage in after_stages:
+        required = [name for name in stage.upstream if name not in stage.optional]
+        if any(name not in available for name in required):  # fusion needs a plan: none, no fusion
+            continue
         force = stage.name in forced_after or (BUILDING, stage.name) in req.force
         call = make_call(req.work, cfg, profile, None, stage.name, force, survey)
         upstream = {name: (BUILDING, name) for name in stage.upstream if name in available}
@@ -536,14 +539,18 @@ def write_truth_metrics(req: RunRequest, rows: list[StageOutcome]) -> Path | Non
     if survey.truth is None or not (survey.truth / "walls.parquet").is_file():
         return None
     results = {(r.room, r.stage): r.result for r in rows if r.result is not None}
-    if req.rooms:  # a partial run: the other rooms count with their current results
-        cfg = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets))
-        plan = plan_survey(req, cfg, survey, cfgmod.load_sensor_profile(survey.sensor))
-        results = {**current_results(plan, plan.others), **results}
-    runs = []
+    if any((room, "walls") not in results for room in survey.room_ids):  # rooms outside this run
+        for state in survey_state(replace(req, rooms=(), force=())):
+            if state.result is not None:
+                results.setdefault(state.planned.ref, state.result)
+    path = store_for(req.work).outputs / "metrics.json"
+    earlier = _earlier_room_metrics(path)
+    runs, kept = [], []
     for room in survey.room_ids:
         walls = results.get((room, "walls"))
-        if walls is None:
+        if walls is None:  # failed now: its outputs/rooms/<id>/ are the earlier run's, and so are its figures
+            if room in earlier:
+                kept.append({**earlier[room], "earlier_run": True})
             continue
         registered = (room, "register") in results
         pre = results.get((room, "preprocess"))
@@ -558,6 +565,7 @@ def write_truth_metrics(req: RunRequest, rows: list[StageOutcome]) -> Path | Non
     if not runs:
         return None
     metrics = evaluate_runs(runs, survey.truth)
+    metrics["rooms"] += kept
     fuse = results.get((BUILDING, "fuse"))
     if fuse is not None:
         from tasks.fuse.truth import fusion_figures
@@ -567,4 +575,15 @@ def write_truth_metrics(req: RunRequest, rows: list[StageOutcome]) -> Path | Non
             for room in survey.room_ids
         }
         metrics["fusion"] = fusion_figures(survey.truth, rooms, fuse, results.get((BUILDING, "changes")))
-    return write_json(store_for(req.work).outputs / "metrics.json", metrics)
+    return write_json(path, metrics)
+
+
+def _earlier_room_metrics(path: Path) -> dict[str, dict[str, Any]]:
+    """Room -> its entry in an earlier metrics.json (none when there is none or it is unreadable)."""
+    from tasks.artefacts import ArtefactError, read_json
+
+    try:
+        rooms = read_json(path).get("rooms", []) if path.is_file() else []
+    except (ArtefactError, AttributeError):
+        return {}
+    return {r["room"]: r for r in rooms if isinstance(r, dict) and "room" in r}

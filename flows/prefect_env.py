@@ -1,9 +1,21 @@
 """Prefect's settings for indoor-survey runs, applied by the entry point (the CLI, the test session)
-before Prefect is imported: nothing is set as a side effect of importing a module."""
+before Prefect is imported: nothing is set as a side effect of importing a module. And the embedded API
+server of a run, which must die with the run however the run ends (see `embedded_server`)."""
 
 from __future__ import annotations
 
+import contextlib
+import importlib.util
+import json
 import os
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from pathlib import Path
 
 DEFAULTS = {
     # Offline, quiet and patient: the embedded server needs more than the default 20 s to start here.
@@ -24,3 +36,200 @@ def apply() -> None:
     """Set each default that the environment does not already set."""
     for name, value in DEFAULTS.items():
         os.environ.setdefault(name, value)
+
+
+# ------------------------------------------------------------------------------------ embedded server
+
+SERVER_RECORD = "prefect-server.json"
+"""In the work dir: the embedded server of the run using it (pids and start times), so that a later run
+can stop a server whose run died without it."""
+
+_LAUNCHER = """\
+import ctypes, os, signal, sys
+# Die with the run: the kernel sends SIGKILL to this process when the thread that started it ends, even
+# when the run is killed with SIGKILL (no handler or atexit of the run's can do that).
+try:
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+except (OSError, AttributeError):
+    pass  # not Linux: the next run's reaping stops an orphan instead
+if os.getppid() != int(sys.argv[1]):
+    sys.exit(1)  # the run died before the signal was armed
+os.execv(sys.executable, [sys.executable, *sys.argv[2:]])
+"""
+
+
+def _api_url_configured() -> bool:
+    """Whether Prefect is told to use a running server (the environment, an active profile, or a test
+    harness' settings), in which case a run starts none."""
+    if os.environ.get("PREFECT_API_URL"):
+        return True
+    if "prefect.settings" in sys.modules:
+        from prefect.settings import PREFECT_API_URL
+
+        return bool(PREFECT_API_URL.value())
+    home = Path(os.environ.get("PREFECT_HOME", Path.home() / ".prefect")).expanduser()
+    try:
+        import tomllib
+
+        profiles = tomllib.loads((home / "profiles.toml").read_text())
+    except (OSError, ValueError):
+        return False
+    active = os.environ.get("PREFECT_PROFILE") or profiles.get("active", "ephemeral")
+    settings = (profiles.get("profiles") or {}).get(active) or {}
+    return bool(settings.get("PREFECT_API_URL"))
+
+
+def _start_time(pid: int) -> int | None:
+    """A process's start time (clock ticks after boot, /proc/PID/stat field 22), or None when it is gone:
+    a pid together with its start time names one process, never a later one that reuses the pid."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return int(stat.rsplit(")", 1)[1].split()[19])
+
+
+def _alive(pid: int, started: int | None) -> bool:
+    return started is not None and _start_time(pid) == started
+
+
+def reap_stale_server(work: Path) -> bool:
+    """Stop the embedded server a dead run left in `work` (its record names it); True if one was stopped.
+    A server whose run is alive is left alone."""
+    record_path = Path(work) / SERVER_RECORD
+    try:
+        record = json.loads(record_path.read_text())
+        server, run = int(record["server_pid"]), int(record["run_pid"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    if _alive(run, record.get("run_started")):
+        return False
+    stopped = False
+    if _alive(server, record.get("server_started")):
+        try:
+            cmdline = Path(f"/proc/{server}/cmdline").read_bytes()
+        except OSError:
+            cmdline = b""
+        if b"prefect.server.api.server:create_app" in cmdline:
+            with contextlib.suppress(OSError):
+                os.kill(server, 9)
+                stopped = True
+    record_path.unlink(missing_ok=True)
+    return stopped
+
+
+def _free_port() -> int:
+    with contextlib.closing(socket.socket(socket.AF_INET, socket.SOCK_STREAM)) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def _launch(port: int) -> subprocess.Popen[bytes]:
+    """Prefect's embedded server (the command and environment Prefect itself uses for it), through the
+    launcher that ties its life to this process."""
+    spec = importlib.util.find_spec("prefect")
+    assert spec is not None and spec.submodule_search_locations
+    app_dir = str(Path(next(iter(spec.submodule_search_locations))).parent)
+    server = [
+        "-m",
+        "uvicorn",
+        "--app-dir",
+        app_dir,
+        "--factory",
+        "prefect.server.api.server:create_app",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+        "--log-level",
+        "error",
+        "--lifespan",
+        "on",
+    ]
+    env = {
+        **os.environ,
+        "PREFECT_UI_ENABLED": "0",
+        "PREFECT__SERVER_EPHEMERAL": "1",
+        "PREFECT__SERVER_FINAL": "1",
+    }
+    return subprocess.Popen(
+        [sys.executable, "-c", _LAUNCHER, str(os.getpid()), *server], env=env, stdin=subprocess.DEVNULL
+    )
+
+
+def _stop(proc: subprocess.Popen[bytes]) -> None:
+    proc.terminate()
+    try:
+        proc.wait(timeout=5)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def _refresh_prefect_settings() -> None:
+    """Make an already imported Prefect read PREFECT_API_URL from the environment again."""
+    if "prefect.context" in sys.modules:
+        from prefect.context import refresh_global_settings_context
+
+        refresh_global_settings_context()
+
+
+def _start(work: Path, timeout: float) -> tuple[subprocess.Popen[bytes], str]:
+    """Launch the server, record it, and wait until it answers; (process, API URL)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        port = _free_port()
+        proc = _launch(port)
+        record = {
+            "server_pid": proc.pid,
+            "server_started": _start_time(proc.pid),
+            "run_pid": os.getpid(),
+            "run_started": _start_time(os.getpid()),
+            "port": port,
+        }
+        (work / SERVER_RECORD).write_text(json.dumps(record))
+        while proc.poll() is None:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/health", timeout=2) as reply:
+                    if reply.status == 200:
+                        return proc, f"http://127.0.0.1:{port}/api"
+            except (urllib.error.URLError, OSError):
+                pass
+            if time.monotonic() > deadline:
+                _stop(proc)
+                raise RuntimeError(
+                    f"Prefect's embedded server did not answer within {timeout:.0f} s "
+                    "(PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS)"
+                )
+            time.sleep(0.1)
+        if proc.returncode != 3 or time.monotonic() > deadline:  # 3: the port was taken meanwhile
+            raise RuntimeError(f"Prefect's embedded server exited with code {proc.returncode}")
+
+
+@contextlib.contextmanager
+def embedded_server(work: Path) -> Iterator[str | None]:
+    """Prefect's embedded API server for one run, yielding its URL (None, and nothing started, when
+    Prefect is told to use a running server).
+
+    Prefect would start this server itself, as a child process that outlives a killed or aborted run; a
+    machine that reprocesses nightly then collects orphaned servers. Started here instead, it is the
+    run's child with a parent-death signal (Linux: it is killed with the run, even by SIGKILL), stopped
+    when the run ends, and recorded in WORK/prefect-server.json so that the next run in the work dir
+    stops one that a dead run left (e.g. where no parent-death signal exists). Call it from the main
+    thread: the signal follows the thread that started the server."""
+    if _api_url_configured():
+        yield None
+        return
+    work = Path(work)
+    work.mkdir(parents=True, exist_ok=True)
+    reap_stale_server(work)
+    proc, url = _start(work, float(os.environ.get("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")))
+    try:
+        os.environ["PREFECT_API_URL"] = url
+        _refresh_prefect_settings()
+        yield url
+    finally:
+        os.environ.pop("PREFECT_API_URL", None)
+        _refresh_prefect_settings()
+        _stop(proc)
+        (work / SERVER_RECORD).unlink(missing_ok=True)

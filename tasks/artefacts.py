@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import logging
 import os
 import re
 import shutil
@@ -38,17 +39,55 @@ from tasks.cloud import Cloud, DegenerateInputError
 BUILDING = "_building"
 """The partition of survey-wide stages; room ids cannot start with '_' so it never collides."""
 
-ROOM_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+ROOM_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
 
 class ArtefactError(RuntimeError):
     """An artefact that cannot be read as what it claims to be (one line, names the file)."""
 
 
+DEBUG_VARIABLE = "INDOOR_SURVEY_DEBUG"
+"""Set to 1 for the traceback of an unexpected error (otherwise one line)."""
+
+
+class StageError(RuntimeError):
+    """A stage that failed with an unexpected exception (a bug, or an input no check foresaw), as one line
+    naming the room, the stage and its inputs."""
+
+    def __init__(self, message: str, room: str = "", stage: str = "") -> None:
+        super().__init__(message)
+        self.room = room
+        self.stage = stage
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception's message on one line."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def is_input_error(exc: BaseException) -> bool:
+    """Whether an exception is a checked, one-line report of a bad input (a value, file or artefact that
+    cannot be used), as opposed to an unexpected failure."""
+    return isinstance(exc, ValueError | ArtefactError | FileNotFoundError) and not isinstance(exc, StageError)
+
+
+def stage_error(room: str, stage: str, inputs: dict[str, Any], exc: Exception) -> StageError:
+    """The one line an unexpected exception inside a stage becomes: room, stage, inputs, the exception's
+    type and message, and how to see the traceback."""
+    named = ", ".join(f"{name} {value}" for name, value in inputs.items()) or "none"
+    return StageError(
+        f"unexpected {type(exc).__name__} (inputs: {named}): {one_line(exc)[:300]} "
+        f"(set {DEBUG_VARIABLE}=1 for the traceback)",
+        room,
+        stage,
+    )
+
+
 def check_room_id(room_id: object) -> str:
     """The id itself if it is a plain name that can be a folder name; else a clear error. Ids become
     folder names under the work dir, so '..', '/' and the like must never pass."""
-    if not isinstance(room_id, str) or not ROOM_ID.match(room_id) or ".." in room_id:
+    # fullmatch: `$` of `match` also matches before a trailing newline ("r5\n" would pass)
+    if not isinstance(room_id, str) or not ROOM_ID.fullmatch(room_id) or ".." in room_id:
         raise ValueError(
             f"room id {room_id!r} is not a plain name (letters, digits, '_', '-', '.'; no '/' or '..')"
         )
@@ -219,32 +258,491 @@ def write_geojson(path: Path, features: list[dict[str, Any]], crs_note: str | No
 
 
 def read_cloud(path: Path) -> Cloud:
-    """A registered point cloud from PLY or PCD (metres), with colours when the file has them. Empty,
-    unreadable or non-finite clouds raise a one-line error naming the file."""
-    import open3d as o3d
+    """A registered point cloud from PLY or PCD (metres), with colours when the file has them.
 
+    Nothing is trusted before it is checked: the header is parsed here (it is small), the element counts
+    times their record sizes must account for the file's size exactly, and only then is the body read with
+    numpy from the known layout, so a file can never make the reader allocate more than its own size
+    justifies. ASCII bodies are parsed strictly (one record per line, every value a number). Empty,
+    damaged or non-finite clouds raise a one-line error naming the file."""
     path = Path(path)
     if not path.is_file():
         raise ArtefactError(f"{path}: no such file")
-    if path.suffix.lower() not in {".ply", ".pcd"}:
-        raise ArtefactError(f"{path}: unsupported cloud format {path.suffix!r} (PLY or PCD expected)")
+    suffix = path.suffix.lower()
+    if suffix not in {".ply", ".pcd"}:
+        raise ArtefactError(f"{path}: unsupported cloud format {suffix!r} (PLY or PCD expected)")
     if path.stat().st_size == 0:
         raise DegenerateInputError(f"{path}: empty file")
-    if path.suffix.lower() == ".ply" and ply_vertex_count(path) == 0:
-        raise DegenerateInputError(f"{path}: the cloud has no points (empty or unreadable)")
-    pcd = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
-    points = np.asarray(pcd.points, dtype=np.float64)
+    points, colors = _read_ply(path) if suffix == ".ply" else _read_pcd(path)
     if len(points) == 0:
-        raise DegenerateInputError(f"{path}: the cloud has no points (empty or unreadable)")
+        raise DegenerateInputError(f"{path}: the cloud has no points")
     finite = np.isfinite(points).all(axis=1)
     if not finite.all():
         raise DegenerateInputError(
             f"{path}: {int((~finite).sum())} of {len(points)} points are NaN or infinite"
         )
+    return Cloud(points, colors)
+
+
+MAX_HEADER_BYTES = 1 << 20
+"""A PLY or PCD header longer than this is not a header (a real one is a few hundred bytes; comments
+may make it a few kilobytes)."""
+
+ASCII_CHUNK_ROWS = 1 << 13
+"""ASCII records parsed at a time (bounded working memory whatever the file's size)."""
+
+BINARY_CHUNK_RECORDS = 1 << 18
+"""Binary records read at a time (a few MB of working memory beside the cloud itself)."""
+
+_PLY_TYPES = {
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
+}
+
+
+@dataclass
+class _Element:
+    """One `element` of a PLY header: its name, record count and properties (name, numpy type code,
+    and the list-length type code for a list property, else None)."""
+
+    name: str
+    count: int
+    props: list[tuple[str, str, str | None]] = field(default_factory=list)
+
+    @property
+    def has_lists(self) -> bool:
+        return any(count is not None for _, _, count in self.props)
+
+    def dtype(self, endian: str) -> np.dtype:
+        return np.dtype([(name, endian + code) for name, code, _ in self.props])
+
+    def min_bytes(self) -> int:
+        """Bytes of one binary record at least (a list property counts its length field only)."""
+        return sum(np.dtype(count or code).itemsize for _, code, count in self.props)
+
+
+def _header_lines(path: Path, end_marker: bytes) -> tuple[list[str], int]:
+    """The header's lines up to and including the line that starts with `end_marker`, and the byte offset
+    where the body starts; one-line errors for a header that is not text or never ends."""
+    with open(path, "rb") as fh:
+        head = fh.read(MAX_HEADER_BYTES)
+    lines: list[str] = []
+    offset = 0
+    while True:
+        newline = head.find(b"\n", offset)
+        if newline < 0:
+            raise ArtefactError(
+                f"{path}: the header has no {end_marker.decode()!r} line"
+                + (f" in its first {MAX_HEADER_BYTES} bytes" if len(head) == MAX_HEADER_BYTES else "")
+                + " (not a cloud file, or cut short)"
+            )
+        raw = head[offset:newline].rstrip(b"\r")
+        try:
+            line = raw.decode("ascii")
+        except UnicodeDecodeError:
+            raise ArtefactError(
+                f"{path}: header line {len(lines) + 1} is not text (not a {path.suffix[1:].upper()} file?)"
+            ) from None
+        lines.append(line)
+        offset = newline + 1
+        if line.split()[:1] == [end_marker.decode()]:
+            return lines, offset
+
+
+def _read_ply(path: Path) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None]:
+    fmt, elements, body, header_lines = _ply_header(path)
+    size = path.stat().st_size
+    index = next(i for i, e in enumerate(elements) if e.name == "vertex")
+    vertex = elements[index]
+    names = [name for name, _, _ in vertex.props]
+    if vertex.has_lists:
+        raise ArtefactError(f"{path}: the vertex element has a list property (not a point cloud)")
+    if fmt == "ascii":
+        return _read_ply_ascii(path, elements, index, body, header_lines, size)
+    endian = "<" if fmt == "binary_little_endian" else ">"
+    before = elements[:index]
+    if any(e.has_lists for e in before):
+        raise ArtefactError(
+            f"{path}: an element with list properties comes before the vertices (unsupported)"
+        )
+    offset = body + sum(e.count * e.dtype(endian).itemsize for e in before)
+    record = vertex.dtype(endian)
+    after = elements[index + 1 :]
+    needed = offset - body + vertex.count * record.itemsize + sum(e.count * e.min_bytes() for e in after)
+    exact = not any(e.has_lists for e in after)
+    held = size - body
+    if held < needed or (exact and held != needed):
+        raise ArtefactError(
+            f"{path}: {held} bytes follow the header, but its elements ({_counts(elements)}) need "
+            f"{'' if exact else 'at least '}{needed}: the file is "
+            + (
+                "truncated or its header's counts are wrong"
+                if held < needed
+                else "longer than its header says"
+            )
+        )
+    # Read in slices into the result: memory is the cloud's own (points and colours) plus one slice.
+    points = np.empty((vertex.count, 3), dtype=np.float64)
+    coloured = {"red", "green", "blue"} <= set(names)
+    colors = np.empty((vertex.count, 3), dtype=np.uint8) if coloured else None
+    with open(path, "rb") as fh:
+        fh.seek(offset)
+        for start in range(0, vertex.count, BINARY_CHUNK_RECORDS):
+            want = min(BINARY_CHUNK_RECORDS, vertex.count - start)
+            rec = np.fromfile(fh, dtype=record, count=want)
+            if len(rec) != want:  # the file changed while being read
+                raise ArtefactError(f"{path}: {start + len(rec)} of {vertex.count} vertices could be read")
+            stop = start + want
+            for axis, name in enumerate("xyz"):
+                points[start:stop, axis] = rec[name]
+            if colors is not None:
+                colors[start:stop] = _colour_bytes(
+                    np.column_stack([rec[c] for c in ("red", "green", "blue")])
+                )
+    return points, colors
+
+
+def _colour_bytes(values: NDArray[Any]) -> NDArray[np.uint8]:
+    """Colour values as uint8, rounded as Open3D's readers do (value / 255 stored, times 255 read back),
+    so that a cloud read here and one read by Open3D are the same bytes."""
+    values = np.asarray(values)
+    if values.dtype == np.uint8:  # the round trip is exact for bytes: no float copies of the colours
+        return np.ascontiguousarray(values)
+    scaled = values.astype(np.float64) / 255.0
+    return np.clip(scaled * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+def _counts(elements: list[_Element]) -> str:
+    return ", ".join(f"{e.count} {e.name}" for e in elements)
+
+
+def _ply_header(path: Path) -> tuple[str, list[_Element], int, int]:
+    """(format, elements, body offset, header lines) of a PLY file, every line checked."""
+    with open(path, "rb") as fh:
+        magic = fh.read(4)
+    if magic.rstrip(b"\r\n") != b"ply":
+        raise ArtefactError(f"{path}: not a PLY file (it does not start with 'ply')")
+    lines, body = _header_lines(path, b"end_header")
+    fmt = ""
+    elements: list[_Element] = []
+    for number, line in enumerate(lines[1:-1], 2):
+        words = line.split()
+        where = f"{path}: header line {number}"
+        if not words or words[0] in {"comment", "obj_info"}:
+            continue
+        if words[0] == "format":
+            if len(words) != 3 or words[1] not in {"ascii", "binary_little_endian", "binary_big_endian"}:
+                raise ArtefactError(f"{where}: unknown format {' '.join(words[1:2])!r}")
+            fmt = words[1]
+        elif words[0] == "element":
+            if len(words) != 3 or not words[2].isdigit():
+                raise ArtefactError(f"{where}: expected 'element NAME COUNT'")
+            elements.append(_Element(words[1], int(words[2])))
+        elif words[0] == "property":
+            if not elements:
+                raise ArtefactError(f"{where}: a property before any element")
+            if len(words) == 5 and words[1] == "list":
+                count_type, value_type, name = _PLY_TYPES.get(words[2]), _PLY_TYPES.get(words[3]), words[4]
+                if count_type is None or value_type is None or count_type[0] == "f":
+                    raise ArtefactError(f"{where}: bad list property types {words[2]!r} {words[3]!r}")
+                elements[-1].props.append((name, value_type, count_type))
+            elif len(words) == 3 and words[1] in _PLY_TYPES:
+                elements[-1].props.append((words[2], _PLY_TYPES[words[1]], None))
+            else:
+                raise ArtefactError(f"{where}: bad property {' '.join(words[1:])!r}")
+            if [p[0] for p in elements[-1].props].count(elements[-1].props[-1][0]) > 1:
+                raise ArtefactError(f"{where}: property {elements[-1].props[-1][0]!r} given twice")
+        else:
+            raise ArtefactError(f"{where}: unknown keyword {words[0][:40]!r}")
+    if not fmt:
+        raise ArtefactError(f"{path}: the PLY header has no format line")
+    vertex = [e for e in elements if e.name == "vertex"]
+    if len(vertex) != 1:
+        raise ArtefactError(f"{path}: the PLY header has {len(vertex)} vertex elements (1 expected)")
+    missing = [c for c in "xyz" if c not in {p[0] for p in vertex[0].props}]
+    if missing:
+        raise ArtefactError(f"{path}: the vertices have no {', '.join(missing)} property")
+    return fmt, elements, body, len(lines)
+
+
+def _read_ply_ascii(
+    path: Path, elements: list[_Element], index: int, body: int, header_lines: int, size: int
+) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None]:
+    """The vertices of an ASCII PLY, every line checked: as many values as properties, each a number (a
+    whole number in range for an integer property)."""
+    vertex = elements[index]
+    # Every record takes at least two bytes per value (a digit and a separator): a header claiming more
+    # records than the body can hold is refused before anything is allocated.
+    needed = sum(e.count * 2 * max(1, len(e.props)) for e in elements)
+    if needed > size - body:
+        raise ArtefactError(
+            f"{path}: its header's elements ({_counts(elements)}) cannot fit in the {size - body} bytes "
+            "after the header: the file is truncated or its header's counts are wrong"
+        )
+    names = [name for name, _, _ in vertex.props]
+    codes = [np.dtype(code) for _, code, _ in vertex.props]
+    reader = _AsciiRows(path, body, header_lines)
+    for element in elements[:index]:
+        reader.skip(element.count, element.name)
+    columns = [names.index(c) for c in ("x", "y", "z")]
+    colour_cols = (
+        [names.index(c) for c in ("red", "green", "blue")] if {"red", "green", "blue"} <= set(names) else []
+    )
+    points = np.empty((vertex.count, 3), dtype=np.float64)  # the header's count fits the file: checked
+    colours = np.empty((vertex.count, 3), dtype=np.uint8) if colour_cols else None
+    start = 0
+    for values in reader.rows(vertex.count, len(names), codes, "vertex"):
+        points[start : start + len(values)] = values[:, columns]
+        if colours is not None:
+            colours[start : start + len(values)] = _colour_bytes(values[:, colour_cols])
+        start += len(values)
+    for element in elements[index + 1 :]:
+        reader.skip(element.count, element.name)
+    reader.end()
+    return points, colours
+
+
+class _AsciiRows:
+    """Lines of an ASCII cloud body read strictly, with the file's line numbers for messages."""
+
+    def __init__(self, path: Path, offset: int, lines_before: int) -> None:
+        self.path = path
+        self.offset = offset
+        self.line = lines_before
+
+    def _lines(self, count: int, what: str, total: int, done: int) -> list[bytes]:
+        with open(self.path, "rb") as fh:
+            fh.seek(self.offset)
+            lines = []
+            for _ in range(count):
+                line = fh.readline()
+                if not line:
+                    raise ArtefactError(
+                        f"{self.path}: the file ends after {done + len(lines)} of the header's {total} "
+                        f"{what} records (truncated, or the count is wrong)"
+                    )
+                if not line.strip():
+                    raise ArtefactError(f"{self.path}: line {self.line + len(lines) + 1} is empty")
+                lines.append(line)
+            self.offset = fh.tell()
+        return lines
+
+    def skip(self, count: int, what: str) -> None:
+        for start in range(0, count, ASCII_CHUNK_ROWS):
+            n = min(ASCII_CHUNK_ROWS, count - start)
+            self._lines(n, what, count, start)
+            self.line += n
+
+    def rows(self, count: int, width: int, codes: list[np.dtype], what: str) -> Iterator[NDArray[np.float64]]:
+        """(n, width) float64 blocks of `count` records of `width` values each."""
+        integer = np.array([c.kind in "iu" for c in codes])
+        low = np.array([np.iinfo(c).min if c.kind in "iu" else -np.inf for c in codes])
+        high = np.array([np.iinfo(c).max if c.kind in "iu" else np.inf for c in codes])
+        for start in range(0, count, ASCII_CHUNK_ROWS):
+            n = min(ASCII_CHUNK_ROWS, count - start)
+            tokens = [line.split() for line in self._lines(n, what, count, start)]
+            for i, row in enumerate(tokens):
+                if len(row) != width:
+                    raise ArtefactError(
+                        f"{self.path}: line {self.line + i + 1} has {len(row)} values, the header's "
+                        f"{what} has {width} properties"
+                    )
+            try:
+                values = np.array([t for row in tokens for t in row], dtype=np.float64).reshape(n, width)
+            except ValueError:
+                for i, row in enumerate(tokens):
+                    for token in row:
+                        try:
+                            float(token)
+                        except ValueError:
+                            raise ArtefactError(
+                                f"{self.path}: line {self.line + i + 1}: {token.decode(errors='replace')[:40]!r} "
+                                "is not a number"
+                            ) from None
+                raise
+            if integer.any():
+                ints = values[:, integer]
+                bad = (ints != np.round(ints)) | (ints < low[integer]) | (ints > high[integer])
+                if bad.any():
+                    i = int(np.nonzero(bad.any(axis=1))[0][0])
+                    raise ArtefactError(
+                        f"{self.path}: line {self.line + i + 1}: a value is not a whole number in its "
+                        "property's range"
+                    )
+            self.line += n
+            yield values
+
+    def end(self) -> None:
+        """Only blank space may follow the last record."""
+        with open(self.path, "rb") as fh:
+            fh.seek(self.offset)
+            while block := fh.read(1 << 20):
+                if block.strip():
+                    raise ArtefactError(
+                        f"{self.path}: data after the header's last record (line {self.line + 1}): "
+                        "the header's counts are wrong"
+                    )
+
+
+_PCD_TYPES = {
+    ("F", 4): "f4",
+    ("F", 8): "f8",
+    **{(t, s): f"{t.lower()}{s}" for t in "IU" for s in (1, 2, 4, 8)},
+}
+
+LZF_MAX_RATIO = 100
+"""LZF expands at most 264 bytes from a 3-byte back reference: an uncompressed size claimed beyond this
+multiple of the compressed size is a damaged header, not data."""
+
+
+def _read_pcd(path: Path) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None]:
+    """A PCD file (ascii, binary or binary_compressed), its header checked against the file's size."""
+    lines, body = _header_lines(path, b"DATA")
+    header: dict[str, list[str]] = {}
+    for number, line in enumerate(lines, 1):
+        words = line.split()
+        if not words or words[0].startswith("#"):
+            continue
+        key = words[0].upper()
+        if key not in {
+            "VERSION",
+            "FIELDS",
+            "SIZE",
+            "TYPE",
+            "COUNT",
+            "WIDTH",
+            "HEIGHT",
+            "VIEWPOINT",
+            "POINTS",
+            "DATA",
+        }:
+            raise ArtefactError(f"{path}: header line {number}: unknown PCD keyword {words[0][:40]!r}")
+        header[key] = words[1:]
+    fields = header.get("FIELDS", [])
+    sizes = header.get("SIZE", [])
+    types = header.get("TYPE", [])
+    counts = header.get("COUNT", ["1"] * len(fields))
+    if not fields or not (len(fields) == len(sizes) == len(types) == len(counts)):
+        raise ArtefactError(
+            f"{path}: PCD header FIELDS ({len(fields)}), SIZE ({len(sizes)}), TYPE ({len(types)}) and "
+            f"COUNT ({len(counts)}) do not match"
+        )
+    try:
+        width = int(header.get("WIDTH", ["-1"])[0])
+        height = int(header.get("HEIGHT", ["1"])[0])
+        points_n = int(header.get("POINTS", [str(width * height)])[0])
+        layout = []
+        for name, s, t, c in zip(fields, sizes, types, counts, strict=True):
+            code = _PCD_TYPES.get((t.upper(), int(s)))
+            if code is None or int(c) < 1:
+                raise ValueError(f"field {name}: type {t} of {s} bytes, count {c}")
+            layout.append((name, "<" + code, int(c)))
+    except (ValueError, IndexError) as exc:
+        raise ArtefactError(f"{path}: bad PCD header ({' '.join(str(exc).split())})") from None
+    if width < 0 or height < 1 or points_n != width * height:
+        raise ArtefactError(
+            f"{path}: PCD header POINTS {points_n} is not WIDTH x HEIGHT ({width} x {height})"
+        )
+    missing = [c for c in "xyz" if c not in fields]
+    if missing:
+        raise ArtefactError(f"{path}: the PCD has no {', '.join(missing)} field")
+    if [c for name, _, c in layout if name in "xyz" and c != 1]:
+        raise ArtefactError(f"{path}: PCD fields x y z must have COUNT 1")
+    mode = (header.get("DATA") or [""])[0].lower()
+    record = np.dtype([(name, code, (c,)) if c > 1 else (name, code) for name, code, c in layout])
+    size = path.stat().st_size
+    if mode == "binary":
+        if size - body != points_n * record.itemsize:
+            raise ArtefactError(
+                f"{path}: {size - body} bytes follow the header, but its {points_n} points of "
+                f"{record.itemsize} bytes need {points_n * record.itemsize}: the file is "
+                + (
+                    "truncated or POINTS is wrong"
+                    if size - body < points_n * record.itemsize
+                    else "longer than its header says"
+                )
+            )
+        with open(path, "rb") as fh:
+            fh.seek(body)
+            rec = np.fromfile(fh, dtype=record, count=points_n)
+        columns = {name: rec[name] for name in record.names}
+    elif mode == "ascii":
+        width_values = sum(c for _, _, c in layout)
+        if points_n * 2 * width_values > size - body:
+            raise ArtefactError(
+                f"{path}: its header's {points_n} points cannot fit in the {size - body} bytes after the "
+                "header: the file is truncated or POINTS is wrong"
+            )
+        codes = [np.dtype(code) for _, code, c in layout for _ in range(c)]
+        reader = _AsciiRows(path, body, len(lines))
+        values = np.empty((points_n, width_values), dtype=np.float64)
+        start = 0
+        for block in reader.rows(points_n, width_values, codes, "point"):
+            values[start : start + len(block)] = block
+            start += len(block)
+        reader.end()
+        starts = np.cumsum([0] + [c for _, _, c in layout])
+        columns = {name: values[:, starts[i]] for i, (name, _, _) in enumerate(layout)}
+    elif mode == "binary_compressed":
+        return _read_pcd_compressed(path, body, size, points_n, record)
+    else:
+        raise ArtefactError(f"{path}: unknown PCD DATA {mode!r} (ascii, binary or binary_compressed)")
+    points = np.column_stack([np.asarray(columns[c], dtype=np.float64) for c in "xyz"]).reshape(-1, 3)
+    colors = None
+    colour_field = next((f for f in ("rgb", "rgba") if f in fields), None)
+    if colour_field and record[colour_field].itemsize == 4:
+        # PCL packs colour as 0x00RRGGBB in a 4-byte field, typed float (its bits) or unsigned
+        packed = np.asarray(columns[colour_field]).astype(record[colour_field].base).view("<u4")
+        colors = _colour_bytes(np.column_stack([(packed >> shift) & 0xFF for shift in (16, 8, 0)]))
+    return points, colors
+
+
+def _read_pcd_compressed(
+    path: Path, body: int, size: int, points_n: int, record: np.dtype
+) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None]:
+    """binary_compressed: its two size fields checked against the file and the header, then decoded by
+    Open3D (LZF), which then allocates no more than the checked sizes."""
+    import open3d as o3d
+
+    with open(path, "rb") as fh:
+        fh.seek(body)
+        sizes = np.frombuffer(fh.read(8), "<u4")
+    if len(sizes) != 2:
+        raise ArtefactError(f"{path}: the compressed PCD body is cut short")
+    packed, unpacked = (int(v) for v in sizes)
+    if body + 8 + packed > size:
+        raise ArtefactError(
+            f"{path}: the compressed body claims {packed} bytes, the file holds {size - body - 8}"
+        )
+    if unpacked != points_n * record.itemsize or unpacked > LZF_MAX_RATIO * max(packed, 1):
+        raise ArtefactError(
+            f"{path}: the compressed body unpacks to {unpacked} bytes, the header's {points_n} points "
+            f"need {points_n * record.itemsize}"
+        )
+    pcd = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
+    points = np.asarray(pcd.points, dtype=np.float64)
+    if len(points) != points_n:
+        raise ArtefactError(
+            f"{path}: the compressed body could not be decoded ({len(points)} of {points_n} points)"
+        )
     colors = None
     if pcd.has_colors():
         colors = np.clip(np.asarray(pcd.colors) * 255.0 + 0.5, 0, 255).astype(np.uint8)
-    return Cloud(points, colors)
+    return points, colors
 
 
 def write_cloud(path: Path, cloud: Cloud) -> Path:
@@ -308,13 +806,35 @@ def read_segments(path: Path) -> tuple[NDArray[np.float64], pa.Table]:
     path = Path(path)
     if path.suffix.lower() in {".geojson", ".json"}:
         data = read_json(path)
+        features = data.get("features") if isinstance(data, dict) else None
+        if not isinstance(features, list):
+            raise ArtefactError(f"{path}: not a GeoJSON FeatureCollection (no 'features' list)")
         segs = []
-        for feat in data.get("features", []):
-            geom = feat.get("geometry") or {}
-            if geom.get("type") == "LineString":
-                coords = geom["coordinates"]
+        for index, feat in enumerate(features):
+            if not isinstance(feat, dict):
+                raise ArtefactError(f"{path}: features[{index}] is not a GeoJSON Feature")
+            geom = feat.get("geometry")
+            if not isinstance(geom, dict | None):
+                raise ArtefactError(f"{path}: features[{index}].geometry is not a GeoJSON geometry")
+            if geom and geom.get("type") == "LineString":
+                coords = geom.get("coordinates")
+                if not (
+                    isinstance(coords, list)
+                    and all(
+                        isinstance(c, list)
+                        and len(c) >= 2
+                        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in c[:2])
+                        for c in coords
+                    )
+                ):
+                    raise ArtefactError(
+                        f"{path}: features[{index}]: a LineString's coordinates must be [x, y] numbers"
+                    )
                 segs += [[*coords[i][:2], *coords[i + 1][:2]] for i in range(len(coords) - 1)]
-        return np.asarray(segs, dtype=np.float64).reshape(-1, 4), pa.table({})
+        seg = np.asarray(segs, dtype=np.float64).reshape(-1, 4)
+        if not np.isfinite(seg).all():
+            raise ArtefactError(f"{path}: wall coordinates that are not finite")
+        return seg, pa.table({})
     table = read_table(path)
     missing = {"x0", "y0", "x1", "y1"} - set(table.column_names)
     if missing:
@@ -381,6 +901,8 @@ class ArtefactStore:
         self.outputs = self.work / "outputs"
         self._hash_memo_path = self.cache / "_file_hashes.json"
         self._hash_memo: dict[str, Any] | None = None
+        self.read_only = False
+        """Set by callers that only read (`status`): the store then writes nothing."""
 
     # ---- keys and folders
 
@@ -457,7 +979,22 @@ class ArtefactStore:
         tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{key[:12]}-", dir=root))
         try:
             started = time.time()
-            extra = write(tmp) or {}
+            try:
+                extra = write(tmp) or {}
+            except Exception as exc:  # the stage's error boundary: one line, whatever went wrong
+                if is_input_error(exc):
+                    raise
+                if os.environ.get(DEBUG_VARIABLE):
+                    logging.getLogger("indoor_survey").exception("[%s] %s failed", room, stage)
+                inputs = {
+                    name: entry.get("path") if isinstance(entry, dict) else entry
+                    for name, entry in (manifest.get("raw_inputs") or {}).items()
+                }
+                inputs.update({name: "result" for name in manifest.get("inputs") or {}})
+                if manifest.get("rooms") or manifest.get("failed_rooms"):  # a building-after stage
+                    read = sorted({*(manifest.get("rooms") or {}), *(manifest.get("failed_rooms") or {})})
+                    inputs["rooms"] = " ".join(read)
+                raise stage_error(room, stage, inputs, exc) from exc
             files = {
                 p.name: sha256_file(p)
                 for p in sorted(tmp.iterdir())
@@ -502,25 +1039,36 @@ class ArtefactStore:
     # ---- raw inputs
 
     def input_hash(self, path: Path) -> str:
-        """Content hash of a raw input file or folder, memoised by (path, size, mtime) so a warm rerun
-        does not re-read large captures."""
+        """Content hash of a raw input file or folder (a folder's files under this work dir left out: a
+        work dir inside an input folder must not change that input), memoised by what the file system
+        says of the file: (device, inode, size, mtime_ns, ctime_ns). A file replaced by one of the same
+        size and mtime (`cp -p`, `rsync -t`, bytes fixed in place and the time set back) still has a new
+        ctime, which no user tool can set back, so it is hashed again; so is a file whose ctime is within
+        `RACY_SECONDS` of when it was hashed (a write in the same clock tick leaves every time as it was)."""
         path = Path(path).resolve()
         if path.is_dir():
             parts = {
-                str(p.relative_to(path)): self.input_hash(p) for p in sorted(path.rglob("*")) if p.is_file()
+                str(p.relative_to(path)): self.input_hash(p)
+                for p in sorted(path.rglob("*"))
+                if p.is_file() and not p.resolve().is_relative_to(self.work)
             }
             return hash_json(parts)
         if not path.is_file():
             raise ArtefactError(f"{path}: no such file")
         stat = path.stat()
         memo = self._load_memo()
-        tag = f"{stat.st_size}:{stat.st_mtime_ns}"
+        tag = f"{stat.st_dev}:{stat.st_ino}:{stat.st_size}:{stat.st_mtime_ns}:{stat.st_ctime_ns}"
         entry = memo.get(str(path))
-        if entry and entry[0] == tag:
+        if entry and entry[0] == tag and len(entry) > 2 and entry[2]:
             return entry[1]
+        hashed_at = time.time_ns()
         digest = sha256_file(path)
-        memo[str(path)] = [tag, digest]
+        settled = hashed_at - max(stat.st_ctime_ns, stat.st_mtime_ns) > self.RACY_SECONDS * 1e9
+        memo[str(path)] = [tag, digest, settled]
         return digest
+
+    RACY_SECONDS = 2.0
+    """A memo entry is trusted only for a file last changed this long before it was hashed."""
 
     def _load_memo(self) -> dict[str, Any]:
         if self._hash_memo is None:
@@ -528,10 +1076,13 @@ class ArtefactStore:
                 self._hash_memo = json.loads(self._hash_memo_path.read_text())
             except (OSError, ValueError):
                 self._hash_memo = {}
+            if not isinstance(self._hash_memo, dict):
+                self._hash_memo = {}
         return self._hash_memo
 
     def save_memo(self) -> None:
-        if self._hash_memo is not None:
+        """Write the input-hash memo (not for a read-only store: `status` only reads)."""
+        if self._hash_memo is not None and not self.read_only:
             write_json(self._hash_memo_path, self._hash_memo)
 
     # ---- deliverables
@@ -566,16 +1117,6 @@ def _starts_numeric(path: Path) -> bool:
     return True
 
 
-def ply_vertex_count(path: Path) -> int:
-    """The vertex count declared in a PLY header (cheap check without loading the file)."""
-    with open(path, "rb") as fh:
-        head = fh.read(4096).split(b"end_header")[0].decode(errors="replace")
-    for line in head.splitlines():
-        if line.startswith("element vertex"):
-            return int(line.split()[2])
-    raise ArtefactError(f"{path}: not a PLY file")
-
-
 __all__ = [
     "BUILDING",
     "CHANGES_SCHEMA",
@@ -585,12 +1126,12 @@ __all__ = [
     "WALLS_SCHEMA",
     "ArtefactError",
     "ArtefactStore",
+    "StageError",
     "StageResult",
     "atomic_path",
     "check_room_id",
     "encode_png",
     "hash_json",
-    "ply_vertex_count",
     "read_cloud",
     "read_image",
     "read_json",

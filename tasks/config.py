@@ -9,6 +9,8 @@ as well, since its errors must be as clear as the config's.
 from __future__ import annotations
 
 import dataclasses
+import math
+import re
 import types
 import typing
 from dataclasses import dataclass, field
@@ -27,6 +29,29 @@ SENSOR_DIR = CONFIG_DIR / "sensors"
 
 class ConfigError(ValueError):
     """A config or survey file that cannot be used; one line naming the file or key."""
+
+
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader reading floats as YAML 1.2 does: `1e-3` is a number (YAML 1.1 wants `1.0e-3`
+    and reads `1e-3` as text, which a config value of type float then refuses)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+        |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+        re.X,
+    ),
+    list("-+0123456789."),
+)
+
+
+def _yaml(text: str) -> Any:
+    return yaml.load(text, Loader=_Loader)  # a SafeLoader: no arbitrary objects
 
 
 @dataclass(frozen=True)
@@ -129,7 +154,11 @@ def _build(cls: type, data: dict[str, Any], where: str, base: Any = None) -> Any
             updates[name] = _build(hints[name], value, sub_where, getattr(current, name))
         else:
             updates[name] = _coerce(value, hints[name], sub_where)
-    return dataclasses.replace(current, **updates)
+    try:
+        return dataclasses.replace(current, **updates)
+    except (ValueError, TypeError) as exc:  # a section's own check of its values (__post_init__)
+        message = " ".join(str(exc).split())
+        raise ConfigError(message if where and message.startswith(where) else f"{where}: {message}") from None
 
 
 def _merge_layer(cfg: PipelineConfig, layer: dict[str, Any], source: str) -> PipelineConfig:
@@ -157,11 +186,17 @@ def read_yaml(path: Path) -> Any:
     """A YAML file's content; a one-line error naming the file when it is missing or malformed."""
     path = Path(path)
     try:
-        text = path.read_text()
+        data = path.read_bytes()
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror or exc})") from exc
     try:
-        return yaml.safe_load(text)
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not a YAML text file (byte {exc.start} is not UTF-8)") from None
+    if "\x00" in text:
+        raise ConfigError(f"{path}: not a YAML text file (it holds NUL bytes)")
+    try:
+        return _yaml(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark else ""
@@ -178,7 +213,7 @@ def parse_set(item: str) -> dict[str, Any]:
     if len(keys) < 2 or not all(keys):
         raise ConfigError(f"--set {item!r}: expected stage.key=value")
     try:
-        value = yaml.safe_load(raw) if raw.strip() else ""
+        value = _yaml(raw) if raw.strip() else ""
     except yaml.YAMLError as exc:
         raise ConfigError(f"--set {item!r}: value is not valid YAML") from exc
     nested: dict[str, Any] = {keys[-1]: value}
@@ -280,6 +315,15 @@ class Survey:
     def room_ids(self) -> list[str]:
         return [r.id for r in self.rooms]
 
+    def outside_inputs(self) -> list[tuple[str, Path]]:
+        """(what, resolved path) of every input that lies outside the survey folder (`../`, an absolute
+        path, or a symbolic link out of it): allowed, but a run says so."""
+        root = self.root.resolve()
+        given = [(f"room {r.id}: capture", r.capture) for r in self.rooms]
+        given += [("plan image", self.plan.image)] if self.plan is not None else []
+        given += [(name, p) for name, p in (("calibration", self.calibration), ("track", self.track)) if p]
+        return [(what, p.resolve()) for what, p in given if not p.resolve().is_relative_to(root)]
+
 
 _SURVEY_KEYS = {"name", "sensor", "plan", "calibration", "track", "rooms", "truth", "description"}
 
@@ -364,19 +408,41 @@ def _plan_spec(data: Any, folder: Path, path: Path) -> PlanSpec:
             f"{path}: plan needs exactly one scale: m_per_px, known_distance or outline_length_m"
         )
     m_per_px = data.get("m_per_px")
-    if m_per_px is not None and (not isinstance(m_per_px, int | float) or not 1e-4 <= m_per_px <= 1.0):
+    if m_per_px is not None and (not _is_number(m_per_px) or not 1e-4 <= m_per_px <= 1.0):
         raise ConfigError(
             f"{path}: plan.m_per_px {m_per_px!r} is implausible (metres per pixel, 0.0001 to 1; wrong units?)"
         )
     known = data.get("known_distance")
-    if known is not None and (not isinstance(known, list) or len(known) != 5):
-        raise ConfigError(f"{path}: plan.known_distance must be [x0, y0, x1, y1, metres] in pixels")
+    if known is not None and (
+        not isinstance(known, list) or len(known) != 5 or not all(_is_number(v) for v in known)
+    ):
+        raise ConfigError(
+            f"{path}: plan.known_distance must be five numbers [x0, y0, x1, y1, metres] (pixels, then "
+            f"metres), got {known!r}"
+        )
+    if known is not None and (known[4] <= 0 or (known[0], known[1]) == (known[2], known[3])):
+        raise ConfigError(
+            f"{path}: plan.known_distance needs two different pixels and a positive distance, got {known!r}"
+        )
+    outline = data.get("outline_length_m")
+    if outline is not None and (not _is_number(outline) or outline <= 0):
+        raise ConfigError(
+            f"{path}: plan.outline_length_m must be the outline's length in metres (a positive number), "
+            f"got {outline!r}"
+        )
+    if not isinstance(data["image"], str) or not data["image"]:
+        raise ConfigError(f"{path}: plan.image must be a path relative to the survey")
     return PlanSpec(
-        image=folder / str(data["image"]),
+        image=folder / data["image"],
         m_per_px=None if m_per_px is None else float(m_per_px),
         known_distance=None if known is None else tuple(float(v) for v in known),  # type: ignore[arg-type]
-        outline_length_m=data.get("outline_length_m"),
+        outline_length_m=None if outline is None else float(outline),
     )
+
+
+def _is_number(value: Any) -> bool:
+    """A finite int or float (not a bool, not text)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def build_section(cls: type, data: dict[str, Any]) -> Any:

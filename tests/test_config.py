@@ -103,6 +103,20 @@ def test_survey_loads(tmp_path):
         ("sensor: kinect_v9\nrooms:\n - {id: a, capture: a.ply}", "unknown sensor profile 'kinect_v9'"),
         ("roms: []", "unknown key 'roms'"),
         ("rooms:\n - {id: a, capture: a.ply}\nplan: {image: p.png, m_per_px: 20}", "implausible"),
+        ('rooms:\n - {id: "a\\n", capture: a.ply}', r"rooms\[0\]: room id 'a\\n' is not a plain name"),
+        (
+            "rooms:\n - {id: a, capture: a.ply}\nplan: {image: p.png, known_distance: [a, 0, 9, 0, 1]}",
+            r"plan\.known_distance must be five numbers",
+        ),
+        (
+            "rooms:\n - {id: a, capture: a.ply}\nplan: {image: p.png, known_distance: [0, 0, 0, 0, 1]}",
+            r"plan\.known_distance needs two different pixels",
+        ),
+        (
+            "rooms:\n - {id: a, capture: a.ply}\nplan: {image: p.png, outline_length_m: long}",
+            r"plan\.outline_length_m must be .*a positive number\), got 'long'",
+        ),
+        ("rooms:\n - {id: a, capture: a.ply}\nplan: {image: p.png, m_per_px: true}", "implausible"),
     ],
 )
 def test_bad_surveys_give_one_line_naming_the_file(tmp_path, content, message):
@@ -112,3 +126,42 @@ def test_bad_surveys_give_one_line_naming_the_file(tmp_path, content, message):
     text = str(err.value)
     assert "\n" not in text
     assert str(Path(tmp_path) / "survey.yaml") in text
+
+
+def test_binary_files_are_named(tmp_path):
+    (tmp_path / "survey.yaml").write_bytes(b"\x89PNG\r\n\x1a\n\x00\xff")
+    with pytest.raises(ConfigError, match=r"survey\.yaml: not a YAML text file"):
+        load_survey(tmp_path)
+    (tmp_path / "nul.yaml").write_bytes(b"preprocess:\x00\n")
+    with pytest.raises(ConfigError, match=r"nul\.yaml: not a YAML text file \(it holds NUL bytes\)"):
+        load_config([tmp_path / "nul.yaml"])
+
+
+def test_exponent_floats_are_numbers(tmp_path):
+    """YAML 1.1 reads 1e-3 as text (it wants 1.0e-3): --set x=1e-3 was refused."""
+    assert load_config([], ["preprocess.voxel_size_m=1e-3"]).preprocess.voxel_size_m == 0.001
+    (tmp_path / "o.yaml").write_text("preprocess:\n  voxel_size_m: 2e-2\n")
+    assert load_config([tmp_path / "o.yaml"]).preprocess.voxel_size_m == 0.02
+    assert parse_set("a.b=1e3") == {"a": {"b": 1000.0}} and parse_set("a.b=x1e3") == {"a": {"b": "x1e3"}}
+
+
+def test_a_sections_own_check_names_the_key_and_the_source(tmp_path):
+    with pytest.raises(ConfigError, match=r"^--set ingest\.max_frames=-5: ingest\.max_frames must be 0"):
+        load_config([], ["ingest.max_frames=-5"])
+    (tmp_path / "o.yaml").write_text("ingest:\n  frame_stride: 0\n")
+    with pytest.raises(ConfigError, match=r"o\.yaml: ingest\.frame_stride must be 1 or more"):
+        load_config([tmp_path / "o.yaml"])
+
+
+def test_inputs_outside_the_survey_folder_are_listed(tmp_path):
+    outside = tmp_path / "elsewhere.ply"
+    outside.write_bytes(b"")
+    root = write_survey(
+        tmp_path / "s",
+        {"in": "rooms/a.ply", "up": "../elsewhere.ply", "abs": str(outside), "link": "rooms/link.ply"},
+    )
+    (root / "rooms").mkdir()
+    (root / "rooms" / "link.ply").symlink_to(outside)
+    found = load_survey(root).outside_inputs()
+    assert [what for what, _ in found] == ["room up: capture", "room abs: capture", "room link: capture"]
+    assert {path for _, path in found} == {outside.resolve()}

@@ -1,3 +1,6 @@
+from pathlib import Path
+
+import cv2
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
@@ -115,3 +118,116 @@ def test_real_7scenes_folder(tmp_path, profile, realdata):
     depth = decode_depth_m(_rows(out)[0])
     assert depth.max() < 10.0  # 65535 "no return" became 0
     assert read_json(out / "camera_info.json")["depth"]["K"][0][0] == 585.0
+
+
+def test_data_mini_cloud_artefact_is_byte_identical_to_open3ds_reading(tmp_path, profile):
+    """Checking clouds changed no valid one: r5's cloud.ply artefact is what Open3D's reading made."""
+    import open3d as o3d
+
+    from tasks.artefacts import write_ply_points
+
+    source = Path(__file__).resolve().parents[1] / "data" / "mini" / "rooms" / "r5" / "cloud.ply"
+    metrics = ingest_capture(source, tmp_path, profile, IngestConfig())
+    pcd = o3d.io.read_point_cloud(str(source), remove_nan_points=False, remove_infinite_points=False)
+    colours = np.clip(np.asarray(pcd.colors) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    write_ply_points(tmp_path / "open3d.ply", np.asarray(pcd.points), colours)
+    assert (tmp_path / "cloud.ply").read_bytes() == (tmp_path / "open3d.ply").read_bytes()
+    assert metrics["points"] == len(pcd.points)
+
+
+def test_cloud_coordinates_beyond_1e7_m_are_refused(tmp_path, profile, rng):
+    from tasks.artefacts import write_ply_points
+    from tests.captures import box_room_points
+
+    pts = box_room_points(rng, spacing_m=0.1)
+    pts[3] = [2.0, 3e7, 1.0]  # one damaged value: the unit check sees the bulk only
+    write_ply_points(tmp_path / "far.ply", pts)
+    with pytest.raises(IngestError, match=r"far\.ply: 1 of \d+ points lie beyond ±1e\+07 m .*point 3"):
+        ingest_capture(tmp_path / "far.ply", tmp_path, profile, IngestConfig())
+
+
+def test_a_frame_whose_colour_does_not_decode_keeps_its_depth(tmp_path, profile):
+    from tests.test_bad_inputs import rgbd_mcap
+
+    def jpeg(i):
+        _ok, buf = cv2.imencode(".jpg", np.full((48, 64, 3), 90, np.uint8))
+        return b"not a jpeg" if i == 1 else buf.tobytes()
+
+    rgbd_mcap(tmp_path / "c.mcap", jpeg=jpeg)
+    out = tmp_path / "out"
+    out.mkdir()
+    metrics = ingest_capture(tmp_path / "c.mcap", out, profile, IngestConfig())
+    assert metrics["frames"] == 4 and metrics["frames_with_colour"] == 3
+    assert metrics["colour_undecodable"] == 1
+    assert [bool(r["rgb"]) for r in _rows(out)] == [True, False, True, True]
+    assert read_json(out / "camera_info.json")["frame_sizes"] == {"depth": [64, 48], "rgb": [64, 48]}
+
+
+def test_padded_depth_rows_are_read(tmp_path, profile):
+    from tests.test_bad_inputs import rgbd_mcap
+
+    rgbd_mcap(tmp_path / "c.mcap", n=1)
+    # the same frame with rows padded to 136 bytes (ROS `step`) reads as the same depth
+    from mcap_ros2.writer import Writer
+
+    from tasks import rosmsgs
+    from tests.captures import TOPICS
+
+    with open(tmp_path / "p.mcap", "wb") as fh:
+        writer = Writer(fh)
+        schema = writer.register_msgdef(rosmsgs.IMAGE, rosmsgs.definition(rosmsgs.IMAGE))
+        rows = np.zeros((48, 68), "<u2")
+        rows[:, :64] = 1500
+        msg = {
+            "header": rosmsgs.header(1_000_000_000, "depth"),
+            "height": 48,
+            "width": 64,
+            "encoding": "16UC1",
+            "is_bigendian": 0,
+            "step": 136,
+            "data": rows.tobytes(),
+        }
+        writer.write_message(TOPICS["depth"], schema, msg, 1_000_000_000)
+        writer.finish()
+    out = tmp_path / "out"
+    out.mkdir()
+    ingest_capture(tmp_path / "p.mcap", out, profile, IngestConfig())
+    depth = decode_depth_m(_rows(out)[0])
+    assert depth.shape == (48, 64) and np.all(depth == pytest.approx(1.5))
+
+
+def test_profile_intrinsics_follow_the_frames_size(tmp_path, profile):
+    """Issue #21 item 10: a recording without CameraInfo at 320x240 gets the 640x480 profile's
+    intrinsics scaled (pixel centres kept), not applied as they are."""
+    from tests.test_bad_inputs import rgbd_mcap
+
+    rgbd_mcap(tmp_path / "c.mcap", size=(320, 240), camera_info=False)
+    out = tmp_path / "out"
+    out.mkdir()
+    ingest_capture(tmp_path / "c.mcap", out, profile, IngestConfig())
+    info = read_json(out / "camera_info.json")
+    depth = info["depth"]
+    assert depth["source"] == "profile" and depth["size"] == [320, 240] and depth["scaled_from"] == [640, 480]
+    assert depth["K"][0][0] == pytest.approx(585.7 / 2)
+    assert depth["K"][0][2] == pytest.approx((320.1 + 0.5) / 2 - 0.5)
+    rgbd_mcap(tmp_path / "d.mcap", size=(320, 200), camera_info=False)
+    with pytest.raises(
+        IngestError, match=r"d\.mcap: the depth frames are 320x200, .* 640x480 \(another aspect\)"
+    ):
+        ingest_capture(tmp_path / "d.mcap", tmp_path, profile, IngestConfig())
+
+
+@pytest.mark.parametrize(
+    ("setting", "value"),
+    [
+        ("frame_stride", 0),
+        ("max_frames", -5),
+        ("max_sync_gap_ms", -1.0),
+        ("tum_depth_units_per_m", 0.0),
+        ("max_cloud_extent_m", float("nan")),
+        ("intrinsics_px", (0.0, 500.0, 320.0, 240.0)),
+    ],
+)
+def test_impossible_ingest_settings_are_refused(setting, value):
+    with pytest.raises(ValueError, match=rf"ingest\.{setting} must be"):
+        IngestConfig(**{setting: value})

@@ -8,7 +8,7 @@ from typing import Any
 
 from tasks.artefacts import read_cloud, write_cloud
 from tasks.context import ProgressFn
-from tasks.ingest.clouds import check_cloud_units
+from tasks.ingest.clouds import check_cloud_range, check_cloud_units
 from tasks.ingest.config import IngestConfig
 from tasks.ingest.errors import IngestError
 from tasks.ingest.folders import SevenScenesReader, TumReader
@@ -55,6 +55,7 @@ def ingest_capture(
     elif kind == "cloud":
         cloud = read_cloud(path)
         check_cloud_units(cloud.points, path, cfg)
+        check_cloud_range(cloud.points, path)
         write_cloud(out_dir / "cloud.ply", cloud)
         metrics = {"points": len(cloud), "coloured": cloud.colors is not None}
     else:

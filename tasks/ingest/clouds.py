@@ -22,8 +22,11 @@ def check_cloud_units(
 
     `margin` widens the limits: a scanner cloud's first chunk is checked with a margin, so that a file in
     millimetres fails before it is read whole, without a partial view failing a cloud the whole passes."""
-    lo, hi = np.percentile(points, [1, 99], axis=0)
-    size = hi - lo
+    with np.errstate(all="ignore"):  # a damaged value of 1e308 makes the spread infinite: refused below
+        lo, hi = np.percentile(points, [1, 99], axis=0)
+        size = hi - lo
+    if not np.isfinite(size).all():
+        check_cloud_range(points, path)
     if size[:2].max() <= cfg.max_cloud_extent_m * margin and size[2] <= cfg.max_cloud_height_m * margin:
         return
     ratio = size[2] / 2.7
@@ -39,6 +42,25 @@ def check_cloud_units(
         f"{path}: the cloud spans {size[0]:.4g} x {size[1]:.4g} x {size[2]:.4g} units (1-99 %), too large for a "
         f"room in metres (it looks like {guess}); convert it to metres"
     )
+
+
+MAX_COORDINATE_M = 1e7
+"""No coordinate of a room cloud in metres lies farther from its origin (a national grid's northing is
+under 1e7 m): beyond it, or not finite, the value is damaged, and would wreck the stages' numerics."""
+
+
+def check_cloud_range(points: NDArray[np.float64], path: Path) -> None:
+    """Raise a one-line IngestError naming the first point that is not finite or lies beyond
+    ±`MAX_COORDINATE_M` (checked after the unit check, which looks at the bulk of the cloud only)."""
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.abs(points) <= MAX_COORDINATE_M).all(axis=1)
+    if bad.any():
+        first = int(np.argmax(bad))
+        x, y, z = (float(v) for v in points[first])
+        raise IngestError(
+            f"{path}: {int(bad.sum())} of {len(points)} points lie beyond ±{MAX_COORDINATE_M:g} m or are not "
+            f"finite (point {first}: {x:.4g}, {y:.4g}, {z:.4g}): a damaged value"
+        )
 
 
 def write_cloud_slices(

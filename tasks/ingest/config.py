@@ -3,6 +3,7 @@ loads without the readers' libraries."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 
@@ -48,7 +49,28 @@ class IngestConfig:
     rounded down to whole metres; georef.json records the shift so that outputs can be put back."""
 
     def __post_init__(self) -> None:
-        if self.cloud_voxel_m < 0:
-            raise ValueError("ingest: cloud_voxel_m must be 0 (keep every point) or positive")
-        if self.local_origin_beyond_m < 0:
-            raise ValueError("ingest: local_origin_beyond_m must be >= 0")
+        if not self.cloud_voxel_m >= 0:
+            raise ValueError("ingest.cloud_voxel_m must be 0 (keep every point) or positive")
+        if not self.local_origin_beyond_m >= 0:
+            raise ValueError("ingest.local_origin_beyond_m must be >= 0")
+        if self.frame_stride < 1:
+            raise ValueError(
+                f"ingest.frame_stride must be 1 or more (every n-th frame), got {self.frame_stride}"
+            )
+        if self.max_frames < 0:
+            raise ValueError(f"ingest.max_frames must be 0 (all frames) or more, got {self.max_frames}")
+        if not 0 <= self.max_sync_gap_ms < math.inf:
+            raise ValueError(f"ingest.max_sync_gap_ms must be a time >= 0, got {self.max_sync_gap_ms}")
+        if not 0 < self.tum_depth_units_per_m < math.inf:
+            raise ValueError(
+                f"ingest.tum_depth_units_per_m must be positive, got {self.tum_depth_units_per_m}"
+            )
+        for name in ("max_cloud_extent_m", "max_cloud_height_m"):
+            if not 0 < getattr(self, name) < math.inf:
+                raise ValueError(f"ingest.{name} must be positive, got {getattr(self, name)}")
+        if self.intrinsics_px is not None:
+            fx, fy, cx, cy = self.intrinsics_px
+            if not (0 < fx < math.inf and 0 < fy < math.inf and math.isfinite(cx) and math.isfinite(cy)):
+                raise ValueError(
+                    f"ingest.intrinsics_px must be fx, fy > 0 and finite cx, cy (pixels), got {list(self.intrinsics_px)}"
+                )

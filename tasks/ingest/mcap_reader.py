@@ -109,8 +109,12 @@ class McapReader(FrameReader):
         for depth_msg, rgb_msg, rgb_t in pair_nearest(stream(), max_gap):
             depth, kind, units = _depth_from_msg(depth_msg, depth_kind, self.path)
             frame = Frame(rosmsgs.stamp_ns(depth_msg.header), encode_depth(depth), kind, units)
+            frame.depth_size, frame.depth_valid = (
+                (depth.shape[1], depth.shape[0]),
+                int(np.count_nonzero(depth)),
+            )
             if rgb_msg is not None:
-                frame.rgb, frame.rgb_format = _rgb_from_msg(rgb_msg, self.path)
+                frame.rgb, frame.rgb_format, frame.rgb_size = _rgb_from_msg(rgb_msg, self.path)
                 frame.rgb_t_ns = rgb_t
             yield frame
 
@@ -121,10 +125,22 @@ def _depth_from_msg(msg: Any, forced_kind: str, path: Path) -> tuple[NDArray[np.
     enc = msg.encoding.lower()
     h, w = int(msg.height), int(msg.width)
     data = bytes(msg.data)
+    stamp = rosmsgs.stamp_ns(msg.header)
+    if enc not in {"16uc1", "mono16", "32fc1"}:
+        raise IngestError(f"{path}: unsupported depth encoding {msg.encoding!r} (16UC1, mono16 or 32FC1)")
+    if h < 1 or w < 1:
+        raise IngestError(f"{path}: depth image at t = {stamp} ns is {w}x{h} pixels")
+    item = 4 if enc == "32fc1" else 2
+    step = int(getattr(msg, "step", 0) or w * item)
+    if step < w * item or len(data) != h * step:
+        raise IngestError(
+            f"{path}: depth image at t = {stamp} ns holds {len(data)} bytes (row step {step}), but "
+            f"{w}x{h} {msg.encoding} needs {h * w * item}: wrong encoding or damaged message"
+        )
+    if step != w * item:  # rows padded to `step` bytes
+        data = np.frombuffer(data, np.uint8).reshape(h, step)[:, : w * item].tobytes()
     if enc in {"16uc1", "mono16"}:
         dtype = ">u2" if msg.is_bigendian else "<u2"
-        if len(data) < h * w * 2:
-            raise IngestError(f"{path}: depth image of {len(data)} bytes is too small for {w}x{h} 16-bit")
         arr = np.frombuffer(data, dtype=dtype, count=h * w).reshape(h, w).astype(np.uint16)
         if forced_kind == "disparity":
             return arr, "disparity", 0.0
@@ -134,25 +150,35 @@ def _depth_from_msg(msg: Any, forced_kind: str, path: Path) -> tuple[NDArray[np.
         metres = np.frombuffer(data, dtype=dtype, count=h * w).reshape(h, w)
         mm = np.where(np.isfinite(metres) & (metres > 0), np.round(metres * 1000.0), 0)
         return np.clip(mm, 0, 65535).astype(np.uint16), "mm", 1000.0
-    raise IngestError(f"{path}: unsupported depth encoding {msg.encoding!r} (16UC1, mono16 or 32FC1)")
+    raise AssertionError(enc)
 
 
-def _rgb_from_msg(msg: Any, path: Path) -> tuple[bytes, str]:
-    """Colour as encoded bytes: CompressedImage bytes as they are, raw Images encoded as PNG."""
+def _rgb_from_msg(msg: Any, path: Path) -> tuple[bytes, str, tuple[int, int] | None]:
+    """Colour as encoded bytes and the image's size: CompressedImage bytes as they are (size None: ingest
+    decodes them to check), raw Images encoded as PNG."""
     if hasattr(msg, "format"):  # CompressedImage
         fmt = "png" if "png" in msg.format.lower() else "jpeg"
-        return bytes(msg.data), fmt
+        return bytes(msg.data), fmt, None
     enc = msg.encoding.lower()
     h, w = int(msg.height), int(msg.width)
     channels = {"rgb8": 3, "bgr8": 3, "mono8": 1, "rgba8": 4, "bgra8": 4}.get(enc)
     if channels is None:
         raise IngestError(f"{path}: unsupported colour encoding {msg.encoding!r}")
-    arr = np.frombuffer(bytes(msg.data), np.uint8, count=h * w * channels).reshape(h, w, channels)
+    data = bytes(msg.data)
+    step = int(getattr(msg, "step", 0) or w * channels)
+    if h < 1 or w < 1 or step < w * channels or len(data) != h * step:
+        raise IngestError(
+            f"{path}: colour image at t = {rosmsgs.stamp_ns(msg.header)} ns holds {len(data)} bytes, "
+            f"{w}x{h} {msg.encoding} needs {h * w * channels}"
+        )
+    if step != w * channels:  # rows padded to `step` bytes
+        data = np.frombuffer(data, np.uint8).reshape(h, step)[:, : w * channels].tobytes()
+    arr = np.frombuffer(data, np.uint8, count=h * w * channels).reshape(h, w, channels)
     if enc.startswith("bgr"):
         arr = arr[:, :, 2::-1]
     elif channels == 1:
         arr = np.repeat(arr, 3, axis=2)
-    return encode_png(np.ascontiguousarray(arr[:, :, :3])), "png"
+    return encode_png(np.ascontiguousarray(arr[:, :, :3])), "png", (w, h)
 
 
 def _camera_info_dict(msg: Any) -> dict[str, Any]:
