@@ -323,7 +323,7 @@ def test_e57_and_laz_give_the_walls_of_the_ply_of_the_same_points(tmp_path):
     the PLY of every point the count must match too; its ends differ by up to a few millimetres, which is
     the wall stage's own repeatability (micrometre noise on the input moves ends by half a millimetre)."""
     from tasks.artefacts import write_ply_points
-    from tests.rooms import make_room, sample_room
+    from tasks.synth.rooms import make_room, sample_room
 
     rng = np.random.default_rng(5)
     room = make_room("rectangle", rng)
