@@ -157,6 +157,8 @@ def test_sigkill_mid_stage_then_rerun_completes(tmp_path, prefect_home):
     )
     assert done.returncode == 0, done.stderr
     assert "big          preprocess   computed" in done.stdout
-    assert "big          ingest       cached" in done.stdout
+    # served, not recomputed: by Prefect's record when the killed run wrote it, else by the store
+    ingest = next(line for line in done.stdout.splitlines() if line.startswith("big          ingest"))
+    assert ingest.split()[2] in ("cached", "stored"), ingest
     assert store.latest("big", "preprocess") is not None
     assert not any(stage_root.glob(".tmp-*"))  # swept

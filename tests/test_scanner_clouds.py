@@ -295,11 +295,11 @@ def _walls(cloud: Path, tmp_path: Path) -> np.ndarray:
     """(M, 4) the walls `model-room` finds on a cloud file (ingest -> preprocess -> walls)."""
     import pyarrow.parquet as pq
 
-    from flows.planning import model_room
+    from flows.oneoff import model_room
     from tasks.config import load_config
 
     out = tmp_path / f"walls-{cloud.name}"
-    model_room(cloud, out, load_config(), tmp_path / "work")
+    model_room(cloud, out, tmp_path / "work", load_config())
     table = pq.read_table(out / "walls.parquet")
     return np.column_stack([table.column(c).to_numpy() for c in ("x0", "y0", "x1", "y1")])
 
