@@ -91,3 +91,25 @@ def kitchen_registered(tmp_path_factory) -> KitchenRun:
     out = tmp_path_factory.mktemp("kitchen") / "out"
     cfg = load_config([], ["ingest.intrinsics_px=[585, 585, 320, 240]", "ingest.tum_depth_units_per_m=1000"])
     return KitchenRun(folder, out, register_room(folder, out, cfg=cfg))
+
+
+@pytest.fixture(scope="session")
+def generator_calibration_set(tmp_path_factory):
+    """Call with a size ("mini" or "full"): (folder, true calibration JSON) of the survey generator's
+    calibration set for the Kinect v1 profile at seed 5 with the default settings, written once per
+    session (the full set costs ~20 s of CPU). Tests read the folder, never write into it."""
+    import numpy as np
+    import yaml
+
+    from tasks.synth.calibration_set import write_calibration_set
+
+    profile = yaml.safe_load((REPO / "configs" / "sensors" / "kinect_v1.yaml").read_text())
+    sets: dict[str, tuple[Path, dict]] = {}
+
+    def get(size: str) -> tuple[Path, dict]:
+        if size not in sets:
+            folder = tmp_path_factory.mktemp(f"calibration-set-{size}")
+            sets[size] = (folder, write_calibration_set(folder, profile, size, np.random.default_rng(5)))
+        return sets[size]
+
+    return get

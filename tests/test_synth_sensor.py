@@ -12,7 +12,7 @@ import pytest
 import yaml
 from shapely.geometry import Polygon, box
 
-from tasks.synth.calibration_set import CalibrationSetConfig, write_calibration_set
+from tasks.synth.calibration_set import CalibrationSetConfig
 from tasks.synth.capture import write_capture_mcap
 from tasks.synth.scene import Material, SceneMesh
 from tasks.synth.sensor import (
@@ -420,17 +420,18 @@ def test_capture_rejects_wrong_frame_sizes(tmp_path):
 
 
 @pytest.mark.slow
-def test_calibration_set_recovers_its_truth(tmp_path):
+def test_calibration_set_recovers_its_truth(generator_calibration_set):
     """The chessboard views calibrate (OpenCV) to the true intrinsics, and the flat-target raw disparities
-    fit eq 3.11-3.12 to the true offset and b*c."""
-    prof = _profile("kinect_v1")
-    cfg = CalibrationSetConfig(n_rgb_edge_views=0)  # complete boards only: OpenCV needs whole views
-    truth = write_calibration_set(tmp_path, prof, "full", np.random.default_rng(0), cfg)
+    fit eq 3.11-3.12 to the true offset and b*c. The session's full-size set (tests/conftest.py), its first
+    `n_views` views: those hold the whole board in both images (OpenCV needs whole views; the RGB edge
+    views after them do not)."""
+    folder, truth = generator_calibration_set("full")
+    cfg = CalibrationSetConfig()
     cols, rows = cfg.inner_corners
     obj = np.zeros((cols * rows, 3), np.float32)
     obj[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * cfg.square_m
     for stream in ("ir", "rgb"):
-        files = sorted((tmp_path / stream).glob("*.png"))
+        files = sorted((folder / stream).glob("*.png"))[: cfg.n_views]
         assert len(files) >= 8
         img_pts = []
         for f in files:
@@ -459,10 +460,10 @@ def test_calibration_set_recovers_its_truth(tmp_path):
         a, _ = cv2.projectPoints(rays3, np.zeros(3), np.zeros(3), K_true, np.array(truth[stream]["dist"]))
         b, _ = cv2.projectPoints(rays3, np.zeros(3), np.zeros(3), K_true, dist)
         assert np.abs(a - b).max() < 0.3
-    meta = yaml.safe_load((tmp_path / "flat.yaml").read_text())
+    meta = yaml.safe_load((folder / "flat.yaml").read_text())
     dk, inv_h = [], []
     for name, dist in zip(meta["files"], meta["distances_m"], strict=True):
-        raw = cv2.imread(str(tmp_path / "flat" / name), cv2.IMREAD_UNCHANGED)
+        raw = cv2.imread(str(folder / "flat" / name), cv2.IMREAD_UNCHANGED)
         assert raw.dtype == np.uint16 and raw.max() <= INVALID_DISPARITY
         shift = int(meta["shift_px"])
         assert np.all(raw[:, -shift:] == INVALID_DISPARITY) and np.all(raw[:, :-shift] < INVALID_DISPARITY)
