@@ -530,51 +530,6 @@ def test_calibrate_folder_and_cli_files(synthetic_set, tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("size", ["full", "mini"])
-def test_generator_calibration_set(size, tmp_path):
-    """The survey generator's calibration set (tasks/synth) against its truth: intrinsics, relative pose,
-    disparity offset and baseline. Its views keep the board in the image centre, so the distortion is held to
-    0.3 px where the target was seen; outside, the figure is printed (the coverage warning says why)."""
-    synth = pytest.importorskip("tasks.synth.calibration_set")
-    import yaml
-
-    repo = Path(__file__).resolve().parents[1]
-    profile = yaml.safe_load((repo / "configs" / "sensors" / "kinect_v1.yaml").read_text())
-    truth = Calibration.from_json(
-        synth.write_calibration_set(tmp_path, profile, size, np.random.default_rng(5))
-    )
-    calib = calibrate_folder(tmp_path, CalibrateConfig(pattern="chessboard:9x6:0.04"))
-    lines = [f"generator set ({size}): coverage {dict(calib.coverage)}"]
-    for label, est, tru in (("IR", calib.ir, truth.ir), ("RGB", calib.rgb, truth.rgb)):
-        rel = np.array([est.fx / tru.fx, est.fy / tru.fy, est.cx / tru.cx, est.cy / tru.cy]) - 1
-        step = 4
-        err = np.linalg.norm(_distortion_field(est, step) - _distortion_field(tru, step), axis=1)
-        err = err.reshape(len(range(0, tru.size[1], step)), len(range(0, tru.size[0], step)))
-        ims = [(p.name, read_gray(p)) for p in sorted((tmp_path / label.lower()).glob("*.png"))]
-        seen = np.concatenate([d.points for d in detect_targets(ims, "chessboard:9x6:0.04")[0]])
-        (x0, y0), (x1, y1) = (seen.min(axis=0) / step).astype(int), (seen.max(axis=0) / step).astype(int)
-        inside = float(np.nanmax(err[y0 : y1 + 1, x0 : x1 + 1]))
-        lines.append(
-            f"  {label}: fx fy cx cy rel err {np.round(rel * 100, 3)} %, distortion max {inside:.3f} px where seen, "
-            f"{np.nanmax(err):.2f} px over the whole image; RMS {est.rms_px:.3f} px"
-        )
-        assert np.abs(rel).max() < 0.005 and inside < 0.3
-    dt_mm = np.linalg.norm(calib.ir_to_rgb.t_m - truth.ir_to_rgb.t_m) * 1000
-    dr_deg = np.degrees(
-        np.linalg.norm(Rotation.from_matrix(calib.ir_to_rgb.R @ truth.ir_to_rgb.R.T).as_rotvec())
-    )
-    dm, tm = calib.depth_model, truth.depth_model
-    lines.append(
-        f"  IR→RGB {dt_mm:.2f} mm {dr_deg:.3f}°; disparity offset {(dm.offset / tm.offset - 1) * 100:+.3f} %, "
-        f"baseline {(dm.baseline_m / tm.baseline_m - 1) * 100:+.3f} %, shift {dm.shift_x_px:g} px"
-    )
-    print("\n" + "\n".join(lines))
-    assert dt_mm < 2.0 and dr_deg < 0.2
-    assert abs(dm.offset / tm.offset - 1) < 0.01 and abs(dm.baseline_m / tm.baseline_m - 1) < 0.01
-    assert dm.shift_x_px == tm.shift_x_px
-
-
-@pytest.mark.slow
 def test_synthetic_circle_grid_mono():
     """Asymmetric circle grid views (incl. 90° turns) → IR intrinsics within 0.5 %."""
     truth = thesis_kinect_v1().ir

@@ -1,6 +1,7 @@
 """The survey generator's calibration set (tasks/synth/calibration_set.py) calibrated by the calibrate stage
 (`calibrate_folder`) against the set's own truth: intrinsics, lens distortion over the WHOLE image of both
-cameras, relative pose, disparity offset and baseline (issue 5, "the generator's calibration set")."""
+cameras, relative pose, disparity offset, baseline and shift (issue 5, "the generator's calibration set").
+The only calibration of the generator's sets in the suite: each costs a minute at full size."""
 
 from __future__ import annotations
 
@@ -41,9 +42,10 @@ def _write(folder: Path, size: str, seed: int, cfg: CalibrationSetConfig | None 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("size", ["mini", "full"])
-def test_generator_set_recovers_truth_everywhere(size, tmp_path):
-    truth = Calibration.from_json(_write(tmp_path, size, 5))
-    calib = calibrate_folder(tmp_path)
+def test_generator_set_recovers_truth_everywhere(size, generator_calibration_set):
+    folder, truth_json = generator_calibration_set(size)
+    truth = Calibration.from_json(truth_json)
+    calib = calibrate_folder(folder)
     cfg = CalibrationSetConfig()
     n_all = cfg.n_views + cfg.n_rgb_edge_views
     # every RGB view is usable; the IR images of the edge views hold only part of the board and are rejected as
@@ -77,23 +79,24 @@ def test_generator_set_recovers_truth_everywhere(size, tmp_path):
     print("\n" + "\n".join(lines))
     assert dt_mm < 2.0 and dr_deg < 0.2
     assert abs(d_off) < 0.01 and abs(d_base) < 0.01
+    assert dm.shift_x_px == tm.shift_x_px
 
 
 @pytest.mark.slow
-def test_generator_set_layout_size_and_determinism(tmp_path):
+def test_generator_set_layout_size_and_determinism(generator_calibration_set, tmp_path):
     """Same rng, same set; the mini set stays small; edge views put the RGB board near every image corner."""
-    a = _write(tmp_path / "a", "mini", 11)
-    b = _write(tmp_path / "b", "mini", 11)
+    folder_a, a = generator_calibration_set("mini")
+    b = _write(tmp_path / "b", "mini", 5)  # the session's set was written with seed 5 too
     assert a == b
-    files_a = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
+    files_a = sorted(p.relative_to(folder_a) for p in folder_a.rglob("*") if p.is_file())
     files_b = sorted(p.relative_to(tmp_path / "b") for p in (tmp_path / "b").rglob("*") if p.is_file())
     assert files_a == files_b
-    assert all((tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes() for f in files_a)
-    total_mb = sum((tmp_path / "a" / f).stat().st_size for f in files_a) / 1e6
+    assert all((folder_a / f).read_bytes() == (tmp_path / "b" / f).read_bytes() for f in files_a)
+    total_mb = sum((folder_a / f).stat().st_size for f in files_a) / 1e6
     cfg = CalibrationSetConfig()
     n_all = cfg.n_views + cfg.n_rgb_edge_views
-    assert len(list((tmp_path / "a" / "ir").glob("*.png"))) == n_all
-    assert len(list((tmp_path / "a" / "rgb").glob("*.png"))) == n_all
+    assert len(list((folder_a / "ir").glob("*.png"))) == n_all
+    assert len(list((folder_a / "rgb").glob("*.png"))) == n_all
     print(f"\nmini calibration set: {len(files_a)} files, {total_mb:.2f} MB")
     assert total_mb < 3.2
 

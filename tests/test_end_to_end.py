@@ -1,5 +1,6 @@
 """The miniature survey in data/ end to end, as the README's first command runs it, with accuracy
-thresholds against its truth/ (a synthetic survey: every answer is known)."""
+thresholds against its truth/ (a synthetic survey: every answer is known). The run itself is the
+session fixture `mini_run` (tests/conftest.py), which the register tests read too."""
 
 import json
 import shutil
@@ -13,13 +14,6 @@ from flows.cli import main
 pytestmark = pytest.mark.slow
 
 MINI = Path(__file__).resolve().parents[1] / "data" / "mini"
-
-
-@pytest.fixture(scope="module")
-def mini_run(tmp_path_factory, prefect_harness):
-    work = tmp_path_factory.mktemp("mini-work")
-    code = main(["-q", "run", str(MINI), "--work", str(work)])
-    return code, work
 
 
 def test_every_stage_of_every_room_completes(mini_run):

@@ -1,10 +1,14 @@
 """Plan parsing on the generator's evacuation plans (issue 7 must-show): a synthetic survey's plan/plan.png
 parsed at its stated scale against the as-planned truth the survey writes (truth/planned_walls.parquet,
-truth/planned_rooms.geojson)."""
+truth/planned_rooms.geojson). The survey is data/mini (the generator's seed 0, as
+`tasks.synth.survey.generate_survey` writes it): the plan draws the whole building whatever is surveyed, so
+generating another survey for its plan would only repeat that work; test_plan.py parses plans drawn
+straight from other seeds' buildings."""
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,15 +20,13 @@ from tasks.evaluate import evaluate_walls
 from tasks.plan.config import PlanConfig, PlanScale
 from tasks.plan.parse import parse_plan
 from tasks.plan.raster import load_plan_image
-from tasks.synth.survey import SurveyConfig, generate_survey
 
-# the plan draws the whole building whatever is surveyed: one room and few frames keep this quick
-SMALL = SurveyConfig(frames_mini=4, tls_step_deg_mini=3.0)
+MINI = Path(__file__).resolve().parents[1] / "data" / "mini"
 
 
 @pytest.mark.slow
-def test_generator_plan_walls_and_rooms(tmp_path):
-    out = generate_survey(tmp_path / "s0", seed=0, rooms=1, cfg=SMALL)
+def test_generator_plan_walls_and_rooms():
+    out = MINI
     doc = yaml.safe_load((out / "survey.yaml").read_text())
     image = load_plan_image(out / doc["plan"]["image"])
     res = parse_plan(image, PlanScale(m_per_px=float(doc["plan"]["m_per_px"])), PlanConfig())

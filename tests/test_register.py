@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import itertools
 import json
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.spatial.transform import Rotation
 
+from tasks.artefacts import BUILDING, ArtefactStore, StageResult, read_cloud, read_json
 from tasks.camera import Calibration, RigidPose
 from tasks.cloud import DegenerateInputError
 from tasks.register.config import RegisterConfig, SfmConfig
@@ -349,47 +349,16 @@ def test_calibration_from_camera_info_uses_the_profile_pose_only_for_sensor_intr
 
 
 # ------------------------------------------------------------------------------------------ end to end
+# On the session's run of data/mini (`mini_run`) and its register-room run on 7-Scenes
+# (`kitchen_registered`), both in tests/conftest.py: the tests read what those runs wrote.
+
+MINI = Path(__file__).resolve().parents[1] / "data" / "mini"
 
 
-def _synthetic_survey() -> Path:
-    root = Path(__file__).resolve().parents[1] / "data" / "mini"
-    if (root / "truth" / "poses").is_dir() and any((root / "rooms").glob("*/capture.mcap")):
-        return root
-    from tasks.synth.survey import generate_survey
-
-    out = Path(tempfile.mkdtemp(prefix="register-survey-"))
-    return generate_survey(out, seed=1, rooms=3, size="mini")
-
-
-@pytest.fixture(scope="module")
-def synthetic_survey() -> Path:
-    return _synthetic_survey()
-
-
-def _ingest(capture: Path, out: Path) -> tuple[Path, dict]:
-    from tasks.config import load_sensor_profile
-    from tasks.ingest.capture import ingest_capture
-    from tasks.ingest.config import IngestConfig
-
-    out.mkdir(parents=True, exist_ok=True)
-    ingest_capture(capture, out, load_sensor_profile("kinect_v1"), IngestConfig())
-    return out / "frames.parquet", json.loads((out / "camera_info.json").read_text())
-
-
-def _register_kinect(frames: Path, info: dict, workdir: Path, **kwargs: object):
-    """register_room with default settings and the Kinect v1 profile, no calibration file."""
-    from tasks.config import load_sensor_profile
-
-    return register_room(
-        frames,
-        info,
-        None,
-        RegisterConfig(),
-        SfmConfig(),
-        workdir,
-        profile=load_sensor_profile("kinect_v1"),
-        **kwargs,
-    )
+def _stage_result(work: Path, room: str, stage: str) -> StageResult:
+    result = ArtefactStore(work).latest(room, stage)
+    assert result is not None, f"the data/mini run left no {stage} result for room {room}"
+    return result
 
 
 def _truth_poses(path: Path) -> dict[int, np.ndarray]:
@@ -398,11 +367,10 @@ def _truth_poses(path: Path) -> dict[int, np.ndarray]:
 
 
 def _survey_rooms(root: Path) -> dict[str, str]:
+    """Room id -> capture kind ("hallway", ...) of a synthetic survey's RGB-D rooms."""
     import yaml
 
     doc = yaml.safe_load((root / "survey.yaml").read_text())
-    from tasks.synth.building import generate_building  # noqa: F401  (kinds come from the truth geojson)
-
     kinds = {
         f["properties"]["room_id"]: f["properties"]["capture"]
         for f in json.loads((root / "truth" / "rooms.geojson").read_text())["features"]
@@ -411,15 +379,16 @@ def _survey_rooms(root: Path) -> dict[str, str]:
 
 
 @pytest.mark.slow
-def test_synthetic_room_registered_metric_and_accurate(synthetic_survey, tmp_path):
-
-    rooms = _survey_rooms(synthetic_survey)
-    room = next(r for r, kind in rooms.items() if kind != "hallway")
-    frames, info = _ingest(synthetic_survey / "rooms" / room / "capture.mcap", tmp_path / "ingest")
-    res = _register_kinect(frames, info, tmp_path / "work")
-    truth = _truth_poses(synthetic_survey / "truth" / "poses" / f"{room}.parquet")
-    est = pose_matrices(res.poses)
-    registered = np.mean([m == "sfm" for m in res.poses["method"]])
+def test_synthetic_room_registered_metric_and_accurate(mini_run):
+    """The first RGB-D room of data/mini as the pipeline registered it (with the survey's calibration):
+    ≥ 95 % of the frames by SfM, ATE ≤ 3 cm after a similarity, scale within 1 %, the cloud coloured."""
+    _, work = mini_run
+    room = next(r for r, kind in _survey_rooms(MINI).items() if kind != "hallway")
+    result = _stage_result(work, room, "register")
+    poses = pq.read_table(result.file("poses.parquet")).to_pydict()
+    truth = _truth_poses(MINI / "truth" / "poses" / f"{room}.parquet")
+    est = pose_matrices(poses)
+    registered = np.mean([m == "sfm" for m in poses["method"]])
     ids = sorted(est)
     A = np.array([est[i][:3, 3] for i in ids])
     B = np.array([truth[i][:3, 3] for i in ids])
@@ -430,7 +399,7 @@ def test_synthetic_room_registered_metric_and_accurate(synthetic_survey, tmp_pat
     assert registered >= 0.95
     assert ate <= 0.03
     assert abs(s - 1) <= 0.01
-    assert res.cloud.coloured.mean() > 0.9
+    assert result.manifest["metrics"]["coloured_fraction"] > 0.9
 
 
 def _precision_eq_3_19(frames_path: Path, est: dict, truth: dict, calib: Calibration) -> list[float]:
@@ -453,33 +422,33 @@ def _precision_eq_3_19(frames_path: Path, est: dict, truth: dict, calib: Calibra
 
 
 @pytest.mark.slow
-def test_synthetic_hallway_sfm_fails_and_the_track_fallback_places_every_frame(synthetic_survey, tmp_path):
-    from tasks.config import load_sensor_profile
-
-    rooms = _survey_rooms(synthetic_survey)
-    hall = next(r for r, kind in rooms.items() if kind == "hallway")
-    frames, info = _ingest(synthetic_survey / "rooms" / hall / "capture.mcap", tmp_path / "ingest")
-    track = np.loadtxt(synthetic_survey / "track" / "track.csv", delimiter=",", skiprows=1)
-    # the plan as drawn (door gaps; the built walls may differ from it), as the plan stage reads it
-    pw = pq.read_table(synthetic_survey / "truth" / "planned_walls.parquet").to_pydict()
-    walls = np.column_stack([pw["x0"], pw["y0"], pw["x1"], pw["y1"], pw["thickness_m"]])
-    profile = load_sensor_profile("kinect_v1")
-    res = _register_kinect(frames, info, tmp_path / "work", track=track, plan_walls=walls)
-    assert res.metrics["sfm_registered_fraction"] < 0.5
-    assert set(res.poses["method"]) == {"track"}
-    est = pose_matrices(res.poses)
-    truth = _truth_poses(synthetic_survey / "truth" / "poses" / f"{hall}.parquet")
+def test_synthetic_hallway_sfm_fails_and_the_track_fallback_places_every_frame(mini_run):
+    """The texture-poor hallway of data/mini as the pipeline registered it: SfM fails, and the IMU track with
+    the plan stage's walls (door gaps; the built walls may differ from them) places every frame."""
+    _, work = mini_run
+    hall = next(r for r, kind in _survey_rooms(MINI).items() if kind == "hallway")
+    result = _stage_result(work, hall, "register")
+    metrics = result.manifest["metrics"]
+    poses = pq.read_table(result.file("poses.parquet")).to_pydict()
+    assert metrics["sfm_registered_fraction"] < 0.5
+    assert set(poses["method"]) == {"track"}
+    est = pose_matrices(poses)
+    truth = _truth_poses(MINI / "truth" / "poses" / f"{hall}.parquet")
     assert sorted(est) == sorted(truth)
-    sigma = _precision_eq_3_19(frames, est, truth, calibration_from_camera_info(info, profile))
+    calib = Calibration.from_json(
+        read_json(_stage_result(work, BUILDING, "calibrate").file("calibration.json"))
+    )
+    frames = _stage_result(work, hall, "ingest").file("frames.parquet")
+    sigma = _precision_eq_3_19(frames, est, truth, calib)
     err = np.array([np.linalg.norm(est[i][:2, 3] - truth[i][:2, 3]) for i in sorted(est)])
     yaw = []
     for i in sorted(est):
         f1, f2 = est[i][:3, 2], truth[i][:3, 2]
         d = np.arctan2(f1[1], f1[0]) - np.arctan2(f2[1], f2[0])
         yaw.append(abs(np.degrees((d + np.pi) % (2 * np.pi) - np.pi)))
-    drift = res.metrics["fallback"]["drift_model"]
+    drift = metrics["fallback"]["drift_model"]
     print(
-        f"hallway {hall}: SfM {res.metrics['sfm_registered_fraction']:.0%}; eq 3.19 precision median "
+        f"hallway {hall}: SfM {metrics['sfm_registered_fraction']:.0%}; eq 3.19 precision median "
         f"{np.median(sigma) * 100:.1f} cm, max {np.max(sigma) * 100:.1f} cm; position error median "
         f"{np.median(err) * 100:.1f} cm, max {np.max(err) * 100:.1f} cm, {np.mean(err <= 0.10):.0%} within "
         f"10 cm; heading error median {np.median(yaw):.1f} deg, max {max(yaw):.1f} deg; drift model {drift}"
@@ -491,17 +460,19 @@ def test_synthetic_hallway_sfm_fails_and_the_track_fallback_places_every_frame(s
     assert np.isfinite(sigma).all()
 
 
+def _kitchen_given_poses(folder: Path) -> dict[int, np.ndarray]:
+    """The 7-Scenes camera-to-world poses by frame id (ingest numbers the frames in file order)."""
+    return {k: np.loadtxt(f) for k, f in enumerate(sorted(folder.glob("frame-*.pose.txt")))}
+
+
 @pytest.mark.slow
-def test_real_7scenes_registered_accurate_and_metric(realdata, tmp_path):
+def test_real_7scenes_registered_accurate_and_metric(kitchen_registered):
     """Real Kinect v1 frames (7-Scenes redkitchen, 100 frames): ≥ 90 registered, ATE ≤ 5 cm after a
     similarity fit to the given poses, metric scale within 2 % (trajectory lengths)."""
-
-    folder = realdata("rgbd_7scenes_redkitchen")
-    frames, info = _ingest(folder, tmp_path / "ingest")
-    res = _register_kinect(frames, info, tmp_path / "work")
-    given = pq.read_table(tmp_path / "ingest" / "device_poses.parquet").to_pydict()
-    truth = pose_matrices({"frame_id": list(range(len(given["tx"]))), **given})
-    est = pose_matrices(res.poses)
+    run = kitchen_registered
+    truth = _kitchen_given_poses(run.folder)
+    assert len(truth) == run.metrics["ingest"]["frames"] == 100
+    est = pose_matrices(pq.read_table(run.out / "poses.parquet").to_pydict())
     ids = sorted(est)
     A = np.array([est[i][:3, 3] for i in ids])
     B = np.array([truth[i][:3, 3] for i in ids])
@@ -511,7 +482,7 @@ def test_real_7scenes_registered_accurate_and_metric(realdata, tmp_path):
     )
     print(
         f"7-Scenes: {len(ids)} of 100 registered, ATE {ate * 100:.2f} cm, length ratio {length_ratio:.4f}, "
-        f"SfM attempts {res.metrics['sfm_attempts']}"
+        f"SfM attempts {run.metrics['sfm_attempts']}"
     )
     assert len(ids) >= 90
     assert ate <= 0.05
@@ -519,32 +490,19 @@ def test_real_7scenes_registered_accurate_and_metric(realdata, tmp_path):
 
 
 @pytest.mark.slow
-def test_register_room_verb_writes_the_three_artefacts(realdata, tmp_path):
-    """The CLI-level entry on a 7-Scenes subset made into its own folder (12 frames)."""
-    import shutil
-
-    src = realdata("rgbd_7scenes_redkitchen")
-    sub = tmp_path / "seq"
-    sub.mkdir()
-    shutil.copy(src / "camera-intrinsics.txt", sub)
-    for k in range(0, 120, 10):
-        for ext in ("color.jpg", "depth.png", "pose.txt"):
-            shutil.copy(src / f"frame-{k:06d}.{ext}", sub)
-    from flows.oneoff import register_room as register_room_cli
-    from tasks.config import load_config
-
-    cfg = load_config([], ["ingest.intrinsics_px=[585, 585, 320, 240]", "ingest.tum_depth_units_per_m=1000"])
-    metrics = register_room_cli(sub, tmp_path / "out", cfg=cfg)
-    cols = pq.read_table(tmp_path / "out" / "poses.parquet").to_pydict()
-    assert len(cols["frame_id"]) == 12 and set(cols["method"]) <= {"sfm", "none"}
-    assert sum(m == "sfm" for m in cols["method"]) >= 10
-    scale = json.loads((tmp_path / "out" / "scale.json").read_text())
+def test_register_room_verb_writes_the_three_artefacts(kitchen_registered):
+    """The CLI-level entry (with config overrides for ingest) on the 7-Scenes folder: poses for every frame,
+    the scale, a coloured cloud."""
+    run = kitchen_registered
+    frames = run.metrics["ingest"]["frames"]
+    cols = pq.read_table(run.out / "poses.parquet").to_pydict()
+    assert len(cols["frame_id"]) == frames and set(cols["method"]) <= {"sfm", "none"}
+    assert sum(m == "sfm" for m in cols["method"]) >= 0.9 * frames
+    scale = json.loads((run.out / "scale.json").read_text())
     assert scale["scale"] > 0 and scale["frames_used"] >= 5
-    from tasks.artefacts import read_cloud
-
-    cloud = read_cloud(tmp_path / "out" / "cloud.ply")
+    cloud = read_cloud(run.out / "cloud.ply")
     assert len(cloud) > 10000 and cloud.colors is not None
-    assert metrics["methods"]["sfm"] >= 10
+    assert run.metrics["methods"]["sfm"] >= 0.9 * frames
 
 
 @pytest.mark.slow

@@ -1,5 +1,6 @@
 """Synthetic sensors (issue 3, SENSOR half): depth error model, rendering geometry, walks, MCAP capture,
-calibration set, TLS cloud, and a pycolmap smoke test. Inputs are box rooms built here with known answers."""
+calibration set, TLS cloud. Inputs are box rooms built here with known answers. That SfM registers the
+rendered frames of a walked room is tested on data/mini's rooms (test_register.py, on the session's run)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 import yaml
 from shapely.geometry import Polygon, box
 
-from tasks.synth.calibration_set import CalibrationSetConfig, write_calibration_set
+from tasks.synth.calibration_set import CalibrationSetConfig
 from tasks.synth.capture import write_capture_mcap
 from tasks.synth.scene import Material, SceneMesh
 from tasks.synth.sensor import (
@@ -420,17 +421,18 @@ def test_capture_rejects_wrong_frame_sizes(tmp_path):
 
 
 @pytest.mark.slow
-def test_calibration_set_recovers_its_truth(tmp_path):
+def test_calibration_set_recovers_its_truth(generator_calibration_set):
     """The chessboard views calibrate (OpenCV) to the true intrinsics, and the flat-target raw disparities
-    fit eq 3.11-3.12 to the true offset and b*c."""
-    prof = _profile("kinect_v1")
-    cfg = CalibrationSetConfig(n_rgb_edge_views=0)  # complete boards only: OpenCV needs whole views
-    truth = write_calibration_set(tmp_path, prof, "full", np.random.default_rng(0), cfg)
+    fit eq 3.11-3.12 to the true offset and b*c. The session's full-size set (tests/conftest.py), its first
+    `n_views` views: those hold the whole board in both images (OpenCV needs whole views; the RGB edge
+    views after them do not)."""
+    folder, truth = generator_calibration_set("full")
+    cfg = CalibrationSetConfig()
     cols, rows = cfg.inner_corners
     obj = np.zeros((cols * rows, 3), np.float32)
     obj[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * cfg.square_m
     for stream in ("ir", "rgb"):
-        files = sorted((tmp_path / stream).glob("*.png"))
+        files = sorted((folder / stream).glob("*.png"))[: cfg.n_views]
         assert len(files) >= 8
         img_pts = []
         for f in files:
@@ -459,10 +461,10 @@ def test_calibration_set_recovers_its_truth(tmp_path):
         a, _ = cv2.projectPoints(rays3, np.zeros(3), np.zeros(3), K_true, np.array(truth[stream]["dist"]))
         b, _ = cv2.projectPoints(rays3, np.zeros(3), np.zeros(3), K_true, dist)
         assert np.abs(a - b).max() < 0.3
-    meta = yaml.safe_load((tmp_path / "flat.yaml").read_text())
+    meta = yaml.safe_load((folder / "flat.yaml").read_text())
     dk, inv_h = [], []
     for name, dist in zip(meta["files"], meta["distances_m"], strict=True):
-        raw = cv2.imread(str(tmp_path / "flat" / name), cv2.IMREAD_UNCHANGED)
+        raw = cv2.imread(str(folder / "flat" / name), cv2.IMREAD_UNCHANGED)
         assert raw.dtype == np.uint16 and raw.max() <= INVALID_DISPARITY
         shift = int(meta["shift_px"])
         assert np.all(raw[:, -shift:] == INVALID_DISPARITY) and np.all(raw[:, :-shift] < INVALID_DISPARITY)
@@ -473,53 +475,3 @@ def test_calibration_set_recovers_its_truth(tmp_path):
     model = truth["depth_model"]
     assert offset == pytest.approx(model["offset"], rel=0.01)
     assert -slope / 8.0 == pytest.approx(model["bc_m_px"], rel=0.01)
-
-
-# ------------------------------------------------------------------------------------------------ SfM smoke
-
-
-@pytest.mark.slow
-def test_pycolmap_registers_a_textured_room(tmp_path):
-    """Smoke test: sequential SfM registers at least 90 % of a walked room's colour frames."""
-    import pycolmap
-
-    prof = _profile("kinect_v1")
-    try:
-        from tasks.synth.building import generate_building
-
-        building = generate_building(0)
-        room = next(r for r in building.rooms if r.capture == "rgbd" and r.shape == "rectangular")
-        mesh, poly, height = building.mesh, room.free_space, room.height_m
-    except (ImportError, StopIteration, AttributeError, TypeError):
-        mesh, poly, height = box_room(w=5.0, d=4.0, h=2.7), box(0, 0, 5, 4), 2.7
-    rng = np.random.default_rng(7)
-    n = 20
-    poses, _ = plan_walk(poly, height, n, rng)
-    img_dir = tmp_path / "images"
-    img_dir.mkdir()
-    for i, pose in enumerate(poses):
-        rgb, _ = render_rgbd(mesh, pose, prof, "mini", rng)
-        cv2.imwrite(str(img_dir / f"{i:03d}.jpg"), rgb[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 88])
-    cam = camera_model(prof, "rgb", "mini")
-    params = [cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2], *cam.dist[:4]]
-    pycolmap.logging.minloglevel = 2
-    db = tmp_path / "db.db"
-    pycolmap.extract_features(
-        db,
-        img_dir,
-        camera_mode=pycolmap.CameraMode.SINGLE,
-        reader_options=pycolmap.ImageReaderOptions(
-            camera_model="OPENCV", camera_params=",".join(map(str, params))
-        ),
-        extraction_options=pycolmap.FeatureExtractionOptions(num_threads=2),
-        device=pycolmap.Device.cpu,
-    )
-    pycolmap.match_sequential(
-        db, pairing_options=pycolmap.SequentialPairingOptions(overlap=8), device=pycolmap.Device.cpu
-    )
-    out = tmp_path / "sparse"
-    out.mkdir()
-    opts = pycolmap.IncrementalPipelineOptions(num_threads=2, random_seed=0, multiple_models=True)
-    recs = pycolmap.incremental_mapping(db, img_dir, out, options=opts)
-    best = max((r.num_reg_images() for r in recs.values()), default=0)
-    assert best >= 0.9 * n, f"pycolmap registered {best} of {n} frames in its largest model"
