@@ -3,6 +3,7 @@ a box-room cloud, and a survey folder around them. Each has a known answer."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -170,3 +171,61 @@ def tiny_survey(root: Path, rng: np.random.Generator, frames_room: bool = False)
         write_rgbd_mcap(root / "rooms" / "c" / "capture.mcap")
         rooms["c"] = "rooms/c/capture.mcap"
     return write_survey(root, rooms)
+
+
+def rgbd_mcap(
+    path: Path,
+    n: int = 4,
+    size: tuple[int, int] = (64, 48),
+    sizes: list[tuple[int, int]] | None = None,
+    encoding: str = "16UC1",
+    depth_bytes: Callable[[int, int, int], bytes] | None = None,
+    jpeg: Callable[[int], bytes] | None = None,
+    camera_info: bool = True,
+) -> Path:
+    """An MCAP of `n` depth frames (a wall 1.5 m away) with colour, frame i of size `sizes[i]`;
+    `depth_bytes(i, w, h)` and `jpeg(i)` replace a frame's payload."""
+    with open(path, "wb") as fh:
+        from mcap_ros2.writer import Writer
+
+        writer = Writer(fh)
+        schemas = {
+            t: writer.register_msgdef(t, rosmsgs.definition(t))
+            for t in (rosmsgs.IMAGE, rosmsgs.COMPRESSED_IMAGE, rosmsgs.CAMERA_INFO)
+        }
+        w0, h0 = size
+        if camera_info:
+            writer.write_message(
+                TOPICS["depth_info"], schemas[rosmsgs.CAMERA_INFO], camera_info_msg(1, w0, h0, 60.0), 1
+            )
+        for i in range(n):
+            w, h = sizes[i] if sizes else size
+            t = 1_000_000_000 + i * 33_333_333
+            if depth_bytes is not None:
+                data = depth_bytes(i, w, h)
+            elif encoding == "32FC1":
+                data = np.full((h, w), 1.5, "<f4").tobytes()
+            else:
+                data = np.full((h, w), 1500, "<u2").tobytes()
+            item = 4 if encoding == "32FC1" else 2
+            msg = {
+                "header": rosmsgs.header(t, "depth"),
+                "height": h,
+                "width": w,
+                "encoding": encoding,
+                "is_bigendian": 0,
+                "step": w * item,
+                "data": data,
+            }
+            writer.write_message(TOPICS["depth"], schemas[rosmsgs.IMAGE], msg, t)
+            if jpeg is not None:
+                colour = jpeg(i)
+            else:
+                ok, buf = cv2.imencode(".jpg", np.full((max(h, 1), max(w, 1), 3), 90, np.uint8))
+                assert ok
+                colour = buf.tobytes()
+            tr = t + 3_000_000
+            msg = {"header": rosmsgs.header(tr, "rgb"), "format": "jpeg", "data": colour}
+            writer.write_message(TOPICS["rgb_compressed"], schemas[rosmsgs.COMPRESSED_IMAGE], msg, tr)
+        writer.finish()
+    return path

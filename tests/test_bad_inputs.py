@@ -29,9 +29,13 @@ import pytest
 import yaml
 
 from flows.cli import main
-from tasks import rosmsgs
 from tasks.artefacts import write_ply_points
-from tests.captures import TOPICS, box_room_points, camera_info_msg, write_box_room_ply, write_survey
+from tests.captures import (
+    box_room_points,
+    rgbd_mcap,
+    write_box_room_ply,
+    write_survey,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -135,64 +139,6 @@ def pcd(path: Path, points: np.ndarray, data: str = "binary", header: dict | Non
 def model_room(tmp: Path, cloud: Path, names: tuple[str, ...] = (), **kw: object) -> Case:
     out = earlier_outputs(tmp / "out")
     return Case(["model-room", str(cloud), "--out", str(out)], 2, names or (cloud.name,), out, **kw)
-
-
-def rgbd_mcap(
-    path: Path,
-    n: int = 4,
-    size: tuple[int, int] = (64, 48),
-    sizes: list[tuple[int, int]] | None = None,
-    encoding: str = "16UC1",
-    depth_bytes: Callable[[int, int, int], bytes] | None = None,
-    jpeg: Callable[[int], bytes] | None = None,
-    camera_info: bool = True,
-) -> Path:
-    """An MCAP of `n` depth frames (a wall 1.5 m away) with colour, frame i of size `sizes[i]`;
-    `depth_bytes(i, w, h)` and `jpeg(i)` replace a frame's payload."""
-    with open(path, "wb") as fh:
-        from mcap_ros2.writer import Writer
-
-        writer = Writer(fh)
-        schemas = {
-            t: writer.register_msgdef(t, rosmsgs.definition(t))
-            for t in (rosmsgs.IMAGE, rosmsgs.COMPRESSED_IMAGE, rosmsgs.CAMERA_INFO)
-        }
-        w0, h0 = size
-        if camera_info:
-            writer.write_message(
-                TOPICS["depth_info"], schemas[rosmsgs.CAMERA_INFO], camera_info_msg(1, w0, h0, 60.0), 1
-            )
-        for i in range(n):
-            w, h = sizes[i] if sizes else size
-            t = 1_000_000_000 + i * 33_333_333
-            if depth_bytes is not None:
-                data = depth_bytes(i, w, h)
-            elif encoding == "32FC1":
-                data = np.full((h, w), 1.5, "<f4").tobytes()
-            else:
-                data = np.full((h, w), 1500, "<u2").tobytes()
-            item = 4 if encoding == "32FC1" else 2
-            msg = {
-                "header": rosmsgs.header(t, "depth"),
-                "height": h,
-                "width": w,
-                "encoding": encoding,
-                "is_bigendian": 0,
-                "step": w * item,
-                "data": data,
-            }
-            writer.write_message(TOPICS["depth"], schemas[rosmsgs.IMAGE], msg, t)
-            if jpeg is not None:
-                colour = jpeg(i)
-            else:
-                ok, buf = cv2.imencode(".jpg", np.full((max(h, 1), max(w, 1), 3), 90, np.uint8))
-                assert ok
-                colour = buf.tobytes()
-            tr = t + 3_000_000
-            msg = {"header": rosmsgs.header(tr, "rgb"), "format": "jpeg", "data": colour}
-            writer.write_message(TOPICS["rgb_compressed"], schemas[rosmsgs.COMPRESSED_IMAGE], msg, tr)
-        writer.finish()
-    return path
 
 
 def register_room(tmp: Path, capture: Path, *extra: str, names: tuple[str, ...] = ()) -> Case:

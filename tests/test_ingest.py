@@ -147,7 +147,7 @@ def test_cloud_coordinates_beyond_1e7_m_are_refused(tmp_path, profile, rng):
 
 
 def test_a_frame_whose_colour_does_not_decode_keeps_its_depth(tmp_path, profile):
-    from tests.test_bad_inputs import rgbd_mcap
+    from tests.captures import rgbd_mcap
 
     def jpeg(i):
         _ok, buf = cv2.imencode(".jpg", np.full((48, 64, 3), 90, np.uint8))
@@ -164,7 +164,7 @@ def test_a_frame_whose_colour_does_not_decode_keeps_its_depth(tmp_path, profile)
 
 
 def test_padded_depth_rows_are_read(tmp_path, profile):
-    from tests.test_bad_inputs import rgbd_mcap
+    from tests.captures import rgbd_mcap
 
     rgbd_mcap(tmp_path / "c.mcap", n=1)
     # the same frame with rows padded to 136 bytes (ROS `step`) reads as the same depth
@@ -199,7 +199,7 @@ def test_padded_depth_rows_are_read(tmp_path, profile):
 def test_profile_intrinsics_follow_the_frames_size(tmp_path, profile):
     """Issue #21 item 10: a recording without CameraInfo at 320x240 gets the 640x480 profile's
     intrinsics scaled (pixel centres kept), not applied as they are."""
-    from tests.test_bad_inputs import rgbd_mcap
+    from tests.captures import rgbd_mcap
 
     rgbd_mcap(tmp_path / "c.mcap", size=(320, 240), camera_info=False)
     out = tmp_path / "out"
