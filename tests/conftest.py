@@ -50,8 +50,8 @@ def prefect_harness():
 
 
 # ------------------------------------------------------------------------- expensive results, made once
-# Each of these costs minutes; the tests that read it share one run per session instead of each making
-# its own. A fixture returns where the run's files are; tests only read them.
+# Each of these costs from tens of seconds to minutes; the tests that read it share one run per session
+# instead of each making its own. A fixture returns where the files are; tests only read them.
 
 MINI = REPO / "data" / "mini"
 
