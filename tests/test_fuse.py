@@ -13,7 +13,7 @@ from shapely.geometry import Polygon, box
 from tasks.fuse.config import FuseConfig
 from tasks.fuse.correspond import PlanRoom, RoomEvidence, correspond_rooms, turning_distance
 from tasks.fuse.gaps import GAP_FILLED, fill_gaps, shell_polygon
-from tasks.fuse.openings import find_doors
+from tasks.fuse.openings import find_doors, span_state, wall_columns
 from tasks.fuse.place import RoomInput, place_rooms
 from tasks.fuse.register2d import (
     Placement,
@@ -215,23 +215,85 @@ def test_a_room_that_cannot_close_says_why() -> None:
     assert not inside.closed and "inside the room" in inside.reason
 
 
-def test_doors_from_the_cloud_low_down() -> None:
-    """A wall with an opening from the floor to 2 m (a door) and one with a parapet (a window): only
-    the door is found."""
-    rng = np.random.default_rng(1)
+def wall_scene(
+    rng: np.random.Generator, smear_m: float = 0.005
+) -> tuple[np.ndarray, dict[str, tuple[float, float]]]:
+    """A 12 m wall along y = 0 seen from the room (y > 0), floor at z = 0, what stands along it (x ranges):
+    a door (floor to 2.05 m, the next room's floor seen through it), a window (sill at 0.9 m), a cabinet
+    (hides the face, shows its front 0.4 m out), a TV bench (0.5 m high, 0.3 m out) and a stretch the
+    camera never looked at (nothing at all). The face's points are spread by smear_m."""
+    parts = {
+        "door": (1.0, 1.9),
+        "window": (3.0, 4.2),
+        "cabinet": (5.0, 6.0),
+        "bench": (7.0, 8.2),
+        "unseen": (9.5, 10.5),
+    }
+
+    def inside(x: float, name: str) -> bool:
+        return parts[name][0] <= x <= parts[name][1]
+
     pts = []
-    for x in np.arange(0, 5, 0.02):
-        for z in np.arange(0.0, 2.6, 0.05):
-            door = 1.0 <= x <= 1.9 and z < 2.05
-            window = 3.0 <= x <= 4.2 and 0.9 <= z <= 2.1
-            if not door and not window:
-                pts.append([x, 0.0 + rng.normal(0, 0.005), z])
-    walls = np.array([[0.0, 0.0, 5.0, 0.0]])
-    doors = find_doors(np.array(pts), 0.0, walls, np.array([[0.0, 1.0]]), CFG.door_band_m, (0.6, 1.6))
+    for x in np.arange(0.0, 12.0, 0.02):
+        for z in np.arange(0.0, 2.6, 0.04):
+            if inside(x, "unseen") or (inside(x, "door") and z < 2.05):
+                continue
+            if inside(x, "window") and 0.9 <= z <= 2.1:
+                continue
+            if inside(x, "cabinet") and z < 2.0:
+                pts.append([x, 0.4, z])  # its front, not the face behind it
+                continue
+            if inside(x, "bench") and z < 0.5:
+                pts.append([x, 0.3, z])
+                continue
+            pts.append([x, rng.normal(0.0, smear_m), z])
+        for y in np.arange(0.1, 3.0, 0.05):  # the room's floor, everywhere the camera looked
+            if not inside(x, "unseen"):
+                pts.append([x, y, 0.0])
+        if inside(x, "door"):  # the floor of the next room, seen through the door
+            for y in np.arange(-1.5, 0.0, 0.05):
+                pts.append([x, y, 0.0])
+    return np.array(pts), parts
+
+
+def test_a_door_is_an_opening_seen_through_and_furniture_is_not() -> None:
+    """Only the door is found: the window keeps its parapet, the cabinet and the TV bench stand in front
+    of the face, and the unseen stretch shows nothing beyond it."""
+    pts, parts = wall_scene(np.random.default_rng(1))
+    walls = np.array([[0.0, 0.0, 12.0, 0.0]])
+    doors = find_doors(pts, 0.0, walls, np.array([[0.0, 1.0]]), (0.6, 1.6))
     assert len(doors) == 1
-    assert doors[0].segment[0] == pytest.approx(1.0, abs=0.06) and doors[0].segment[2] == pytest.approx(
-        1.9, abs=0.06
-    )
+    x0, x1 = sorted([doors[0].segment[0], doors[0].segment[2]])
+    assert x0 == pytest.approx(parts["door"][0], abs=0.05) and x1 == pytest.approx(parts["door"][1], abs=0.05)
+    assert doors[0].through_share == pytest.approx(1.0)
+
+
+def test_the_face_is_read_where_its_points_lie() -> None:
+    """A wall modelled 11 cm off its face (a corridor's end wall) still finds the door in it."""
+    pts, parts = wall_scene(np.random.default_rng(2))
+    walls = np.array([[0.0, -0.11, 12.0, -0.11]])
+    cols = wall_columns(pts, 0.0, walls[0], np.array([0.0, 1.0]))
+    assert cols.face_offset_m == pytest.approx(0.11, abs=0.01)
+    doors = find_doors(pts, 0.0, walls, np.array([[0.0, 1.0]]), (0.6, 1.6))
+    assert len(doors) == 1 and doors[0].segment[0] == pytest.approx(parts["door"][0], abs=0.05)
+
+
+def test_a_closed_span_is_seen_everywhere_and_through_nowhere() -> None:
+    """span_state: the door is open, the wall beside it closed, the unseen stretch neither; a smeared face
+    (frames 5 cm apart) cannot tell."""
+    pts, parts = wall_scene(np.random.default_rng(3))
+    wall, inward = np.array([0.0, 0.0, 12.0, 0.0]), np.array([0.0, 1.0])
+    door = span_state(pts, 0.0, wall, inward, *parts["door"])
+    assert door.face_share == pytest.approx(0.0) and door.through_share >= 0.9
+    closed = span_state(pts, 0.0, wall, inward, 2.0, 2.9)
+    assert closed.face_share == pytest.approx(1.0) and closed.through_share == 0.0
+    assert closed.closed(CFG.closed_door_share, CFG.door_through_share, CFG.crisp_face_m)
+    unseen = span_state(pts, 0.0, wall, inward, *parts["unseen"])
+    assert unseen.face_share == 0.0 and not unseen.closed(0.9, 0.25, CFG.crisp_face_m)
+    smeared, _ = wall_scene(np.random.default_rng(3), smear_m=0.05)
+    blurred = span_state(smeared, 0.0, wall, inward, 2.0, 2.9)
+    assert blurred.face_spread_m > CFG.crisp_face_m
+    assert not blurred.closed(CFG.closed_door_share, CFG.door_through_share, CFG.crisp_face_m)
 
 
 def test_room_labels_are_read_from_the_plan_raster() -> None:
