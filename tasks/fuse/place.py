@@ -201,7 +201,7 @@ def register_room(
         best, ambiguous = by_doors[0], n0 == n1
         doors = _door_pairs(model, walls, best.placement, plan_doors, cfg)
     if doors:
-        refined = optimal_fit(shell, inward, model.centre, own, best.placement, cfg, doors)
+        refined = optimal_fit(shell, inward, model.centre, own, best.placement, cfg, doors, refine=True)
         if refined.score >= best.score - 0.02:
             best = refined
     return best, how, ambiguous
