@@ -16,6 +16,7 @@ from tasks.fuse.gaps import GAP_FILLED, fill_gaps, shell_polygon
 from tasks.fuse.openings import find_doors, span_state, wall_columns
 from tasks.fuse.place import RoomInput, place_rooms
 from tasks.fuse.register2d import (
+    Faces,
     Placement,
     best_fit,
     centroid_start,
@@ -91,6 +92,31 @@ def test_fine_registration_converges_from_any_start_within_45_deg_and_1_m() -> N
         fit = fine_register(model, inward, centre, faces, start, CFG)
         rot, shift = errors(fit.placement, TRUTH, centre)
         assert rot < 1e-4 and shift < 1e-4, (rot, shift)
+
+
+def test_a_plan_face_drawn_a_degree_off_does_not_turn_the_room() -> None:
+    """Room 102's slanted wall vectorized 1 degree off on the plan: the rotation (eq 7.4) comes from the
+    walls that agree, the room is not turned by the slanted face's share of the length (0.25 deg)."""
+    slanted = Polygon([(0, 0), (6, 0), (6, 4), (1.46, 4)])  # the west wall at about 70 degrees
+    model = to_room_frame(ring_segments(slanted), TRUTH)
+    centre = np.array(Polygon(model[:, :2]).centroid.coords[0])
+    inward = inward_normals(model, Polygon(model[:, :2]), centre)
+    faces = polygon_faces(slanted)
+    d = np.abs(faces.segments[:, 2:] - faces.segments[:, :2])
+    k = int(np.argmax((d > 0.1).all(axis=1)))  # the slanted face
+    mid = 0.5 * (faces.segments[k, :2] + faces.segments[k, 2:])
+    c, s = math.cos(math.radians(1.0)), math.sin(math.radians(1.0))
+    turn = np.array([[c, s], [-s, c]])  # row vectors @ turn: turned by +1 degree
+    segments, inward_faces = faces.segments.copy(), faces.inward.copy()
+    segments[k] = ((segments[k].reshape(2, 2) - mid) @ turn + mid).reshape(4)
+    inward_faces[k] = inward_faces[k] @ turn
+    drawn = Faces(segments, inward_faces)
+    start = centroid_start(TRUTH.theta + math.radians(5.0), centre, np.array(slanted.centroid.coords[0]))
+    fit = fine_register(model, inward, centre, drawn, start, CFG)
+    rot, shift = errors(fit.placement, TRUTH, centre)
+    assert rot < 0.01 and shift < 0.01, (rot, shift)
+    plain = fine_register(model, inward, centre, drawn, start, replace(CFG, rotation_outlier_deg=180.0))
+    assert errors(plain.placement, TRUTH, centre)[0] > 0.15  # eq 7.4 over every wall
 
 
 def test_correspondence_prefers_the_face_the_ray_meets_among_parallel_ones() -> None:

@@ -23,6 +23,10 @@ class FuseConfig:
     (the approximate registration is trusted within +-1 m)."""
     max_iterations: int = 30
     """Iterations of the rotation + Gauss-Newton translation loop (eq 7.4, 7.9, 7.10)."""
+    rotation_outlier_deg: float = 0.5
+    """The rotation (eq 7.4) is the mean over the walls whose orientation difference to their face lies
+    within this of the weighted median: a plan face vectorized from a raster is good to about 0.3 degrees
+    over 4 m (a pixel); one a degree off (a slanted wall) is left out."""
     converge_m: float = 1e-4
     """Convergence: translation update below this (m) ..."""
     converge_deg: float = 1e-3

@@ -9,9 +9,9 @@
   inward normal agrees with the wall's, the closest one, preferring faces that the ray from the model's
   centroid through the wall's midpoint meets.
 - **Optimal fit** (fig 7.4 right): first the rotation, the length-weighted mean of the orientation
-  differences (eq 7.1-7.4), then the translation by Gauss-Newton on the distances of the walls' midpoints
-  to their faces' lines (eq 7.5-7.10), doors that coincide in model and plan as extra observations;
-  iterated until nothing moves. The `best_fit` (fig 7.4 left, joint rotation and translation on the
+  differences (eq 7.1-7.4) over the walls that agree with their weighted median, then the translation
+  by Gauss-Newton on the distances of the walls' midpoints to their faces' lines (eq 7.5-7.10), doors
+  that coincide in model and plan as extra observations; iterated until nothing moves. The `best_fit` (fig 7.4 left, joint rotation and translation on the
   walls' end points: springs) is here for comparison: an asymmetric room is turned by the springs' torque
   and, fitted to centrelines, pulled to the centre of its plan room; the optimal fit on the faces is not.
 - **Approximate** registration: the model's centroid on the plan room's centroid; the orientation from
@@ -400,7 +400,7 @@ def optimal_fit(
         if not m.any():
             break
         d_alpha = angle_difference(angles(faces.segments[matched[m]]), angles(moved[m]))
-        d_theta = float((w[m] * d_alpha).sum() / w[m].sum())  # eq 7.4
+        d_theta = rotation_update(d_alpha, w[m], math.radians(cfg.rotation_outlier_deg))
         placement = placement.then(d_theta, c, np.zeros(2))
         shift = np.zeros(2)
         for _ in range(5):  # Gauss-Newton (eq 7.9, 7.10); linear in t, so it settles at once
@@ -417,6 +417,19 @@ def optimal_fit(
             break
     used = len(_door_rows(doors or [], placement, cfg.max_residual_m))
     return _finish(shell, inward, centre, faces, placement, cfg, it, converged, used)
+
+
+def rotation_update(d_alpha: NDArray, weights: NDArray, outlier: float) -> float:
+    """Eq 7.4, the length-weighted mean of the orientation differences (radians), over the walls whose
+    difference lies within `outlier` of their weighted median: a plan face vectorized a degree off (the
+    slanted wall of a raster plan) is an outlier among walls that agree within a tenth of one, and must
+    not turn the room by a quarter of a degree."""
+    d_alpha, weights = np.asarray(d_alpha, dtype=np.float64), np.asarray(weights, dtype=np.float64)
+    order = np.argsort(d_alpha)
+    cum = np.cumsum(weights[order])
+    median = float(d_alpha[order][np.searchsorted(cum, 0.5 * cum[-1])])
+    keep = np.abs(d_alpha - median) <= outlier
+    return float((weights[keep] * d_alpha[keep]).sum() / weights[keep].sum())
 
 
 _GATES_M = (math.inf, 0.5, None)
