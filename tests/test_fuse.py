@@ -324,7 +324,8 @@ def test_a_closed_span_is_seen_everywhere_and_through_nowhere() -> None:
 
 def test_room_labels_are_read_from_the_plan_raster() -> None:
     """Labels drawn as the survey generator draws them (OpenCV's simplex font), among walls and a green
-    arrow, are read per room; a room without text has none."""
+    arrow, are read per room; a room without text has none; a label printed over the arrow's end (the
+    generator's WC) is read whole."""
     import shutil
 
     import cv2
@@ -334,10 +335,17 @@ def test_room_labels_are_read_from_the_plan_raster() -> None:
     if shutil.which("tesseract") is None:
         pytest.skip("tesseract-ocr is not installed (.ci/setup installs it)")
     s = 0.02
-    img = np.full((300, 700, 3), 255, np.uint8)
-    cv2.rectangle(img, (10, 10), (690, 290), (0, 0, 0), 8)
+    img = np.full((300, 1000, 3), 255, np.uint8)
+    cv2.rectangle(img, (10, 10), (990, 290), (0, 0, 0), 8)
     cv2.line(img, (350, 10), (350, 290), (0, 0, 0), 6)
+    cv2.line(img, (670, 10), (670, 290), (0, 0, 0), 6)
     cv2.putText(img, "104", (150, 150), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.arrowedLine(img, (420, 200), (520, 200), (0, 150, 60), 8)
-    rooms = [box(14 * s, -286 * s, 347 * s, -14 * s), box(353 * s, -286 * s, 686 * s, -14 * s)]
-    assert read_room_labels(img, rooms, s) == ["104", None]
+    cv2.arrowedLine(img, (820, 60), (820, 150), (0, 150, 60), 12)
+    cv2.putText(img, "WC", (806, 158), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    rooms = [
+        box(14 * s, -286 * s, 347 * s, -14 * s),
+        box(353 * s, -286 * s, 667 * s, -14 * s),
+        box(673 * s, -286 * s, 986 * s, -14 * s),
+    ]
+    assert read_room_labels(img, rooms, s) == ["104", None, "WC"]
