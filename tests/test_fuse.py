@@ -16,6 +16,7 @@ from tasks.fuse.gaps import GAP_FILLED, fill_gaps, shell_polygon
 from tasks.fuse.openings import find_doors, span_state, wall_columns
 from tasks.fuse.place import RoomInput, place_rooms
 from tasks.fuse.register2d import (
+    DoorPair,
     Faces,
     Placement,
     best_fit,
@@ -23,6 +24,7 @@ from tasks.fuse.register2d import (
     correspond,
     fine_register,
     inward_normals,
+    optimal_fit,
     polygon_faces,
     shell_mask,
 )
@@ -119,6 +121,61 @@ def test_a_plan_face_drawn_a_degree_off_does_not_turn_the_room() -> None:
     assert errors(plain.placement, TRUTH, centre)[0] > 0.15  # eq 7.4 over every wall
 
 
+CORRIDOR = box(0.0, 0.0, 15.0, 2.0)
+
+
+def test_a_corridor_a_percent_long_is_centred_and_a_door_drawn_off_does_not_pull_it() -> None:
+    """A corridor model 1% too long (its end walls 7.5 cm out each) is centred between its plan end faces;
+    a door pair whose centres lie 0.3 m apart along the wall (found in part, or drawn off) is dropped by
+    the gate, one 2 cm off is kept."""
+    long = ring_segments(CORRIDOR) * np.array([1.01, 1.0, 1.01, 1.0]) - np.array([0.075, 0, 0.075, 0])
+    model = to_room_frame(long, TRUTH)
+    centre = np.array(Polygon(model[:, :2]).centroid.coords[0])
+    inward = inward_normals(model, Polygon(model[:, :2]), centre)
+    faces = polygon_faces(CORRIDOR)
+    start = Placement(TRUTH.theta + math.radians(3.0), (TRUTH.t[0] + 0.4, TRUTH.t[1] - 0.2))
+    fit = fine_register(model, inward, centre, faces, start, CFG)
+    assert errors(fit.placement, TRUTH, centre) == pytest.approx((0.0, 0.0), abs=1e-6)
+    assert np.nanmax(np.abs(fit.residual_m)) == pytest.approx(0.075, abs=1e-6)  # the ends, split
+
+    def door(plan_x: float) -> DoorPair:
+        # the model's door, at plan (5, 2) when the model is where it truly is
+        back = (np.array([5.0, 2.0]) - np.asarray(TRUTH.t)) @ TRUTH.rotation
+        return DoorPair(tuple(back), (plan_x, 2.0), (1.0, 0.0), 0.9)
+
+    bad = optimal_fit(model, inward, centre, faces, fit.placement, CFG, [door(5.3)], refine=True)
+    assert bad.doors_used == 0 and errors(bad.placement, TRUTH, centre)[1] < 1e-6
+    good = optimal_fit(model, inward, centre, faces, fit.placement, CFG, [door(5.02)], refine=True)
+    assert good.doors_used == 1
+    assert 0.0 < errors(good.placement, TRUTH, centre)[1] < 0.02
+
+
+def test_the_derived_truth_keeps_walls_parallel_to_a_jogged_face() -> None:
+    """truth.refine_on_walls: a corridor whose north face jogs 6.5 cm, modelled straight (at the average):
+    the derived placement keeps the model's walls parallel to the true faces (a joint fit of the samples
+    tilts it by the jog over the length) and centres it."""
+    from tasks.fuse.truth import refine_on_walls
+
+    true_faces = np.array(
+        [
+            [0.0, 0.0, 15.0, 0.0],
+            [15.0, 0.0, 15.0, 1.935],
+            [15.0, 1.935, 9.0, 1.935],
+            [9.0, 1.935, 9.0, 2.0],
+            [9.0, 2.0, 0.0, 2.0],
+            [0.0, 2.0, 0.0, 0.0],
+        ]
+    )
+    straight = ring_segments(box(0.0, 0.0, 15.0, 1.97))
+    model = to_room_frame(straight, TRUTH)
+    start = Placement(TRUTH.theta + math.radians(0.3), (TRUTH.t[0] + 0.03, TRUTH.t[1] - 0.02))
+    got = refine_on_walls(model, true_faces, start)
+    centre = model.reshape(-1, 2).mean(axis=0)
+    rot, shift = errors(got, TRUTH, centre)
+    assert rot < 1e-6
+    assert shift < 0.01  # the model's north wall between the jog's two levels, its south wall on its face
+
+
 def test_correspondence_prefers_the_face_the_ray_meets_among_parallel_ones() -> None:
     faces = polygon_faces(L_ROOM)
     wall = np.array([[1.0, 4.95, 3.0, 4.95]])  # the top of the tall leg, 5 cm low
@@ -205,6 +262,18 @@ def test_both_sides_thickness_and_the_thesis_residuals() -> None:
     none = both_sides_thickness(centre, np.array([np.nan]), [left], (0.05, 0.6), 0.15)
     assert none.thickness_m[0] == pytest.approx(0.15) and none.source[0] == "default"
     assert room_thickness_from_residuals(left.walls, centre, (0.05, 0.6)) == pytest.approx(0.16)
+
+
+def test_both_sides_thickness_pairs_the_faces_point_by_point() -> None:
+    """A corridor's long face on one side, two rooms' faces on the other (0.16 and 0.18 apart from it,
+    over 4 m and 2 m): each point pairs the faces that are there, the median is 0.16."""
+    centre = np.array([[0.0, 0.0, 6.0, 0.0]])
+    corridor = PlacedWalls("hall", np.array([[-2.0, 0.08, 8.0, 0.08]]), np.array([[0.0, 1.0]]))
+    west = PlacedWalls("r3", np.array([[0.0, -0.08, 4.0, -0.08]]), np.array([[0.0, -1.0]]))
+    east = PlacedWalls("r4", np.array([[4.0, -0.10, 6.0, -0.10]]), np.array([[0.0, -1.0]]))
+    got = both_sides_thickness(centre, np.array([0.2]), [corridor, west, east], (0.05, 0.6), 0.15)
+    assert got.thickness_m[0] == pytest.approx(0.16) and got.source[0] == "measured"
+    assert got.sides[0] == ("hall", "r3")
 
 
 def test_an_l_shaped_gap_is_closed_along_the_shell() -> None:
