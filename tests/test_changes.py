@@ -76,6 +76,42 @@ def test_a_moved_door_is_a_removed_gap_plus_an_added_one() -> None:
     assert added_walls(open_gap, plan, thick, plan_doors, CFG) == []
 
 
+def test_a_door_seen_from_one_side_opens_the_wall_the_other_side_models_across_it() -> None:
+    """The corridor models its wall across 102's new door near the ceiling (no door found in it); 102
+    saw the door: the plan wall there is removed, cut by 102's door from both rooms' walls."""
+    plan = np.array([[0.0, 0.0, 6.0, 0.0]])  # the wall between them, 0.2 thick
+    thick = np.array([0.2])
+    corridor = PlacedRoom(
+        "hall", np.array([[0.0, -0.1, 6.0, -0.1]]), np.ones(1), np.zeros((0, 4)), seen_everywhere(), "C"
+    )
+    room_102 = PlacedRoom(
+        "r2",
+        np.array([[0.0, 0.1, 6.0, 0.1]]),
+        np.ones(1),
+        np.array([[2.0, 0.1, 2.9, 0.1]]),  # its door, on its own face
+        seen_everywhere(),
+        "R",
+    )
+    got = removed_walls(plan, thick, [corridor, room_102], CFG)
+    assert [c.kind for c in got] == [REMOVED]
+    assert min(got[0].x0, got[0].x1) == pytest.approx(2.0, abs=0.06)
+    assert max(got[0].x0, got[0].x1) == pytest.approx(2.9, abs=0.06)
+    assert removed_walls(plan, thick, [corridor], CFG) == []  # the corridor alone: no claim
+
+
+def test_an_added_wall_stands_in_a_plan_rooms_free_space() -> None:
+    """The plan's wall lines leave a 0.4 m gap at a junction (a vectorization gap, the drawn wall is
+    there): the room's wall along it is no new wall; a partition inside the room is."""
+    plan = np.array([[-0.1, -0.1, 2.5, -0.1], [2.9, -0.1, 6.1, -0.1], *CENTRE[1:]])
+    thick = np.full(len(plan), 0.2)
+    walls = np.vstack([FACES, [[3.0, 0.0, 3.0, 2.0]]])
+    r = room(walls, seen_everywhere())
+    everything = added_walls(r, plan, thick, np.zeros((0, 4)), CFG)
+    assert len(everything) == 2  # without the plan's rooms: the junction's piece too
+    got = added_walls(r, plan, thick, np.zeros((0, 4)), CFG, [box(0, 0, 6, 4)])
+    assert len(got) == 1 and got[0].x0 == pytest.approx(3.0) and got[0].x1 == pytest.approx(3.0)
+
+
 def test_a_split_room_a_merged_room_and_an_enlarged_room() -> None:
     plan = {"A": box(0, 0, 6, 4), "B": box(6.2, 0, 10, 4)}
     west = PlacedRoom("w", np.zeros((0, 4)), np.zeros(0), np.zeros((0, 4)), None, "A", box(0, 0, 2.9, 4))

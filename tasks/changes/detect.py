@@ -111,9 +111,13 @@ def added_walls(
     thickness_m: NDArray,
     plan_doors: Segments,
     cfg: ChangesConfig,
+    plan_rooms: list[Polygon] | None = None,
 ) -> list[Change]:
-    """Pieces of the room's walls (its doors cut out) outside every plan wall's buffer; a piece in a plan
-    door gap counts only when the room shows that door closed."""
+    """Pieces of the room's walls (its doors cut out) outside every plan wall's buffer: in a plan door
+    gap that the room shows closed, or standing in a plan room's free space (farther than the margin
+    inside its outline: where the plan's wall lines leave a gap at a junction the drawn wall is still
+    there, and a wall modelled along the outline is no new wall). Without `plan_rooms` every piece outside
+    the buffers and the open door gaps counts."""
     buffers = plan_buffers(centrelines, thickness_m, cfg.buffer_margin_m)
     doors = as_segments(room.doors)
     cut = (
@@ -121,22 +125,30 @@ def added_walls(
         if len(doors)
         else None
     )
-    open_gaps = [
-        LineString(d.reshape(2, 2)).buffer(t / 2 + cfg.buffer_margin_m, cap_style="flat")
+    gaps = [
+        (k, LineString(d.reshape(2, 2)).buffer(t / 2 + cfg.buffer_margin_m, cap_style="flat"))
         for k, (d, t) in enumerate(
             zip(as_segments(plan_doors), _door_thickness(plan_doors, centrelines, thickness_m), strict=True)
         )
-        if k not in room.closed_plan_doors
     ]
+    open_gaps = [g for k, g in gaps if k not in room.closed_plan_doors]
+    closed_gaps = shapely.union_all([g for k, g in gaps if k in room.closed_plan_doors])
     skip = shapely.union_all([buffers, *open_gaps]) if open_gaps else buffers
     if cut is not None:
         skip = skip.union(cut)
+    free = (
+        shapely.union_all([p.buffer(-cfg.buffer_margin_m) for p in plan_rooms])
+        if plan_rooms is not None
+        else None
+    )
     out = []
     cl = shapely.linestrings(as_segments(centrelines).reshape(-1, 2, 2)) if len(centrelines) else None
     for w, sup in zip(as_segments(room.walls), room.support, strict=True):
         rest = LineString(w.reshape(2, 2)).difference(skip)
         for piece in _pieces(rest, cfg.min_length_m):
             mid = shapely.Point(*(0.5 * (piece[:2] + piece[2:])))
+            if free is not None and not (free.contains(mid) or closed_gaps.contains(mid)):
+                continue
             dist = float(shapely.distance(cl, mid).min()) if cl is not None else math.inf
             out.append(Change(*piece.tolist(), ADDED, room.id, float(sup), dist))
     return out
@@ -163,21 +175,24 @@ def _side_samples(c: NDArray, t: float, side: float, step: float) -> tuple[NDArr
     return a + s[:, None] * u + (t / 2) * n, n, s
 
 
-def centre_support(centre: NDArray, reach: float, rooms: list[PlacedRoom]) -> tuple[NDArray[np.bool_], float]:
-    """(K,) whether a model wall (of any placed room, its doors cut out) runs past each centreline sample
+def centre_support(
+    centre: NDArray, reach: float, rooms: list[PlacedRoom], doors: Segments | None = None
+) -> tuple[NDArray[np.bool_], float]:
+    """(K,) whether a model wall (of any placed room, the doors cut out) runs past each centreline sample
     within `reach` of it, measured across the model wall (the sample projects onto it): inside the drawn
     wall or just beyond its face, so a wall drawn thicker than built is still there while a door's
-    opening is not bridged by the wall ends beside it. Also the nearest such distance (inf: none)."""
+    opening is not bridged by the wall ends beside it. Also the nearest such distance (inf: none).
+    `doors` (plan frame) are cut from every room's walls (a door seen from one side is an opening in the
+    wall the room on the other side models across it, near its ceiling); by default each room's own."""
     pieces = []
     for room in rooms:
         walls = as_segments(room.walls)
         if len(walls) == 0:
             continue
         g = shapely.union_all(shapely.linestrings(walls.reshape(-1, 2, 2)))
-        if len(room.doors):
-            cut = [
-                LineString(d.reshape(2, 2)).buffer(0.15, cap_style="flat") for d in as_segments(room.doors)
-            ]
+        cut_by = as_segments(room.doors if doors is None else doors)
+        if len(cut_by):
+            cut = [LineString(d.reshape(2, 2)).buffer(0.3, cap_style="flat") for d in cut_by]
             g = g.difference(shapely.union_all(cut))
         pieces += _pieces(g, 0.0)
     if not pieces:
@@ -203,9 +218,11 @@ def removed_walls(
 ) -> list[Change]:
     """Stretches of plan walls (per centreline sample) that no placed room's walls support: removed where
     some room's coverage sees the wall's face from its side, unknown where none does (only plan walls
-    beside a placed room are judged); runs shorter than min_length_m are dropped. A door seen in the
-    model where the plan has a wall is such a stretch (a door moved there)."""
+    beside a placed room are judged); runs shorter than min_length_m are dropped. A door seen in any
+    room's model where the plan has a wall is such a stretch (a door moved there): every room's doors
+    are cut from every room's walls."""
     out: list[Change] = []
+    doors = np.concatenate([as_segments(r.doors) for r in rooms]) if rooms else np.zeros((0, 4))
     for c, t in zip(as_segments(centrelines), thickness_m, strict=True):
         length = float(lengths(c[None])[0])
         if length < cfg.min_length_m:
@@ -218,7 +235,7 @@ def removed_walls(
         ]
         if not near:
             continue
-        supported, nearest = centre_support(centre, float(t) / 2 + cfg.support_tol_m, near)
+        supported, nearest = centre_support(centre, float(t) / 2 + cfg.support_tol_m, near, doors)
         seen = np.zeros(len(centre), dtype=bool)
         votes: dict[str, int] = {}
         for side in (1.0, -1.0):

@@ -72,8 +72,9 @@ def detect_all(
 ) -> tuple[list[Change], list[RoomChange]]:
     """Every wall-level and room-level change."""
     changes: list[Change] = []
+    polys = list(plan_polys.values())
     for room in rooms:
-        changes += added_walls(room, centrelines, thickness, doors, cfg)
+        changes += added_walls(room, centrelines, thickness, doors, cfg, polys)
     changes += removed_walls(centrelines, thickness, rooms, cfg)
     return changes, room_changes(rooms, plan_polys, cfg)
 

@@ -23,6 +23,10 @@ class FuseConfig:
     (the approximate registration is trusted within +-1 m)."""
     max_iterations: int = 30
     """Iterations of the rotation + Gauss-Newton translation loop (eq 7.4, 7.9, 7.10)."""
+    rotation_outlier_deg: float = 0.5
+    """The rotation (eq 7.4) is the mean over the walls whose orientation difference to their face lies
+    within this of the weighted median: a plan face vectorized from a raster is good to about 0.3 degrees
+    over 4 m (a pixel); one a degree off (a slanted wall) is left out."""
     converge_m: float = 1e-4
     """Convergence: translation update below this (m) ..."""
     converge_deg: float = 1e-3
@@ -55,9 +59,13 @@ class FuseConfig:
     """Narrowest opening in a model wall taken for a door."""
     door_max_m: float = 1.6
     """Widest opening in a model wall taken for a door."""
+    door_through_share: float = 0.25
+    """An opening in a wall's face is a door when the capture saw beyond the face (the floor running
+    through, the jambs, the next room) in at least this share of its columns (tasks.fuse.openings)."""
     closed_door_share: float = 0.9
-    """A plan door gap is closed in the capture when the model wall's face across it is seen low down at
-    least this densely relative to the face beside it (an open door: about 0; a capture whose frames
-    disagree by centimetres still smears some points into an opening, up to about 0.7)."""
-    door_band_m: tuple[float, float] = (0.15, 0.75)
-    """Height band above the floor where a door is open and a window's parapet is not."""
+    """A plan door gap is closed in the capture when the model wall's face shows across at least this
+    share of it (tasks.fuse.openings.span_state) and nothing was seen through it."""
+    crisp_face_m: float = 0.03
+    """A capture tells a closed stretch of wall from an opening only where its wall face is crisp: the
+    interquartile range of the face's points' offsets within this (about 1 cm when the frames agree; a
+    corridor registered by the IMU track smears its faces over 4-6 cm, and an opening fills with them)."""

@@ -3,7 +3,7 @@ plan's walls with their fused thickness and the rooms on either side, doors, and
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -15,7 +15,7 @@ from shapely.geometry import Polygon
 from tasks.fuse.config import FuseConfig
 from tasks.fuse.correspond import PlanRoom
 from tasks.fuse.gaps import GAP_FILLED, GapFill, fill_gaps, shell_polygon
-from tasks.fuse.openings import face_share
+from tasks.fuse.openings import SpanState, span_state
 from tasks.fuse.place import Placed, RoomInput, RoomModel, place_rooms
 from tasks.fuse.thickness import PlacedWalls, WallThickness, both_sides_thickness, residual_thickness
 from tasks.lines import Segments, as_segments, lengths
@@ -36,6 +36,11 @@ class FusedRoom:
     """(D, 4) doors seen in the model, same frame as the walls."""
     gaps: GapFill | None
     closed_plan_doors: tuple[int, ...] = ()
+    """Indices of the plan's doors this room's capture shows closed (and no other room saw open)."""
+    plan_doors: Segments = field(default_factory=lambda: np.zeros((0, 4)))
+    """(P, 4) the plan's doors (what closed_plan_doors indexes)."""
+    doors_contradicted: Segments = field(default_factory=lambda: np.zeros((0, 4)))
+    """(C, 4) doors seen in the model that another room's capture shows closed (dropped from doors)."""
 
     @property
     def in_plan(self) -> bool:
@@ -90,6 +95,7 @@ def fuse_floor(
         fused[rid] = _fuse_room(
             by_id[rid], p, models.get(rid), plan_by_id, centrelines, thickness, plan_doors, cfg
         )
+    fused = cross_check_doors(fused, by_id, models, cfg)
     return FusedFloor(fused, models, thickness, resid, centrelines, as_segments(plan_doors), plan_rooms)
 
 
@@ -124,6 +130,7 @@ def _fuse_room(
         doors_p,
         gaps,
         closed_doors,
+        as_segments(plan_doors),
     )
 
 
@@ -133,39 +140,104 @@ def _filled_inward(walls: Segments, polygon: Polygon | None) -> NDArray:
     return inward_normals(walls, polygon) if len(walls) else np.zeros((0, 2))
 
 
+def span_seen(
+    room: RoomInput, placement, walls: Segments, inward: NDArray, span: NDArray, max_offset_m: float
+) -> SpanState | None:
+    """How a room's capture saw a plan-frame span (a door's extent) on its own model wall parallel to it
+    within max_offset_m (tasks.fuse.openings.span_state), or None when the room has no such wall or no
+    cloud."""
+    if room.points is None or len(walls) == 0:
+        return None
+    ends = (np.asarray(span, dtype=np.float64).reshape(2, 2) - np.asarray(placement.t)) @ placement.rotation
+    mid = ends.mean(axis=0)
+    u = (ends[1] - ends[0]) / max(float(np.hypot(*(ends[1] - ends[0]))), 1e-12)
+    for j, w in enumerate(as_segments(walls)):
+        length = float(lengths(w[None])[0])
+        v = (w[2:] - w[:2]) / max(length, 1e-12)
+        n = np.array([-v[1], v[0]])
+        s0, s1 = float((ends[0] - w[:2]) @ v), float((ends[1] - w[:2]) @ v)
+        if abs(float(u @ v)) < 0.99 or abs(float((mid - w[:2]) @ n)) > max_offset_m:
+            continue
+        if max(s0, s1) <= 0 or min(s0, s1) >= length:
+            continue
+        return span_state(room.points, room.floor_z, w, inward[j], s0, s1)
+    return None
+
+
 def _closed_plan_doors(
     room: RoomInput, placement, walls: Segments, inward: NDArray, plan_doors: Segments, cfg: FuseConfig
 ) -> tuple[int, ...]:
-    """Plan doors that this room's capture shows closed: a model wall runs along the door gap and its face
-    is seen there low down about as densely as beside it (closed_door_share)."""
-    if room.points is None or len(plan_doors) == 0 or len(walls) == 0:
-        return ()
+    """Plan doors that this room's capture shows closed: a model wall runs along the door gap (within
+    0.25 m), its face (where its points lie) shows across the gap (closed_door_share of it, up to a
+    door's height), nothing was seen through it and the capture's face is crisp (crisp_face_m)."""
     out = []
-    back_r = placement.rotation.T
     for k, d in enumerate(as_segments(plan_doors)):
-        ends = (d.reshape(2, 2) - np.asarray(placement.t)) @ back_r.T  # into the room frame
-        mid = ends.mean(axis=0)
-        u = (ends[1] - ends[0]) / max(float(np.hypot(*(ends[1] - ends[0]))), 1e-12)
-        best = None
-        for j, w in enumerate(walls):
-            v = (w[2:] - w[:2]) / max(float(lengths(w[None])[0]), 1e-12)
-            n = np.array([-v[1], v[0]])
-            if abs(float(u @ v)) < 0.99 or abs(float((mid - w[:2]) @ n)) > 0.25:
-                continue
-            best = j
-            break
-        if best is None:
-            continue
-        n_in = inward[best]
-        w = walls[best]
-        v = (w[2:] - w[:2]) / max(float(lengths(w[None])[0]), 1e-12)
-        # the span on the wall's face line
-        a = w[:2] + ((ends[0] - w[:2]) @ v) * v
-        b = w[:2] + ((ends[1] - w[:2]) @ v) * v
-        share = face_share(room.points, room.floor_z, np.concatenate([a, b]), n_in, cfg.door_band_m)
-        if share is not None and share >= cfg.closed_door_share:
+        seen = span_seen(room, placement, walls, inward, d, 0.25)
+        if seen is not None and _closed(seen, cfg):
             out.append(k)
     return tuple(out)
+
+
+def _closed(seen: SpanState, cfg: FuseConfig) -> bool:
+    return seen.closed(cfg.closed_door_share, cfg.door_through_share, cfg.crisp_face_m)
+
+
+def cross_check_doors(
+    fused: dict[str, FusedRoom], rooms: dict[str, RoomInput], models: dict[str, RoomModel], cfg: FuseConfig
+) -> dict[str, FusedRoom]:
+    """Both sides of a wall must agree on a door: a door seen in one room is dropped when another placed
+    room's capture shows that stretch of the wall closed from its side (its own wall within 0.45 m: the
+    wall's thickness; its face crisp and seen across the door's span, nothing through: a corridor's
+    smeared cloud sees into a room obliquely through the next door and reads the unseen face beside it
+    as open, the room beyond saw it whole; a smeared face cannot testify either way); a plan door one
+    room shows closed stays open when another room saw a door there."""
+    placed = {rid: f for rid, f in fused.items() if f.in_plan and rid in models}
+    out = dict(fused)
+    for rid, f in placed.items():
+        keep, dropped = [], []
+        for d in f.doors:
+            against = [
+                other
+                for other, g in placed.items()
+                if other != rid
+                and (
+                    seen := span_seen(
+                        rooms[other], g.placed.placement, rooms[other].walls, models[other].inward, d, 0.45
+                    )
+                )
+                is not None
+                and _closed(seen, cfg)
+            ]
+            (dropped if against else keep).append(d)
+        out[rid] = replace(
+            f,
+            doors=np.asarray(keep, dtype=np.float64).reshape(-1, 4),
+            doors_contradicted=np.asarray(dropped, dtype=np.float64).reshape(-1, 4),
+        )
+    doors = [d for f in out.values() if f.in_plan for d in f.doors]
+    for rid, f in out.items():
+        if not f.closed_plan_doors or not doors:
+            continue
+        plan_doors = f.plan_doors
+        still = tuple(k for k in f.closed_plan_doors if not _overlaps(plan_doors[k], np.asarray(doors)))
+        out[rid] = replace(f, closed_plan_doors=still)
+    return out
+
+
+def _overlaps(span: NDArray, doors: NDArray, max_offset_m: float = 0.45) -> bool:
+    """Whether a door (plan frame) lies along the span (parallel, within max_offset_m) over a third of it."""
+    a, b = span[:2], span[2:]
+    length = float(np.hypot(*(b - a)))
+    u = (b - a) / max(length, 1e-12)
+    n = np.array([-u[1], u[0]])
+    for d in doors:
+        v = (d[2:] - d[:2]) / max(float(np.hypot(*(d[2:] - d[:2]))), 1e-12)
+        if abs(float(u @ v)) < 0.99 or abs(float((0.5 * (d[:2] + d[2:]) - a) @ n)) > max_offset_m:
+            continue
+        s0, s1 = sorted([float((d[:2] - a) @ u), float((d[2:] - a) @ u)])
+        if min(s1, length) - max(s0, 0.0) >= length / 3:
+            return True
+    return False
 
 
 # --------------------------------------------------------------------------------------------- geojson

@@ -1,9 +1,19 @@
 """Doors in a room model, from its cloud, and what the capture saw (coverage).
 
 The wall model is found in the slice near the ceiling, where a door's lintel closes the wall: a door is
-not a gap in walls.parquet. It is a gap low down: a stretch of the wall with no point on its face from
-just above the floor (below every window sill) up to 1.9 m, with nothing in front of it. A window leaves
-its parapet; a TV bench hides the face only low down; a cabinet shows its own front.
+not a gap in walls.parquet. It is a gap in the wall's face from the floor up to head height that the
+capture saw *through*. Along each wall, in columns of a few centimetres (`wall_columns`):
+
+- the **face** is where the points lie, not where the model put it: the densest offset within 15 cm of
+  the model wall (a corridor wall modelled 11 cm outside its face is still read on its face);
+- a column is **open** when its face is empty low down (0.15-1.0 m: below every window sill), mostly
+  empty up to 1.9 m (a smeared capture leaves some points in an opening; a TV bench or a plant leaves the
+  face above it) and nothing stands in front of it low down (a cabinet hides the face but shows its
+  own front);
+- an opening is a **door** only when the capture saw through it: points beyond the face, within the
+  wall's thickness or just behind it (the floor running through the door, its jambs, the next room),
+  in enough of its columns. An occluded stretch of face (behind a cabinet, seen from one side of it)
+  or one the camera never looked at is empty too, but nothing lies beyond it.
 
 Coverage: the floor and ceiling cells the capture saw (a grid of their points' positions); a plan wall
 whose room side was seen and which has no model wall is removed, one whose room side was not seen is
@@ -19,6 +29,11 @@ from numpy.typing import NDArray
 
 from tasks.lines import Segments, as_segments, lengths
 
+LOW_M = (0.15, 1.0)
+"""Height band (above the floor) where a door is open and a window's parapet or a sill is not."""
+HIGH_M = (1.0, 1.9)
+"""Height band above it, up to below every door's head."""
+
 
 @dataclass(frozen=True)
 class Door:
@@ -28,8 +43,10 @@ class Door:
     """Index of the wall in walls.parquet."""
     segment: tuple[float, float, float, float]
     """Its extent along the wall's face."""
-    beyond_points: int
-    """Points seen through it (the evidence)."""
+    through_share: float
+    """Share of its columns in which the capture saw beyond the face (the evidence)."""
+    through_points: int = 0
+    """Points seen through it."""
 
     @property
     def width_m(self) -> float:
@@ -41,87 +58,203 @@ class Door:
         return 0.5 * (s[:2] + s[2:])
 
 
+@dataclass(frozen=True)
+class WallColumns:
+    """What the capture saw along one wall, per column of `bin_m` (the wall's start to its end)."""
+
+    start: NDArray[np.float64]
+    """(2,) the wall's start, on the model's line."""
+    along: NDArray[np.float64]
+    """(2,) unit vector along the wall."""
+    inward: NDArray[np.float64]
+    """(2,) unit normal into the room."""
+    length_m: float
+    bin_m: float
+    face_offset_m: float
+    """Where the face's points lie, along `inward` from the model's line."""
+    face_spread_m: float
+    """Interquartile range of the face's points' offsets: about 1 cm for a capture whose frames agree, 4-6
+    cm for one whose frames disagree (a corridor registered by the IMU track), which smears the wall
+    beside an opening into it."""
+    face_low: NDArray[np.int64]
+    """(B,) points on the face (within face_m) in LOW_M."""
+    face_high: NDArray[np.int64]
+    """(B,) points on the face in HIGH_M."""
+    front: NDArray[np.int64]
+    """(B,) points in front of the face (front_m into the room) in LOW_M: what stands before it."""
+    through: NDArray[np.int64]
+    """(B,) points beyond the face (through_m behind it: past a capture's depth noise on the face, up to
+    the floor of the next room), floor to HIGH_M's top: seen through it."""
+
+    def reference(self, counts: NDArray) -> float:
+        """The wall's typical column count (median of the columns holding points)."""
+        return float(np.median(counts[counts > 0])) if (counts > 0).any() else 0.0
+
+    def bins_of(self, s0: float, s1: float) -> slice:
+        """The columns between s0 and s1 metres along the wall."""
+        i0 = int(np.clip(np.floor(min(s0, s1) / self.bin_m), 0, len(self.face_low)))
+        i1 = int(np.clip(np.ceil(max(s0, s1) / self.bin_m), i0, len(self.face_low)))
+        return slice(i0, i1)
+
+
+def wall_columns(
+    points: NDArray[np.float64],
+    floor_z: float,
+    wall: NDArray,
+    inward: NDArray,
+    bin_m: float = 0.05,
+    face_m: float = 0.05,
+    face_search_m: float = 0.15,
+    front_m: tuple[float, float] = (0.08, 0.8),
+    through_m: tuple[float, float] = (0.10, 1.5),
+) -> WallColumns:
+    """The columns of one wall (see the module doc). `points` (N, 3) in the walls' frame, z up; `wall`
+    (4,) its segment, `inward` (2,) its normal into the room."""
+    wall = np.asarray(wall, dtype=np.float64).reshape(4)
+    n = np.asarray(inward, dtype=np.float64).reshape(2)
+    a = wall[:2]
+    length = float(np.hypot(*(wall[2:] - a)))
+    u = (wall[2:] - a) / max(length, 1e-12)
+    nbins = max(int(np.ceil(length / bin_m)), 1)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    s, o = (pts[:, :2] - a) @ u, (pts[:, :2] - a) @ n
+    z = pts[:, 2] - floor_z
+    keep = (s >= 0) & (s <= length) & (o >= -through_m[1] - face_search_m) & (o <= front_m[1] + face_search_m)
+    s, o, z = s[keep], o[keep], z[keep]
+    band = (z >= LOW_M[0]) & (z <= HIGH_M[1])
+    near = band & (np.abs(o) <= face_search_m)
+    offset, spread = 0.0, float("nan")
+    if near.sum() >= 30:
+        hist, edges = np.histogram(o[near], bins=np.arange(-face_search_m, face_search_m + 1e-9, 0.01))
+        smooth = np.convolve(hist, np.ones(3), mode="same")
+        offset = float(edges[int(np.argmax(smooth))] + 0.005)
+        q1, q3 = np.percentile(o[near], [25, 75])
+        spread = float(q3 - q1)
+    oo = o - offset
+    low = (z >= LOW_M[0]) & (z <= LOW_M[1])
+    high = (z > HIGH_M[0]) & (z <= HIGH_M[1])
+    on_face = np.abs(oo) <= face_m
+    col = np.clip((s / bin_m).astype(int), 0, nbins - 1)
+
+    def count(mask: NDArray[np.bool_]) -> NDArray[np.int64]:
+        return np.bincount(col[mask], minlength=nbins)
+
+    return WallColumns(
+        a,
+        u,
+        n,
+        length,
+        bin_m,
+        offset,
+        spread,
+        count(on_face & low),
+        count(on_face & high),
+        count(low & (oo >= front_m[0]) & (oo <= front_m[1])),
+        count((z >= -0.1) & (z <= HIGH_M[1]) & (oo <= -through_m[0]) & (oo >= -through_m[1])),
+    )
+
+
 def find_doors(
     points: NDArray[np.float64],
     floor_z: float,
     walls: Segments,
     inward: NDArray[np.float64],
-    band_m: tuple[float, float],
     width_m: tuple[float, float],
-    bin_m: float = 0.05,
-    face_m: float = 0.05,
-    front_m: tuple[float, float] = (0.08, 0.8),
     empty_share: float = 0.2,
+    high_share: float = 0.5,
+    front_share: float = 0.5,
+    min_through_share: float = 0.25,
+    bin_m: float = 0.05,
 ) -> list[Door]:
-    """Openings (see the module doc) in each wall: runs of `bin_m` bins between width_m[0] and width_m[1]
-    long where the wall's face (within face_m) has next to no points (less than empty_share of the wall's
-    typical bin) both in the low band (band_m above the floor: below a window's sill) and up to 1.9 m
-    (above a window's parapet), and nothing stands in front of it (a cabinet or a TV bench hides the face
-    but shows its own front, front_m into the room). `points` (N, 3) in the
-    walls' frame, z up."""
+    """Doors in each wall (see the module doc): runs of open columns between width_m[0] and width_m[1]
+    long, through which the capture saw (two points or more beyond the face) in at least
+    min_through_share of the columns. A column is open when, counted over it and its neighbours, its
+    face holds at most empty_share of the wall's typical count low down and high_share of it up to
+    1.9 m, and what stands in front of it low down at most front_share; a run's ends are then taken out
+    to the last column whose own face is empty low down. `points` (N, 3) in the walls' frame, z up."""
     walls = as_segments(walls)
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    z = pts[:, 2] - floor_z
-    low = pts[(z >= band_m[0]) & (z <= band_m[1]), :2]
-    mid = pts[(z > band_m[1]) & (z <= 1.9), :2]
     doors: list[Door] = []
     for k, w in enumerate(walls):
-        length = float(lengths(w[None])[0])
-        if length < width_m[0]:
+        if float(lengths(w[None])[0]) < width_m[0]:
             continue
-        a = w[:2]
-        u = (w[2:] - a) / length
-        nbins = max(int(np.ceil(length / bin_m)), 1)
-
-        def counts(xy: NDArray, o_lo: float, o_hi: float, a=a, u=u, n=inward[k], length=length, nbins=nbins):
-            s, o = (xy - a) @ u, (xy - a) @ n
-            m = (s >= 0) & (s <= length) & (o >= o_lo) & (o <= o_hi)
-            return np.bincount(np.clip((s[m] / bin_m).astype(int), 0, nbins - 1), minlength=nbins)
-
-        face = counts(low, -face_m, face_m) + counts(mid, -face_m, face_m)
-        front = counts(low, *front_m) + counts(mid, *front_m)
-        beyond = counts(np.concatenate([low, mid]), -3.0, -0.12)
-        ref = float(np.median(face[face > 0])) if (face > 0).any() else 0.0
-        if ref <= 0:
+        cols = wall_columns(points, floor_z, w, inward[k], bin_m)
+        ref_low, ref_high = cols.reference(cols.face_low), cols.reference(cols.face_high)
+        if ref_low <= 0:
             continue
-        empty = (face <= empty_share * ref) & (front <= empty_share * ref)
-        for i0, i1 in _runs(empty):
-            if width_m[0] <= (i1 - i0) * bin_m <= width_m[1]:
-                t0, t1 = i0 * bin_m, min(i1 * bin_m, length)
-                p0, p1 = a + t0 * u, a + t1 * u
-                doors.append(Door(k, (*p0, *p1), int(beyond[i0:i1].sum())))
+        three = np.ones(3) / 3.0  # a column and its neighbours: one stray point does not close a door
+        low = np.convolve(cols.face_low, three, mode="same")
+        high = np.convolve(cols.face_high, three, mode="same")
+        front = np.convolve(cols.front, three, mode="same")
+        open_ = (low <= empty_share * ref_low) & (front <= front_share * ref_low)
+        if ref_high > 0:
+            open_ &= high <= high_share * ref_high
+        empty = cols.face_low <= empty_share * ref_low
+        nbins = len(empty)
+        for i0, i1 in _runs(open_):
+            while i0 > 0 and empty[i0 - 1] and not open_[i0 - 1]:  # the neighbours' average eroded it
+                i0 -= 1
+            while i1 < nbins and empty[i1] and not open_[i1]:
+                i1 += 1
+            if not width_m[0] <= (i1 - i0) * bin_m <= width_m[1]:
+                continue
+            seen = cols.through[i0:i1] >= 2
+            if seen.mean() < min_through_share:
+                continue
+            t0, t1 = i0 * bin_m, min(i1 * bin_m, cols.length_m)
+            p0, p1 = w[:2] + t0 * cols.along, w[:2] + t1 * cols.along
+            doors.append(Door(k, (*p0, *p1), float(seen.mean()), int(cols.through[i0:i1].sum())))
     return doors
 
 
-def face_share(
+@dataclass(frozen=True)
+class SpanState:
+    """How a capture saw a span of one of its walls (e.g. a plan door gap)."""
+
+    face_share: float | None
+    """Share of its columns whose face shows up to a door's height (None: the wall's face was not seen)."""
+    through_share: float
+    """Share of its columns seen through (two points or more beyond the face)."""
+    face_spread_m: float
+    """The wall's WallColumns.face_spread_m."""
+
+    def closed(self, face_share: float, through_share: float, crisp_m: float) -> bool:
+        """The span is a closed wall: its face shows across face_share of it, less than through_share of
+        it was seen through, and the capture's face is crisp enough (spread within crisp_m) to tell."""
+        return (
+            self.face_share is not None
+            and self.face_share >= face_share
+            and self.through_share < through_share
+            and self.face_spread_m <= crisp_m
+        )
+
+
+def span_state(
     points: NDArray[np.float64],
     floor_z: float,
-    span: NDArray,
+    wall: NDArray,
     inward: NDArray,
-    band_m: tuple[float, float],
-    reference_m: float = 1.0,
-    face_m: float = 0.05,
-) -> float | None:
-    """How much of a span of a wall face (e.g. a plan door gap on a model wall) shows its face low down,
-    relative to the face beside it (reference_m on either side): about 1 for a closed wall, about 0 for an
-    opening; None when the face beside it was not seen either."""
-    span = np.asarray(span, dtype=np.float64).reshape(4)
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    z = pts[:, 2] - floor_z
-    xy = pts[(z >= band_m[0]) & (z <= 1.9), :2]
-    a = span[:2]
-    length = float(np.hypot(*(span[2:] - a)))
-    if length <= 0:
-        return None
-    u = (span[2:] - a) / length
-    s, o = (xy - a) @ u, (xy - a) @ np.asarray(inward)
-    on_face = np.abs(o) <= face_m
-    inside = on_face & (s >= 0) & (s <= length)
-    beside = on_face & (((s >= -reference_m) & (s < 0)) | ((s > length) & (s <= length + reference_m)))
-    density_beside = beside.sum() / (2 * reference_m)
-    if density_beside <= 0:
-        return None
-    return float(inside.sum() / length / density_beside)
+    s0: float,
+    s1: float,
+    min_points: int = 3,
+    min_share: float = 0.05,
+    bin_m: float = 0.05,
+) -> SpanState:
+    """How a span of a wall (s0..s1 metres along it) was seen: the share of its columns whose face shows
+    from 0.15 to 1.9 m (a door's height), at least min_points points and min_share of the wall's typical
+    column (about 1 for a closed wall, about 0 for an opening), and the share seen through. A face's
+    density varies tenfold along a wall (near the camera, far and grazing): a closed span is one seen
+    everywhere, not one seen as densely as beside it."""
+    cols = wall_columns(points, floor_z, wall, inward, bin_m)
+    face = cols.face_low + cols.face_high
+    inside = cols.bins_of(s0, s1)
+    n_in = inside.stop - inside.start
+    through = float((cols.through[inside] >= 2).mean()) if n_in else 0.0
+    ref = cols.reference(face)
+    spread = cols.face_spread_m if np.isfinite(cols.face_spread_m) else float("inf")
+    if ref <= 0 or n_in == 0:
+        return SpanState(None, through, spread)
+    seen = face[inside] >= max(min_points, min_share * ref)
+    return SpanState(float(seen.mean()), through, spread)
 
 
 def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:

@@ -74,7 +74,12 @@ def describe(room: RoomInput, cfg: FuseConfig) -> RoomModel:
     cov = None
     if room.points is not None and len(room.points):
         doors = find_doors(
-            room.points, room.floor_z, walls, inward, cfg.door_band_m, (cfg.door_min_m, cfg.door_max_m)
+            room.points,
+            room.floor_z,
+            walls,
+            inward,
+            (cfg.door_min_m, cfg.door_max_m),
+            min_through_share=cfg.door_through_share,
         )
         cov = coverage(room.points, room.floor_z, room.ceiling_z, 0.10)
     return RoomModel(poly, centre, inward, shell_mask(walls, cfg.shell_tol_m), doors, cov)
@@ -196,7 +201,7 @@ def register_room(
         best, ambiguous = by_doors[0], n0 == n1
         doors = _door_pairs(model, walls, best.placement, plan_doors, cfg)
     if doors:
-        refined = optimal_fit(shell, inward, model.centre, own, best.placement, cfg, doors)
+        refined = optimal_fit(shell, inward, model.centre, own, best.placement, cfg, doors, refine=True)
         if refined.score >= best.score - 0.02:
             best = refined
     return best, how, ambiguous

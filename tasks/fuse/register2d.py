@@ -9,9 +9,9 @@
   inward normal agrees with the wall's, the closest one, preferring faces that the ray from the model's
   centroid through the wall's midpoint meets.
 - **Optimal fit** (fig 7.4 right): first the rotation, the length-weighted mean of the orientation
-  differences (eq 7.1-7.4), then the translation by Gauss-Newton on the distances of the walls' midpoints
-  to their faces' lines (eq 7.5-7.10), doors that coincide in model and plan as extra observations;
-  iterated until nothing moves. The `best_fit` (fig 7.4 left, joint rotation and translation on the
+  differences (eq 7.1-7.4) over the walls that agree with their weighted median, then the translation
+  by Gauss-Newton on the distances of the walls' midpoints to their faces' lines (eq 7.5-7.10), doors
+  that coincide in model and plan as extra observations; iterated until nothing moves. The `best_fit` (fig 7.4 left, joint rotation and translation on the
   walls' end points: springs) is here for comparison: an asymmetric room is turned by the springs' torque
   and, fitted to centrelines, pulled to the centre of its plan room; the optimal fit on the faces is not.
 - **Approximate** registration: the model's centroid on the plan room's centroid; the orientation from
@@ -373,45 +373,63 @@ def optimal_fit(
     start: Placement,
     cfg: FuseConfig,
     doors: list[DoorPair] | None = None,
-    keep_translation: bool = False,
+    refine: bool = False,
 ) -> Fit:
     """The thesis' optimal (constrained) fit from `start`: per iteration, correspondences, the rotation
     from the length-weighted orientation differences (eq 7.4, about the model's centroid), then the
-    Gauss-Newton translation (eq 7.9, 7.10) with door constraints. With `keep_translation` the rotation is
-    still fitted but the translation only where doors or faces pin it (always the case; kept for the
-    record of the IMU-track rooms, whose start is the plan frame)."""
+    Gauss-Newton translation (eq 7.9, 7.10) with door constraints. A door pair is gated like a wall: once
+    converging, a door whose model centre lies farther than the gate from its plan door's along the wall
+    is dropped (a door detected only in part, a plan door drawn off: a corridor's few constraints along
+    its axis must not be pulled by one of them). With `refine` the start is a converged fit (adding the
+    doors to it): the converged window and gate apply from the first iteration, so a door drawn off
+    cannot drag the room away from its walls before the gate sees it."""
     shell = as_segments(shell)
     w = lengths(shell)
     placement = start
     converged = False
     it = 0
     for it in range(1, cfg.max_iterations + 1):
-        tol = math.radians(cfg.approx_angle_tol_deg if it == 1 else cfg.angle_tol_deg)
+        tol = math.radians(cfg.approx_angle_tol_deg if it == 1 and not refine else cfg.angle_tol_deg)
         moved = placement.segments(shell)
         nin = inward @ placement.rotation.T
         c = placement.points(centre)[0]
         matched = correspond(moved, nin, c, faces, tol)
-        matched = _gate(moved, faces, matched, _GATES_M[min(it, len(_GATES_M)) - 1] or cfg.max_residual_m)
+        gate = cfg.max_residual_m if refine else _GATES_M[min(it, len(_GATES_M)) - 1] or cfg.max_residual_m
+        matched = _gate(moved, faces, matched, gate)
         m = matched >= 0
         if not m.any():
             break
         d_alpha = angle_difference(angles(faces.segments[matched[m]]), angles(moved[m]))
-        d_theta = float((w[m] * d_alpha).sum() / w[m].sum())  # eq 7.4
+        d_theta = rotation_update(d_alpha, w[m], math.radians(cfg.rotation_outlier_deg))
         placement = placement.then(d_theta, c, np.zeros(2))
         shift = np.zeros(2)
         for _ in range(5):  # Gauss-Newton (eq 7.9, 7.10); linear in t, so it settles at once
             moved = placement.segments(shell)
-            door_rows = _door_rows(doors or [], placement)
+            door_rows = _door_rows(doors or [], placement, gate)
             step = _translation_step(midpoints(moved), w, faces, matched, door_rows)
             placement = placement.then(0.0, np.zeros(2), step)
             shift += step
             if np.hypot(*step) < cfg.converge_m * 0.1:
                 break
-        settled = it >= len(_GATES_M)
+        settled = refine or it >= len(_GATES_M)
         if settled and abs(math.degrees(d_theta)) < cfg.converge_deg and np.hypot(*shift) < cfg.converge_m:
             converged = True
             break
-    return _finish(shell, inward, centre, faces, placement, cfg, it, converged, len(doors or []))
+    used = len(_door_rows(doors or [], placement, cfg.max_residual_m))
+    return _finish(shell, inward, centre, faces, placement, cfg, it, converged, used)
+
+
+def rotation_update(d_alpha: NDArray, weights: NDArray, outlier: float) -> float:
+    """Eq 7.4, the length-weighted mean of the orientation differences (radians), over the walls whose
+    difference lies within `outlier` of their weighted median: a plan face vectorized a degree off (the
+    slanted wall of a raster plan) is an outlier among walls that agree within a tenth of one, and must
+    not turn the room by a quarter of a degree."""
+    d_alpha, weights = np.asarray(d_alpha, dtype=np.float64), np.asarray(weights, dtype=np.float64)
+    order = np.argsort(d_alpha)
+    cum = np.cumsum(weights[order])
+    median = float(d_alpha[order][np.searchsorted(cum, 0.5 * cum[-1])])
+    keep = np.abs(d_alpha - median) <= outlier
+    return float((weights[keep] * d_alpha[keep]).sum() / weights[keep].sum())
 
 
 _GATES_M = (math.inf, 0.5, None)
@@ -432,16 +450,19 @@ def _gate(walls: Segments, faces: Faces, matched: NDArray[np.intp], gate_m: floa
     return out
 
 
-def _door_rows(doors: list[DoorPair], placement: Placement) -> list[tuple[NDArray, NDArray, NDArray, float]]:
-    return [
-        (
-            placement.points(np.asarray(d.model_centre))[0],
-            np.asarray(d.plan_centre, dtype=np.float64),
-            np.asarray(d.direction, dtype=np.float64),
-            d.width_m,
-        )
-        for d in doors
-    ]
+def _door_rows(
+    doors: list[DoorPair], placement: Placement, gate_m: float = math.inf
+) -> list[tuple[NDArray, NDArray, NDArray, float]]:
+    """(placed model centre, plan centre, direction, weight) of every door pair whose centres lie within
+    gate_m of each other along the wall."""
+    rows = []
+    for d in doors:
+        model_c = placement.points(np.asarray(d.model_centre))[0]
+        plan_c = np.asarray(d.plan_centre, dtype=np.float64)
+        u = np.asarray(d.direction, dtype=np.float64)
+        if abs(float((plan_c - model_c) @ u)) <= gate_m:
+            rows.append((model_c, plan_c, u, d.width_m))
+    return rows
 
 
 def _finish(

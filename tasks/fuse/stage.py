@@ -194,6 +194,7 @@ def _room_report(f: FusedRoom) -> dict[str, Any]:
     if f.gaps is not None:
         rep.update(closed=f.gaps.closed, open_reason=f.gaps.reason, gap_filled=len(f.gaps.walls))
     rep["doors"] = f.doors.tolist()
+    rep["doors_contradicted"] = f.doors_contradicted.tolist()
     rep["closed_plan_doors"] = list(f.closed_plan_doors)
     return rep
 

@@ -1,7 +1,8 @@
 """Wall thickness after registration (thesis 7.2, and beyond it).
 
 - **both_sides** (the default): a plan wall whose two sides were captured by two placed rooms is as thick
-  as the distance between the rooms' facing inner faces (measured on their overlap);
+  as the distance between the rooms' facing inner faces: measured every 10 cm where both run past it,
+  the median of those;
 - **residuals** (the thesis): one thickness per room, twice the typical distance of its shell walls to the
   plan's centrelines after registration (the thesis takes the fit residuals near a typical value); a wall
   takes the mean of the rooms on its sides;
@@ -45,34 +46,43 @@ class WallThickness:
     """(room on the left of the centreline, room on the right) whose faces were found (None: none)."""
 
 
-def face_offsets(
+def face_profile(
     centreline: NDArray,
     placed: list[PlacedWalls],
     reach_m: float,
+    step_m: float = 0.10,
     angle_tol_deg: float = 3.0,
-    min_overlap_m: float = 0.3,
-) -> dict[int, list[tuple[str, float, float]]]:
-    """Faces lying along one centreline, by side (+1: left of x0y0 -> x1y1, -1: right): (room, mean
-    offset from the centreline (m, signed), overlap length along it (m)). A face counts when it is
-    parallel, within reach_m, overlaps the centreline and looks away from it (into its room)."""
+) -> dict[int, tuple[NDArray[np.float64], NDArray[np.object_]]]:
+    """Along one centreline, every step_m, the offset of the face on each side (+1: left of x0y0 -> x1y1,
+    -1: right) where a placed room's face runs past that point: (offsets (K,), NaN where none; the room
+    of each, None where none). A face counts when it is parallel, within reach_m, looks away from the
+    centreline (into its room); the nearest one wins where two cover a point."""
     a, b = centreline[:2], centreline[2:]
     length = float(np.hypot(*(b - a)))
     u = (b - a) / max(length, 1e-12)
     n = np.array([-u[1], u[0]])
-    out: dict[int, list[tuple[str, float, float]]] = {1: [], -1: []}
-    for room in placed:
-        w = as_segments(room.walls)
-        if len(w) == 0:
-            continue
-        par = np.abs(angle_difference(angles(w), math.atan2(u[1], u[0]))) <= math.radians(angle_tol_deg)
-        off0, off1 = (w[:, :2] - a) @ n, (w[:, 2:] - a) @ n
-        off = 0.5 * (off0 + off1)
-        s0, s1 = (w[:, :2] - a) @ u, (w[:, 2:] - a) @ u
-        overlap = np.minimum(np.maximum(s0, s1), length) - np.maximum(np.minimum(s0, s1), 0.0)
-        looks_away = np.sign(room.inward @ n) == np.sign(off)
-        ok = par & (np.abs(off) <= reach_m) & (overlap >= min_overlap_m) & looks_away
-        for k in np.flatnonzero(ok):
-            out[int(np.sign(off[k]))].append((room.room, float(off[k]), float(overlap[k])))
+    s = np.arange(step_m / 2, length, step_m)
+    out = {}
+    for side in (1, -1):
+        offset = np.full(len(s), np.nan)
+        owner = np.full(len(s), None, dtype=object)
+        for room in placed:
+            w = as_segments(room.walls)
+            if len(w) == 0:
+                continue
+            par = np.abs(angle_difference(angles(w), math.atan2(u[1], u[0]))) <= math.radians(angle_tol_deg)
+            off0, off1 = (w[:, :2] - a) @ n, (w[:, 2:] - a) @ n
+            s0, s1 = (w[:, :2] - a) @ u, (w[:, 2:] - a) @ u
+            looks_away = np.sign(room.inward @ n) == side
+            for k in np.flatnonzero(par & looks_away):
+                if abs(s1[k] - s0[k]) < 1e-9:
+                    continue
+                t = (s - s0[k]) / (s1[k] - s0[k])
+                at = off0[k] + t * (off1[k] - off0[k])  # the face's offset where it passes each point
+                ok = (t >= 0) & (t <= 1) & (np.sign(at) == side) & (np.abs(at) <= reach_m)
+                better = ok & ~(np.abs(offset) <= np.abs(at))  # NaN compares False: first face wins
+                offset[better], owner[better] = at[better], room.room
+        out[side] = (offset, owner)
     return out
 
 
@@ -82,9 +92,13 @@ def both_sides_thickness(
     placed: list[PlacedWalls],
     valid_range_m: tuple[float, float],
     default_m: float,
+    step_m: float = 0.10,
+    min_overlap_m: float = 0.3,
 ) -> WallThickness:
-    """Per plan wall: the distance between the two captured rooms' facing faces where both sides were seen
-    by different rooms (the longest-overlapping face of each side), else the plan's value, else the default."""
+    """Per plan wall: where two different captured rooms' faces run past it on either side (over at least
+    min_overlap_m), the median over that stretch of the distance between them, measured at the same
+    points (a long corridor face against two rooms' short ones, a face that stops halfway: each point
+    pairs the faces that are there); else the plan's value, else the default."""
     centrelines = as_segments(centrelines)
     thick = np.zeros(len(centrelines))
     source = np.empty(len(centrelines), dtype=object)
@@ -93,17 +107,24 @@ def both_sides_thickness(
     for i, c in enumerate(centrelines):
         plan_t = float(plan_thickness_m[i]) if i < len(plan_thickness_m) else float("nan")
         reach = (plan_t if math.isfinite(plan_t) and plan_t > 0 else hi) / 2 + 0.15
-        faces = face_offsets(c, placed, reach)
-        left = max(faces[1], key=lambda f: f[2], default=None)
-        right = max(faces[-1], key=lambda f: f[2], default=None)
-        sides.append((left[0] if left else None, right[0] if right else None))
-        if left and right and left[0] != right[0] and lo <= left[1] - right[1] <= hi:
-            thick[i], source[i] = left[1] - right[1], MEASURED
+        prof = face_profile(c, placed, reach, step_m)
+        (left, left_room), (right, right_room) = prof[1], prof[-1]
+        t = left - right
+        both = np.isfinite(t) & (left_room != right_room) & (t >= lo) & (t <= hi)
+        sides.append((_most(left_room), _most(right_room)))
+        if both.sum() * step_m >= min_overlap_m:
+            thick[i], source[i] = float(np.median(t[both])), MEASURED
         elif math.isfinite(plan_t) and plan_t > 0:
             thick[i], source[i] = plan_t, PLAN
         else:
             thick[i], source[i] = default_m, DEFAULT
     return WallThickness(thick, source.astype(str), sides)
+
+
+def _most(owners: NDArray[np.object_]) -> str | None:
+    """The room that covers most of the points (None: none)."""
+    named = [o for o in owners if o is not None]
+    return max(set(named), key=named.count) if named else None
 
 
 def room_thickness_from_residuals(

@@ -3,8 +3,8 @@ tesseract-ocr, installed by .ci/setup). The plan stage stores it as the `label` 
 rooms.geojson; the fuse stage matches survey.yaml's `plan_room` against it (thesis 7.1.1: the room
 correspondence).
 
-Only dark, unsaturated ink in small connected components counts (letters; walls, green arrows and red
-symbols do not), inside the room's outline shrunk by 0.1 m; the crop around them is enlarged three
+Only dark ink in small connected components counts (letters; walls, green arrows and red symbols do
+not; a letter's strokes over a green arrow are near black and count), inside the room's outline shrunk by 0.1 m; the crop around them is enlarged three
 times and read as sparse text of letters and digits. The line read with the highest confidence is the
 room's label; a room with no readable text has none (its correspondence falls back to the track or its
 shape).
@@ -25,9 +25,12 @@ WHITELIST = "ABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789"
 
 
 def text_ink(image: NDArray[np.uint8], max_char_px: float) -> NDArray[np.bool_]:
-    """(H, W) pixels of dark unsaturated ink in connected components no taller or wider than max_char_px."""
+    """(H, W) pixels of ink in connected components no taller or wider than max_char_px: dark and
+    unsaturated, or near black whatever its hue (a letter printed over a green arrow blends into dark
+    green: 'WC' over the exit arrow read as 'W')."""
     hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)
-    ink = ((image.max(axis=2) < 110) & (hsv[..., 1] < 80)).astype(np.uint8)
+    value = image.max(axis=2)
+    ink = (((value < 110) & (hsv[..., 1] < 80)) | (value < 60)).astype(np.uint8)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(ink, connectivity=8)
     keep = np.zeros(n, dtype=bool)
     keep[1:] = (stats[1:, 2] <= max_char_px) & (stats[1:, 3] <= max_char_px) & (stats[1:, 4] >= 3)
