@@ -112,6 +112,44 @@ def test_an_added_wall_stands_in_a_plan_rooms_free_space() -> None:
     assert len(got) == 1 and got[0].x0 == pytest.approx(3.0) and got[0].x1 == pytest.approx(3.0)
 
 
+def test_fuse_s_wall_evidence_decides_removed_standing_and_unknown() -> None:
+    """With fuse's evidence, a plan partition the model lacks is removed only where a crisp capture saw
+    through it; where a capture shows it standing (the model missed it) it is no change; elsewhere
+    unknown, however much of the floor beside it the capture saw."""
+    plan = np.vstack([CENTRE, [[-0.1, 2.0, 3.0, 2.0]]])  # the partition, 3.1 m along its centreline
+    thick = np.append(THICK, 0.1)
+    r = room(FACES, seen_everywhere())
+    got = removed_walls(plan, thick, [r], CFG, standing={4: [(2.0, 3.1)]}, seen_through={4: [(0.0, 1.2)]})
+    assert [(c.kind, round(min(c.x0, c.x1), 1), round(max(c.x0, c.x1), 1)) for c in got] == [
+        (REMOVED, 0.2, 1.1),  # from where the west wall stops supporting it
+        (UNKNOWN, 1.1, 1.9),
+    ]
+
+
+def test_no_added_wall_from_a_smeared_capture_or_without_points_below_the_ceiling() -> None:
+    """A partition in a crisp capture whose cloud shows it standing is added; the same wall from a smeared
+    capture (frames centimetres apart: ghosts) or with nothing standing below the ceiling (a lamp the
+    wall model read near the ceiling) is not."""
+    walls = np.vstack([FACES, [[3.0, 0.5, 3.0, 3.5]]])
+    standing = Coverage((2.9, 0.4), 0.05, np.ones((63, 4), dtype=bool))  # x 2.9..3.1, y 0.4..3.55
+    nothing = Coverage((2.9, 0.4), 0.05, np.zeros((63, 4), dtype=bool))
+    plan_rooms = [box(0, 0, 6, 4)]
+    for crisp, surfaces, expected in ((True, standing, 1), (False, standing, 0), (True, nothing, 0)):
+        r = PlacedRoom(
+            "r1",
+            walls,
+            np.ones(len(walls)),
+            np.zeros((0, 4)),
+            seen_everywhere(),
+            "R1",
+            box(0, 0, 6, 4),
+            (),
+            surfaces,
+            crisp,
+        )
+        assert len(added_walls(r, CENTRE, THICK, np.zeros((0, 4)), CFG, plan_rooms)) == expected
+
+
 def test_a_split_room_a_merged_room_and_an_enlarged_room() -> None:
     plan = {"A": box(0, 0, 6, 4), "B": box(6.2, 0, 10, 4)}
     west = PlacedRoom("w", np.zeros((0, 4)), np.zeros(0), np.zeros((0, 4)), None, "A", box(0, 0, 2.9, 4))

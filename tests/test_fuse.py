@@ -391,6 +391,101 @@ def test_a_closed_span_is_seen_everywhere_and_through_nowhere() -> None:
     assert not blurred.closed(CFG.closed_door_share, CFG.door_through_share, CFG.crisp_face_m)
 
 
+def test_wall_evidence_a_missed_wall_stands_a_removed_one_is_seen_through_an_unseen_one_is_neither() -> None:
+    """A 6 x 4 room in the plan frame whose plan also draws a partition (y = 2, x 0..3) that is gone: its
+    cloud shows the floor through the partition's place (open); the wall model misses the east wall
+    between y = 1 and 3, whose face the cloud shows (standing); the north wall's face between x = 4 and 5
+    was never seen (neither)."""
+    from tasks.fuse.correspond import PlanRoom
+    from tasks.fuse.floor import fuse_floor
+
+    room_box = box(0.0, 0.0, 6.0, 4.0)
+    centre = np.array(
+        [[-0.1, -0.1, 6.1, -0.1], [6.1, -0.1, 6.1, 4.1], [6.1, 4.1, -0.1, 4.1], [-0.1, 4.1, -0.1, -0.1]]
+    )
+    partition = np.array([[-0.1, 2.0, 3.0, 2.0]])
+    centrelines = np.vstack([centre, partition])
+    thickness = np.array([0.2, 0.2, 0.2, 0.2, 0.1])
+    rng = np.random.default_rng(4)
+    pts = []
+    for x in np.arange(0.0, 6.0, 0.04):
+        for y in np.arange(0.0, 4.0, 0.04):
+            pts.append([x, y, 0.0])  # the floor, everywhere
+    for z in np.arange(0.0, 2.5, 0.05):
+        for x in np.arange(0.0, 6.0, 0.03):
+            pts.append([x, rng.normal(0, 0.004), z])
+            if not 4.0 <= x <= 5.0:
+                pts.append([x, 4.0 + rng.normal(0, 0.004), z])
+        for y in np.arange(0.0, 4.0, 0.03):
+            pts.append([rng.normal(0, 0.004), y, z])
+            pts.append([6.0 + rng.normal(0, 0.004), y, z])
+    model = np.array(
+        [
+            [0.0, 0.0, 6.0, 0.0],
+            [6.0, 0.0, 6.0, 1.0],
+            [6.0, 3.0, 6.0, 4.0],
+            [6.0, 4.0, 0.0, 4.0],
+            [0.0, 4.0, 0.0, 0.0],
+        ]
+    )
+    room = RoomInput(
+        "a",
+        model,
+        np.full(len(model), "observed"),
+        np.ones(len(model)),
+        2.5,
+        True,
+        "101",
+        np.array(pts),
+        0.0,
+        2.5,
+    )
+    floor = fuse_floor(
+        [room], [PlanRoom("R1", "101", room_box)], centrelines, thickness, np.zeros((0, 4)), None, CFG
+    )
+    assert floor.rooms["a"].in_plan and floor.evidence is not None
+    ev = floor.evidence
+
+    def covers(runs: dict, i: int, s0: float, s1: float) -> float:
+        got = sum(max(0.0, min(b, s1) - max(a, s0)) for a, b in runs.get(i, []))
+        return got / (s1 - s0)
+
+    assert covers(ev.standing, 1, 1.2, 3.0) > 0.9  # the east wall the model missed (y 1..3, from y = -0.1)
+    assert covers(ev.seen_through, 1, 1.2, 3.0) == 0.0
+    assert covers(ev.seen_through, 4, 0.3, 3.0) > 0.9 and covers(ev.standing, 4, 0.3, 3.0) == 0.0
+    north = (6.1 - 5.0 + 0.1, 6.1 - 4.0 - 0.1)  # x 5..4 along the north centreline, which runs west
+    assert covers(ev.standing, 2, *north) == 0.0 and covers(ev.seen_through, 2, *north) == 0.0
+
+
+def test_a_gap_ending_at_a_junction_is_closed_along_the_shell() -> None:
+    """The west wall stops where a partition meets it (a junction, no free end); the north wall's end
+    is the gap's only free end: the gap is filled from it along the shell to where the west wall
+    resumes, and the room closes."""
+    shell = box(0.0, 0.0, 6.0, 4.0)
+    walls = np.array(
+        [
+            [0.0, 0.0, 6.0, 0.0],
+            [6.0, 0.0, 6.0, 4.0],
+            [6.0, 4.0, 0.05, 4.0],  # the north wall, its west end short of the corner
+            [0.0, 0.0, 0.0, 2.5],  # the west wall, up to the partition
+            [0.0, 2.5, 1.5, 2.5],  # the partition
+        ]
+    )
+    got = fill_gaps(walls, shell, CFG.gap_end_tol_m)
+    assert got.closed
+    filled = np.hypot(*(got.walls[:, 2:] - got.walls[:, :2]).T).sum()
+    assert filled == pytest.approx(0.05 + 1.5, abs=0.02)
+
+
+def test_a_wall_end_is_not_extended_across_the_room() -> None:
+    """A corridor whose north wall stops 1 m short of its east end and whose south wall stops 1 m short
+    too: the gap is filled along the shell round the corner, not straight across the corridor."""
+    shell = box(0.0, 0.0, 10.0, 2.0)
+    walls = np.array([[0.0, 0.0, 9.0, 0.0], [9.0, 2.0, 0.0, 2.0], [0.0, 2.0, 0.0, 0.0]])
+    got = fill_gaps(walls, shell, CFG.gap_end_tol_m)
+    assert got.closed and got.polygon.area == pytest.approx(20.0, rel=1e-3)
+
+
 def test_room_labels_are_read_from_the_plan_raster() -> None:
     """Labels drawn as the survey generator draws them (OpenCV's simplex font), among walls and a green
     arrow, are read per room; a room without text has none; a label printed over the arrow's end (the

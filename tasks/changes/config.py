@@ -20,5 +20,11 @@ class ChangesConfig:
     """Cell of the coverage grid (floor and ceiling points seen by the capture)."""
     coverage_reach_m: float = 0.30
     """A face sample counts as seen when coverage lies within this of it, on its room's side."""
+    added_face_share: float = 0.5
+    """An added piece must show in its room's cloud: something standing from 0.15 to 1.9 m within
+    face_margin_m of it along at least this share of its length (a wall the model found in its slice
+    near the ceiling may be a lamp or a beam)."""
+    face_margin_m: float = 0.05
+    """How far from an added piece the cloud's standing points count."""
     room_change_share: float = 0.10
     """A room whose model leaves its plan room by more than this share of its area is a room-level change."""

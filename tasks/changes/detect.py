@@ -2,12 +2,15 @@
 
 Wall level (changes.parquet):
 - **added**: pieces of the placed room models (observed walls, doors cut out) outside every plan wall's
-  buffer (half its fused thickness plus a margin). A model wall across a plan door gap is added only when
-  the room's capture shows that door closed (its face seen low down), so a door the model merely spans
-  (walls are modelled near the ceiling, above the lintel) is no change;
+  buffer (half its fused thickness plus a margin), standing in a plan room's free space and in the
+  room's cloud from 0.15 to 1.9 m (the wall model is found near the ceiling: a lamp there is no wall),
+  from a crisp capture (one whose frames disagree by centimetres shows ghosts of walls). A
+  model wall across a plan door gap is added only when the room's capture shows that door closed (its
+  face seen across, nothing through), so a door the model merely spans (above the lintel) is no change;
 - **removed**: plan walls that no placed room supports (no parallel model wall within a tolerance of the
-  wall's face on that room's side, doors seen in the model cut out) where a room's capture covers the
-  face (its floor or ceiling seen right beside it);
+  wall's face on that room's side, doors seen in any room cut out) where a room's capture covers the
+  face (its floor or ceiling seen right beside it) and no crisp capture's cloud shows the wall standing
+  there (a wall the model missed is still there);
 - **unknown**: unsupported plan walls that no capture covers: no claim either way.
 A moved door is the removed wall at its new place (the model's door) plus the added wall at its old one.
 
@@ -54,6 +57,11 @@ class PlacedRoom:
     """The model's room (closed walls), plan frame."""
     closed_plan_doors: tuple[int, ...] = ()
     """Indices of the plan's doors this room's capture shows closed."""
+    surfaces: CoverageLike | None = None
+    """Where its cloud shows something standing, 0.15-1.9 m above the floor (None: not known)."""
+    crisp: bool | None = None
+    """Its capture's wall faces are crisp (its frames agree; None: not known): a smeared capture shows
+    ghosts of walls and claims no added wall."""
 
 
 @dataclass(frozen=True)
@@ -149,9 +157,32 @@ def added_walls(
             mid = shapely.Point(*(0.5 * (piece[:2] + piece[2:])))
             if free is not None and not (free.contains(mid) or closed_gaps.contains(mid)):
                 continue
+            if room.crisp is False:  # a smeared capture shows ghosts of walls
+                continue
+            if (
+                room.surfaces is not None
+                and _standing_share(piece, room.surfaces, cfg) < cfg.added_face_share
+            ):
+                continue
             dist = float(shapely.distance(cl, mid).min()) if cl is not None else math.inf
             out.append(Change(*piece.tolist(), ADDED, room.id, float(sup), dist))
     return out
+
+
+def _standing_share(
+    piece: NDArray, surfaces: CoverageLike, cfg: ChangesConfig, step_m: float = 0.05
+) -> float:
+    """Share of a piece's length along which the cloud shows something standing within face_margin_m."""
+    a, b = piece[:2], piece[2:]
+    length = float(np.hypot(*(b - a)))
+    u = (b - a) / max(length, 1e-12)
+    n = np.array([-u[1], u[0]])
+    s = np.arange(step_m / 2, length, step_m)
+    pts = a + s[:, None] * u
+    hit = np.zeros(len(s), dtype=bool)
+    for o in np.arange(-cfg.face_margin_m, cfg.face_margin_m + 1e-9, 0.025):
+        hit |= surfaces.at(pts + o * n)
+    return float(hit.mean()) if len(hit) else 0.0
 
 
 def _door_thickness(plan_doors: Segments, centrelines: Segments, thickness_m: NDArray) -> NDArray:
@@ -215,19 +246,25 @@ def removed_walls(
     rooms: list[PlacedRoom],
     cfg: ChangesConfig,
     step_m: float = 0.05,
+    standing: dict[int, list[tuple[float, float]]] | None = None,
+    seen_through: dict[int, list[tuple[float, float]]] | None = None,
 ) -> list[Change]:
     """Stretches of plan walls (per centreline sample) that no placed room's walls support: removed where
     some room's coverage sees the wall's face from its side, unknown where none does (only plan walls
     beside a placed room are judged); runs shorter than min_length_m are dropped. A door seen in any
     room's model where the plan has a wall is such a stretch (a door moved there): every room's doors
-    are cut from every room's walls."""
+    are cut from every room's walls. With fuse's wall evidence (plan wall index -> stretches along it,
+    metres; tasks.fuse.floor.wall_evidence), what the captures' points show decides instead of their
+    coverage: where a crisp capture shows the wall `standing` it is no change whatever the wall models
+    made of it, and an unsupported stretch is removed only where a crisp capture saw through it
+    (`seen_through`), else unknown (the ceiling seen beside a wall is not the wall seen gone)."""
     out: list[Change] = []
     doors = np.concatenate([as_segments(r.doors) for r in rooms]) if rooms else np.zeros((0, 4))
-    for c, t in zip(as_segments(centrelines), thickness_m, strict=True):
+    for i, (c, t) in enumerate(zip(as_segments(centrelines), thickness_m, strict=True)):
         length = float(lengths(c[None])[0])
         if length < cfg.min_length_m:
             continue
-        centre, _, _ = _side_samples(c, 0.0, 1.0, step_m)
+        centre, _, along = _side_samples(c, 0.0, 1.0, step_m)
         near = [
             r
             for r in rooms
@@ -244,6 +281,12 @@ def removed_walls(
                 cov = _seen(face, n, room, cfg)
                 seen |= cov
                 votes[room.id] = votes.get(room.id, 0) + int(cov.sum())
+        for s0, s1 in (standing or {}).get(i, []):
+            supported |= (along >= s0) & (along <= s1)
+        if seen_through is not None:
+            seen = np.zeros(len(centre), dtype=bool)
+            for s0, s1 in seen_through.get(i, []):
+                seen |= (along >= s0) & (along <= s1)
         share = float(supported.mean())
         owner = max(votes, key=lambda r: votes[r])
         a = c[:2]

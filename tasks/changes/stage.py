@@ -26,8 +26,8 @@ CHANGES_EVIDENCE_SCHEMA = pa.schema(
 
 
 def placed_rooms(fuse: art.StageResult) -> tuple[list[PlacedRoom], dict[str, str]]:
-    """The placed rooms from fuse's files (walls in the plan frame, doors, coverage), and the plan room of
-    every room."""
+    """The placed rooms from fuse's files (walls in the plan frame, doors, coverage, surfaces), and the plan
+    room of every room."""
     report = art.read_json(fuse.file("fuse.json"))
     rooms, plan_of = [], {}
     for rid, rep in report["rooms"].items():
@@ -37,11 +37,9 @@ def placed_rooms(fuse: art.StageResult) -> tuple[list[PlacedRoom], dict[str, str
         segs, table = art.read_segments(fuse.file(f"{rid}.walls.parquet"))
         origin = np.asarray(table["origin"].to_pylist(), dtype=str)
         keep = origin != "gap_filled"
-        cov = None
-        if "coverage" in rep and fuse.has(f"{rid}.coverage.png"):
-            seen = art.read_image(fuse.file(f"{rid}.coverage.png"), unchanged=True) > 0
-            base = Coverage(tuple(rep["coverage"]["origin"]), rep["coverage"]["cell_m"], seen)
-            cov = base.moved(Placement(np.radians(rep["theta_deg"]), tuple(rep["t_m"])))
+        placement = Placement(np.radians(rep["theta_deg"]), tuple(rep["t_m"]))
+        cov = _grid(fuse, rid, rep, "coverage", placement)
+        standing = _grid(fuse, rid, rep, "surfaces", placement)
         poly = None
         data = art.read_json(fuse.file(f"{rid}.plan.geojson"))
         for feat in data["features"]:
@@ -57,9 +55,19 @@ def placed_rooms(fuse: art.StageResult) -> tuple[list[PlacedRoom], dict[str, str
                 rep.get("plan_room"),
                 poly,
                 tuple(rep.get("closed_plan_doors", [])),
+                standing,
+                rep["surfaces"]["crisp"] if "surfaces" in rep else None,
             )
         )
     return rooms, plan_of
+
+
+def _grid(fuse: art.StageResult, rid: str, rep: dict, name: str, placement: Placement):
+    """A room's coverage or surfaces grid (fuse's <room>.<name>.png), looked up from the plan frame."""
+    if name not in rep or not fuse.has(f"{rid}.{name}.png"):
+        return None
+    seen = art.read_image(fuse.file(f"{rid}.{name}.png"), unchanged=True) > 0
+    return Coverage(tuple(rep[name]["origin"]), rep[name]["cell_m"], seen).moved(placement)
 
 
 def detect_all(
@@ -69,13 +77,23 @@ def detect_all(
     doors: np.ndarray,
     plan_polys: dict,
     cfg: ChangesConfig,
+    evidence: dict[str, dict[int, list[tuple[float, float]]]] | None = None,
 ) -> tuple[list[Change], list[RoomChange]]:
-    """Every wall-level and room-level change."""
+    """Every wall-level and room-level change (`evidence`: fuse's "standing" and "seen_through" stretches
+    of the plan's walls, tasks.fuse.floor.wall_evidence)."""
     changes: list[Change] = []
     polys = list(plan_polys.values())
     for room in rooms:
         changes += added_walls(room, centrelines, thickness, doors, cfg, polys)
-    changes += removed_walls(centrelines, thickness, rooms, cfg)
+    evidence = evidence or {}
+    changes += removed_walls(
+        centrelines,
+        thickness,
+        rooms,
+        cfg,
+        standing=evidence.get("standing"),
+        seen_through=evidence.get("seen_through"),
+    )
     return changes, room_changes(rooms, plan_polys, cfg)
 
 
@@ -87,7 +105,13 @@ def run(ctx: StageContext, cfg: ChangesConfig, out: Path) -> dict[str, Any]:
     thickness = thick_table["thickness_m"].to_numpy().astype(np.float64)
     rooms, _ = placed_rooms(fuse)
     plan_polys = {p.id: p.polygon for p in plan_rooms}
-    changes, room_level = detect_all(rooms, centrelines, thickness, doors, plan_polys, cfg)
+    report = art.read_json(fuse.file("fuse.json"))
+    evidence = {
+        key: {int(i): [tuple(r) for r in runs] for i, runs in report[key].items()}
+        for key in ("standing", "seen_through")
+        if key in report
+    }
+    changes, room_level = detect_all(rooms, centrelines, thickness, doors, plan_polys, cfg, evidence)
     return write_outputs(changes, room_level, plan_polys, centrelines, thickness, out)
 
 

@@ -15,7 +15,7 @@ from shapely.geometry import Polygon
 from tasks.fuse.config import FuseConfig
 from tasks.fuse.correspond import PlanRoom
 from tasks.fuse.gaps import GAP_FILLED, GapFill, fill_gaps, shell_polygon
-from tasks.fuse.openings import SpanState, span_state
+from tasks.fuse.openings import SpanState, span_state, wall_columns
 from tasks.fuse.place import Placed, RoomInput, RoomModel, place_rooms
 from tasks.fuse.thickness import PlacedWalls, WallThickness, both_sides_thickness, residual_thickness
 from tasks.lines import Segments, as_segments, lengths
@@ -58,6 +58,8 @@ class FusedFloor:
     plan_doors: Segments
     plan_rooms: list[PlanRoom]
     metrics: dict[str, Any] = field(default_factory=dict)
+    evidence: WallEvidence | None = None
+    """Where crisp captures show the plan's walls standing or open (tasks.fuse.floor.wall_evidence)."""
 
 
 def fuse_floor(
@@ -96,7 +98,95 @@ def fuse_floor(
             by_id[rid], p, models.get(rid), plan_by_id, centrelines, thickness, plan_doors, cfg
         )
     fused = cross_check_doors(fused, by_id, models, cfg)
-    return FusedFloor(fused, models, thickness, resid, centrelines, as_segments(plan_doors), plan_rooms)
+    evidence = wall_evidence(fused, by_id, models, centrelines, thickness.thickness_m, cfg)
+    return FusedFloor(
+        fused, models, thickness, resid, centrelines, as_segments(plan_doors), plan_rooms, {}, evidence
+    )
+
+
+@dataclass(frozen=True)
+class WallEvidence:
+    """What the crisp captures show along the plan's walls: plan wall index -> stretches (metres along its
+    centreline, from its first end)."""
+
+    standing: dict[int, list[tuple[float, float]]]
+    """The wall's face seen (not empty by the door finder's measure), nothing seen through it or beside."""
+    seen_through: dict[int, list[tuple[float, float]]]
+    """The wall's face empty and points seen beyond it (0.1-1.5 m behind): an opening there."""
+
+
+def wall_evidence(
+    fused: dict[str, FusedRoom],
+    rooms: dict[str, RoomInput],
+    models: dict[str, RoomModel],
+    centrelines: Segments,
+    thickness_m: NDArray,
+    cfg: FuseConfig,
+    empty_share: float = 0.2,
+    min_run_m: float = 0.10,
+) -> WallEvidence:
+    """Where the captures show each plan wall standing or open, whatever their wall models made of it:
+    along the plan wall's face on each placed room's side (its points' face found within 15 cm,
+    tasks.fuse.openings.wall_columns), in 5 cm columns counted over each column and its neighbours as
+    the door finder counts them. A column is open where its face is empty (at most empty_share of the
+    face's typical column; all of it when no face shows at all) and two points or more lie beyond it: a
+    removed wall, a door. It stands where its face shows, neither it nor a neighbour was seen through,
+    and the capture is crisp (crisp_face_m: a smeared capture fills openings with the wall beside them):
+    a wall the model missed still stands. A stretch never looked at is neither. Runs shorter than
+    min_run_m are left out."""
+    standing: dict[int, list[tuple[float, float]]] = {}
+    through: dict[int, list[tuple[float, float]]] = {}
+    centrelines = as_segments(centrelines)
+    placed = [
+        (rid, f)
+        for rid, f in fused.items()
+        if f.in_plan and rooms[rid].points is not None and f.gaps is not None and f.gaps.polygon is not None
+    ]
+    three = np.ones(3) / 3.0
+    for i, (c, t) in enumerate(zip(centrelines, np.asarray(thickness_m), strict=True)):
+        a, b = c[:2], c[2:]
+        length = float(np.hypot(*(b - a)))
+        if length < min_run_m:
+            continue
+        u = (b - a) / length
+        n = np.array([-u[1], u[0]])
+        stands_any, open_any = None, None
+        for side in (1.0, -1.0):
+            face = np.concatenate([a + side * (t / 2) * n, b + side * (t / 2) * n])
+            probe = shapely.LineString((face.reshape(2, 2) + side * 0.3 * n).tolist())
+            for rid, f in placed:
+                if not f.gaps.polygon.intersects(probe):  # not this room's side of the wall
+                    continue
+                room, pl = rooms[rid], f.placed.placement
+                back = (face.reshape(2, 2) - np.asarray(pl.t)) @ pl.rotation  # into the room frame
+                cols = wall_columns(room.points, room.floor_z, back.reshape(4), (side * n) @ pl.rotation)
+                seen = np.convolve(cols.face_low + cols.face_high, three, mode="same")
+                ref = cols.reference(cols.face_low + cols.face_high)
+                empty = seen <= empty_share * ref
+                beyond = cols.through >= 2
+                opened = empty & beyond
+                near_beyond = np.convolve(beyond.astype(float), np.ones(3), mode="same") > 0
+                crisp = models[rid].face_spread_m <= cfg.crisp_face_m
+                stands = ~empty & ~near_beyond & crisp
+                stands_any = stands if stands_any is None else stands_any | stands
+                open_any = opened if open_any is None else open_any | opened
+        for mask, out in ((stands_any, standing), (open_any, through)):
+            if mask is None:
+                continue
+            runs = [
+                (i0 * 0.05, min(i1 * 0.05, length))
+                for i0, i1 in _bool_runs(mask)
+                if (i1 - i0) * 0.05 >= min_run_m
+            ]
+            if runs:
+                out[i] = runs
+    return WallEvidence(standing, through)
+
+
+def _bool_runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    m = np.concatenate([[False], mask, [False]]).astype(int)
+    d = np.diff(m)
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True))
 
 
 def _fuse_room(

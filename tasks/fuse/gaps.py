@@ -7,7 +7,8 @@
 3. the **shortest path** (networkx) over the shell and those extensions between the two most distant free
    ends closes the gap (fig 7.6 d); the shell's stretches the model already covers cost a thousand times
    their length, so the path runs through the gap, not over observed walls. More than one gap: the
-   pairs of ends with the cheapest paths first;
+   pairs of ends with the cheapest paths first; an end left without a partner (its gap ends at a
+   junction of the model's walls) is joined to the nearest stretch of shell the model covers;
 4. the walls added are marked `gap_filled`.
 
 A room ends closed (its walls enclose a polygon) or open with the reason.
@@ -124,10 +125,17 @@ def _covered(pieces: Segments, walls: Segments, tol_m: float) -> NDArray[np.bool
 
 
 def _shell_graph(
-    shell: Polygon, ends: list[tuple[NDArray, NDArray]], walls: Segments, reach_m: float, tol_m: float
+    shell: Polygon,
+    ends: list[tuple[NDArray, NDArray]],
+    walls: Segments,
+    reach_m: float,
+    tol_m: float,
+    jump_m: float,
 ) -> tuple[nx.Graph, list[int]]:
     """Graph of the shell's ring (noded at the extension hits) plus the extensions of every free end along
-    and perpendicular to its wall; returns it and the node of each free end."""
+    and perpendicular to its wall, those no longer than jump_m or running along the shell (their middle
+    within jump_m of it): an extension across the room to the far side of the shell is no gap of it (a
+    corridor's wall end would close the corridor across); returns it and the node of each free end."""
     ring = shell.exterior
     g = nx.Graph()
     hits: list[tuple[int, NDArray]] = []
@@ -140,13 +148,24 @@ def _shell_graph(
         hits.append((k, np.asarray(foot.coords[0])))  # an end on the shell joins it where it lies
         for direction in (d, np.array([-d[1], d[0]]), np.array([d[1], -d[0]])):
             h = _first_hit(ring, p, direction, reach_m)
-            if h is not None:
+            if h is None:
+                continue
+            along = ring.distance(Point(*(0.5 * (p + h)))) <= jump_m
+            if along or float(np.hypot(*(h - p))) <= jump_m:
                 hits.append((k, h))
     ring_xy = np.asarray(ring.coords)[:-1]
     along = [ring.project(Point(*xy)) for xy in ring_xy]
+    # the ring is also cut where the model's walls end beside it, so that a stretch is covered or not
+    # whole (a wall that stops halfway along the shell's edge leaves the rest of the edge a gap)
+    stops = [
+        ring.interpolate(ring.project(Point(*q)))
+        for q in as_segments(walls).reshape(-1, 2)
+        if ring.distance(Point(*q)) <= tol_m
+    ]
     cuts = sorted(
         [(a, ("v", i), ring_xy[i]) for i, a in enumerate(along)]
-        + [(ring.project(Point(*h)), ("h", n), h) for n, (_, h) in enumerate(hits)],
+        + [(ring.project(Point(*h)), ("h", n), h) for n, (_, h) in enumerate(hits)]
+        + [(ring.project(q), ("w", n), np.asarray(q.coords[0])) for n, q in enumerate(stops)],
         key=lambda c: c[0],
     )
     for _, node, xy in cuts:
@@ -177,14 +196,21 @@ def fill_gaps(
     ring = shell.exterior
     gap_ends = [(p, d) for p, d in ends if ring.distance(Point(*p)) <= end_tol_m]
     added: list[NDArray] = []
-    if len(gap_ends) >= 2:
-        g, nodes = _shell_graph(shell, gap_ends, walls, reach_m, cover_tol_m)
-        for a, b in _pairs(g, nodes, gap_ends):
-            path = nx.shortest_path(g, a, b, weight="weight")
+    if gap_ends:
+        g, nodes = _shell_graph(shell, gap_ends, walls, reach_m, cover_tol_m, end_tol_m)
+        paths = [nx.shortest_path(g, a, b, weight="weight") for a, b in _pairs(g, nodes, gap_ends)]
+        joined = {n for path in paths for n in (path[0], path[-1])}
+        for path in paths:
             for u, v in itertools.pairwise(path):
                 data = g.edges[u, v]
-                if not data["covered"] and lengths(data["segment"][None])[0] > 1e-6:
+                length = float(lengths(data["segment"][None])[0])
+                # a covered piece shorter than the cover tolerance joins two filled ones: the model's
+                # wall ends near it, not on it
+                if length > 1e-6 and (not data["covered"] or length < cover_tol_m):
                     added.append(data["segment"])
+        for node, end in zip(nodes, gap_ends, strict=True):
+            if node not in joined:  # its gap ends at a junction, not at a free end
+                added += _walk_to_cover(g, node, end, cover_tol_m)
     filled = np.array(added).reshape(-1, 4)
     every = np.concatenate([walls, filled])
     closed = is_closed(wall_graph(every, tol=0.02))
@@ -207,9 +233,47 @@ def fill_gaps(
     return GapFill(filled, closed, polygon, reason, len(ends))
 
 
+def _walk_to_cover(
+    g: nx.Graph, node: object, end: tuple[NDArray, NDArray], connector_m: float
+) -> list[NDArray]:
+    """The shell's uncovered stretch ahead of a free end (beyond it along its wall), walked along the ring
+    from the end's foot until the model covers the shell again: a gap whose other end is a junction of
+    the model's walls (a wall that stops where a partition meets it), not a free end. The segments to
+    add (the jump onto the shell, covered pieces shorter than connector_m that lead to the gap, the
+    uncovered pieces), none when the ring is not covered again."""
+    _, d = end
+    ring_edges = [(n, data) for n, data in g[node].items() if n[0] != "end"]
+    if not ring_edges:
+        return []
+    foot, jump = min(ring_edges, key=lambda e: e[1]["weight"])
+    out = [jump["segment"]] if lengths(jump["segment"][None])[0] > 1e-6 else []
+    ring = [n for n in g[foot] if n[0] != "end"]
+    if not ring:
+        return []
+    here = np.asarray(g.nodes[foot]["xy"])
+    prev, cur = foot, max(ring, key=lambda n: float((np.asarray(g.nodes[n]["xy"]) - here) @ d))
+    gap = False
+    for _ in range(g.number_of_nodes()):
+        data = g.edges[prev, cur]
+        if data["covered"] and gap:
+            return out
+        if not data["covered"]:
+            gap = True
+            out.append(data["segment"])
+        elif float(lengths(data["segment"][None])[0]) < connector_m:
+            out.append(data["segment"])
+        ahead = [n for n in g[cur] if n[0] != "end" and n != prev]
+        if not ahead or cur == foot:
+            break
+        prev, cur = cur, ahead[0]
+    return []
+
+
 def _pairs(g: nx.Graph, nodes: list, ends: list[tuple[NDArray, NDArray]]) -> list[tuple]:
     """Pairs of free-end nodes to join: the two most distant when there are two or three (thesis), else
     greedily the pairs with the cheapest shell paths."""
+    if len(nodes) < 2:
+        return []
     if len(nodes) <= 3:
         pts = np.array([p for p, _ in ends])
         dist = np.hypot(*(pts[:, None, :] - pts[None, :, :]).transpose(2, 0, 1))

@@ -17,7 +17,10 @@ capture saw *through*. Along each wall, in columns of a few centimetres (`wall_c
 
 Coverage: the floor and ceiling cells the capture saw (a grid of their points' positions); a plan wall
 whose room side was seen and which has no model wall is removed, one whose room side was not seen is
-unknown (the changes stage).
+unknown (the changes stage). Surfaces: the cells holding points from 0.15 to 1.9 m above the floor (walls,
+furniture, anything standing): where the cloud shows a wall's face whatever the wall model made of it
+(a wall the model missed still stands; a "wall" the model found at the ceiling, a lamp, does not reach
+down).
 """
 
 from __future__ import annotations
@@ -323,3 +326,38 @@ def coverage(
     seen = np.zeros(shape, dtype=bool)
     seen[ij[:, 1], ij[:, 0]] = True
     return Coverage((float(lo[0]), float(lo[1])), cell_m, seen)
+
+
+def surfaces(
+    points: NDArray[np.float64], floor_z: float, cell_m: float = 0.05, min_points: int = 2
+) -> Coverage:
+    """Cells holding at least min_points points from 0.15 to 1.9 m above the floor (LOW_M to HIGH_M):
+    what stands there (module doc). (N, 3) points, z up."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    z = pts[:, 2] - floor_z
+    xy = pts[(z >= LOW_M[0]) & (z <= HIGH_M[1]), :2]
+    if len(xy) == 0:
+        return Coverage((0.0, 0.0), cell_m, np.zeros((1, 1), dtype=bool))
+    lo = xy.min(axis=0) - cell_m
+    ij = np.floor((xy - lo) / cell_m).astype(int)
+    shape = (int(ij[:, 1].max()) + 2, int(ij[:, 0].max()) + 2)
+    counts = np.zeros(shape, dtype=np.int32)
+    np.add.at(counts, (ij[:, 1], ij[:, 0]), 1)
+    return Coverage((float(lo[0]), float(lo[1])), cell_m, counts >= min_points)
+
+
+def face_spread(points: NDArray[np.float64], floor_z: float, walls: Segments, inward: NDArray) -> float:
+    """The capture's face spread: the length-weighted median of its walls' WallColumns.face_spread_m
+    (NaN when no wall's face was seen)."""
+    walls = as_segments(walls)
+    spreads, weights = [], []
+    for w, n in zip(walls, np.asarray(inward).reshape(-1, 2), strict=True):
+        spread = wall_columns(points, floor_z, w, n).face_spread_m
+        if np.isfinite(spread):
+            spreads.append(spread)
+            weights.append(float(lengths(w[None])[0]))
+    if not spreads:
+        return float("nan")
+    order = np.argsort(spreads)
+    cum = np.cumsum(np.asarray(weights)[order])
+    return float(np.asarray(spreads)[order][np.searchsorted(cum, 0.5 * cum[-1])])

@@ -12,7 +12,7 @@ from shapely.geometry import Polygon
 
 from tasks.fuse.config import FuseConfig
 from tasks.fuse.correspond import Correspondence, PlanRoom, RoomEvidence, correspond_rooms
-from tasks.fuse.openings import Coverage, Door, coverage, find_doors
+from tasks.fuse.openings import Coverage, Door, coverage, face_spread, find_doors, surfaces
 from tasks.fuse.register2d import (
     IDENTITY,
     DoorPair,
@@ -61,6 +61,10 @@ class RoomModel:
     shell: NDArray[np.bool_]
     doors: list[Door]
     coverage: Coverage | None
+    surfaces: Coverage | None = None
+    """Where the cloud shows something standing (tasks.fuse.openings.surfaces), room frame."""
+    face_spread_m: float = float("nan")
+    """How crisp the capture's wall faces are (tasks.fuse.openings.face_spread)."""
 
 
 def describe(room: RoomInput, cfg: FuseConfig) -> RoomModel:
@@ -71,7 +75,7 @@ def describe(room: RoomInput, cfg: FuseConfig) -> RoomModel:
     centre = np.asarray(poly.centroid.coords[0]) if poly is not None else walls.reshape(-1, 2).mean(axis=0)
     inward = inward_normals(walls, poly, centre)
     doors: list[Door] = []
-    cov = None
+    cov, standing, spread = None, None, float("nan")
     if room.points is not None and len(room.points):
         doors = find_doors(
             room.points,
@@ -82,7 +86,9 @@ def describe(room: RoomInput, cfg: FuseConfig) -> RoomModel:
             min_through_share=cfg.door_through_share,
         )
         cov = coverage(room.points, room.floor_z, room.ceiling_z, 0.10)
-    return RoomModel(poly, centre, inward, shell_mask(walls, cfg.shell_tol_m), doors, cov)
+        standing = surfaces(room.points, room.floor_z)
+        spread = face_spread(room.points, room.floor_z, walls, inward)
+    return RoomModel(poly, centre, inward, shell_mask(walls, cfg.shell_tol_m), doors, cov, standing, spread)
 
 
 @dataclass(frozen=True)

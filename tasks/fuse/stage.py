@@ -6,10 +6,13 @@ Outputs (its own folder; the publish step copies them):
   rooms on each side, doors;
 - thickness.parquet: per plan wall, the fused thickness and its source, and the thesis' residual figure;
 - fuse.json: per room, the correspondence and its source, the transform, residuals and fit score, or
-  why the room was not placed; whether it closed;
+  why the room was not placed; whether it closed; per plan wall, the stretches crisp captures show
+  standing or seen through (the changes stage);
 - <room>.walls.parquet and <room>.plan.geojson: the room's walls in the plan frame when placed (its own
   frame otherwise, and the file says so): what outputs/rooms/<room>/ should hold after fusion;
-- <room>.coverage.png: where the capture saw floor or ceiling (room frame; fuse.json has its grid).
+- <room>.coverage.png: where the capture saw floor or ceiling (room frame; fuse.json has its grid);
+- <room>.surfaces.png: where its cloud shows something standing, 0.15-1.9 m (room frame, 5 cm cells;
+  fuse.json has its grid, and whether the capture's faces are crisp enough to tell an opening).
 """
 
 from __future__ import annotations
@@ -117,11 +120,11 @@ def run(ctx: StageContext, cfg: FuseConfig, out: Path) -> dict[str, Any]:
     track = art.read_track(Path(ctx.raw_inputs["track"])) if "track" in ctx.raw_inputs else None
     ctx.progress(f"fusing {len(rooms)} rooms into {len(plan_rooms)} plan rooms")
     floor = fuse_floor(rooms, plan_rooms, centrelines, thickness, doors, track, cfg)
-    return write_outputs(floor, rooms, ctx.failed_rooms, out)
+    return write_outputs(floor, rooms, ctx.failed_rooms, out, cfg)
 
 
 def write_outputs(
-    floor: FusedFloor, rooms: list[RoomInput], failed: dict[str, str], out: Path
+    floor: FusedFloor, rooms: list[RoomInput], failed: dict[str, str], out: Path, cfg: FuseConfig
 ) -> dict[str, Any]:
     """Write the stage's files (module doc) and return its manifest entries."""
     art.write_geojson(out / "floor.geojson", floor_features(floor), PLAN_FRAME)
@@ -150,6 +153,17 @@ def write_outputs(
                 "origin": model.coverage.origin,
                 "cell_m": model.coverage.cell_m,
             }
+        if model is not None and model.surfaces is not None:
+            art.write_png(out / f"{rid}.surfaces.png", model.surfaces.seen.astype(np.uint8) * 255)
+            report["rooms"][rid]["surfaces"] = {
+                "origin": model.surfaces.origin,
+                "cell_m": model.surfaces.cell_m,
+                "face_spread_m": model.face_spread_m if math.isfinite(model.face_spread_m) else None,
+                "crisp": bool(model.face_spread_m <= cfg.crisp_face_m),
+            }
+    if floor.evidence is not None:
+        report["standing"] = {str(i): runs for i, runs in floor.evidence.standing.items()}
+        report["seen_through"] = {str(i): runs for i, runs in floor.evidence.seen_through.items()}
     art.write_json(out / "fuse.json", report)
     placed = [rid for rid, f in floor.rooms.items() if f.in_plan]
     metrics = {
