@@ -150,7 +150,9 @@ def wall_evidence(
             continue
         u = (b - a) / length
         n = np.array([-u[1], u[0]])
-        stands_any, open_any = None, None
+        nbins = max(int(np.ceil(length / 0.05)), 1)  # each room's frame may round it one off
+        stands_any, open_any = np.zeros(nbins, dtype=bool), np.zeros(nbins, dtype=bool)
+        looked = False
         for side in (1.0, -1.0):
             face = np.concatenate([a + side * (t / 2) * n, b + side * (t / 2) * n])
             probe = shapely.LineString((face.reshape(2, 2) + side * 0.3 * n).tolist())
@@ -168,10 +170,12 @@ def wall_evidence(
                 near_beyond = np.convolve(beyond.astype(float), np.ones(3), mode="same") > 0
                 crisp = models[rid].face_spread_m <= cfg.crisp_face_m
                 stands = ~empty & ~near_beyond & crisp
-                stands_any = stands if stands_any is None else stands_any | stands
-                open_any = opened if open_any is None else open_any | opened
+                k = min(nbins, len(stands))
+                stands_any[:k] |= stands[:k]
+                open_any[:k] |= opened[:k]
+                looked = True
         for mask, out in ((stands_any, standing), (open_any, through)):
-            if mask is None:
+            if not looked:
                 continue
             runs = [
                 (i0 * 0.05, min(i1 * 0.05, length))
