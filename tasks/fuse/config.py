@@ -21,6 +21,9 @@ class FuseConfig:
     start_shift_m: float = 0.5
     """The fine fit also starts this far off the approximate position along both principal directions
     (the approximate registration is trusted within +-1 m)."""
+    plan_frame_gate_m: float = 0.5
+    """A room already registered in the plan frame (the IMU-track fallback) is refined from there, its
+    correspondences gated at this from the first iteration (walls seen through doors stay out)."""
     max_iterations: int = 30
     """Iterations of the rotation + Gauss-Newton translation loop (eq 7.4, 7.9, 7.10)."""
     rotation_outlier_deg: float = 0.5

@@ -150,7 +150,9 @@ def wall_evidence(
             continue
         u = (b - a) / length
         n = np.array([-u[1], u[0]])
-        stands_any, open_any = None, None
+        nbins = max(int(np.ceil(length / 0.05)), 1)  # each room's frame may round it one off
+        stands_any, open_any = np.zeros(nbins, dtype=bool), np.zeros(nbins, dtype=bool)
+        looked = False
         for side in (1.0, -1.0):
             face = np.concatenate([a + side * (t / 2) * n, b + side * (t / 2) * n])
             probe = shapely.LineString((face.reshape(2, 2) + side * 0.3 * n).tolist())
@@ -168,10 +170,12 @@ def wall_evidence(
                 near_beyond = np.convolve(beyond.astype(float), np.ones(3), mode="same") > 0
                 crisp = models[rid].face_spread_m <= cfg.crisp_face_m
                 stands = ~empty & ~near_beyond & crisp
-                stands_any = stands if stands_any is None else stands_any | stands
-                open_any = opened if open_any is None else open_any | opened
+                k = min(nbins, len(stands))
+                stands_any[:k] |= stands[:k]
+                open_any[:k] |= opened[:k]
+                looked = True
         for mask, out in ((stands_any, standing), (open_any, through)):
-            if mask is None:
+            if not looked:
                 continue
             runs = [
                 (i0 * 0.05, min(i1 * 0.05, length))
@@ -280,7 +284,7 @@ def cross_check_doors(
     wall's thickness; its face crisp and seen across the door's span, nothing through: a corridor's
     smeared cloud sees into a room obliquely through the next door and reads the unseen face beside it
     as open, the room beyond saw it whole; a smeared face cannot testify either way); a plan door one
-    room shows closed stays open when another room saw a door there."""
+    room shows closed stays open when another room saw a door there or, crisp, saw through it."""
     placed = {rid: f for rid, f in fused.items() if f.in_plan and rid in models}
     out = dict(fused)
     for rid, f in placed.items():
@@ -304,13 +308,36 @@ def cross_check_doors(
             doors=np.asarray(keep, dtype=np.float64).reshape(-1, 4),
             doors_contradicted=np.asarray(dropped, dtype=np.float64).reshape(-1, 4),
         )
-    doors = [d for f in out.values() if f.in_plan for d in f.doors]
+    doors = np.asarray([d for f in out.values() if f.in_plan for d in f.doors]).reshape(-1, 4)
     for rid, f in out.items():
-        if not f.closed_plan_doors or not doors:
+        if not f.closed_plan_doors:
             continue
-        plan_doors = f.plan_doors
-        still = tuple(k for k in f.closed_plan_doors if not _overlaps(plan_doors[k], np.asarray(doors)))
-        out[rid] = replace(f, closed_plan_doors=still)
+        still = []
+        for k in f.closed_plan_doors:
+            if len(doors) and _overlaps(f.plan_doors[k], doors):
+                continue
+            seen_open = [
+                other
+                for other, g in placed.items()
+                if other != rid
+                and (
+                    seen := span_seen(
+                        rooms[other],
+                        g.placed.placement,
+                        rooms[other].walls,
+                        models[other].inward,
+                        f.plan_doors[k],
+                        0.25,
+                    )
+                )
+                is not None
+                and seen.face_spread_m <= cfg.crisp_face_m
+                and seen.through_share >= cfg.door_through_share
+                and (seen.face_share or 0.0) < cfg.closed_door_share
+            ]
+            if not seen_open:  # another crisp capture saw through it: a door its finder missed
+                still.append(k)
+        out[rid] = replace(f, closed_plan_doors=tuple(still))
     return out
 
 

@@ -142,7 +142,7 @@ def room_faces(
     }
 
 
-def _door_pairs(
+def door_pairs(
     model: RoomModel, walls: Segments, placement: Placement, plan_doors: Segments, cfg: FuseConfig
 ) -> list[DoorPair]:
     """Model doors that, placed, lie within door_match_m of a plan door along a parallel wall."""
@@ -192,20 +192,30 @@ def register_room(
         else:
             starts = [centroid_start(t, model.centre, plan_centre) for t in candidate_turns(shell, own)]
             how = "turns"
-    fits = [fine_register(shell, inward, model.centre, own, s, cfg) for s in starts]
+    if room.in_plan_frame:
+        # refined, not searched: the start is the plan frame within a few centimetres, and a corridor's
+        # walls seen through its doors would drag it along its axis to where they meet some face
+        fits = [
+            optimal_fit(shell, inward, model.centre, own, IDENTITY, cfg, first_gate_m=cfg.plan_frame_gate_m)
+        ]
+    else:
+        fits = [fine_register(shell, inward, model.centre, own, s, cfg) for s in starts]
     fits.sort(key=lambda f: -f.score)
     best = fits[0]
-    doors = _door_pairs(model, walls, best.placement, plan_doors, cfg)
-    ambiguous = len(fits) > 1 and fits[1].score >= best.score - 0.02
+    close = [f for f in fits if f.score >= best.score - 0.02]
+    ambiguous = len(close) > 1
     if ambiguous:
-        # a symmetric room: the turn whose doors coincide with the plan's wins
-        by_doors = sorted(
-            fits[:2], key=lambda f: -len(_door_pairs(model, walls, f.placement, plan_doors, cfg))
-        )
-        n0 = len(_door_pairs(model, walls, by_doors[0].placement, plan_doors, cfg))
-        n1 = len(_door_pairs(model, walls, by_doors[1].placement, plan_doors, cfg))
-        best, ambiguous = by_doors[0], n0 == n1
-        doors = _door_pairs(model, walls, best.placement, plan_doors, cfg)
+        # a symmetric room: the turn whose doors coincide with the plan's wins, then the smallest turn from
+        # the capture's own frame (a registered scanner cloud's frame means something; a track-less
+        # RGB-D room's does not, and the tie is reported)
+        def rank(f: Fit) -> tuple[int, float]:
+            turn = abs(math.atan2(math.sin(f.placement.theta), math.cos(f.placement.theta)))
+            return (-len(door_pairs(model, walls, f.placement, plan_doors, cfg)), turn)
+
+        close.sort(key=rank)
+        best = close[0]
+        ambiguous = rank(close[0])[0] == rank(close[1])[0]
+    doors = door_pairs(model, walls, best.placement, plan_doors, cfg)
     if doors:
         refined = optimal_fit(shell, inward, model.centre, own, best.placement, cfg, doors, refine=True)
         if refined.score >= best.score - 0.02:

@@ -374,6 +374,7 @@ def optimal_fit(
     cfg: FuseConfig,
     doors: list[DoorPair] | None = None,
     refine: bool = False,
+    first_gate_m: float = math.inf,
 ) -> Fit:
     """The thesis' optimal (constrained) fit from `start`: per iteration, correspondences, the rotation
     from the length-weighted orientation differences (eq 7.4, about the model's centroid), then the
@@ -382,7 +383,8 @@ def optimal_fit(
     is dropped (a door detected only in part, a plan door drawn off: a corridor's few constraints along
     its axis must not be pulled by one of them). With `refine` the start is a converged fit (adding the
     doors to it): the converged window and gate apply from the first iteration, so a door drawn off
-    cannot drag the room away from its walls before the gate sees it."""
+    cannot drag the room away from its walls before the gate sees it. `first_gate_m` bounds the first
+    iteration's gate for a start already known to be close (a room registered in the plan frame)."""
     shell = as_segments(shell)
     w = lengths(shell)
     placement = start
@@ -395,6 +397,7 @@ def optimal_fit(
         c = placement.points(centre)[0]
         matched = correspond(moved, nin, c, faces, tol)
         gate = cfg.max_residual_m if refine else _GATES_M[min(it, len(_GATES_M)) - 1] or cfg.max_residual_m
+        gate = min(gate, first_gate_m)
         matched = _gate(moved, faces, matched, gate)
         m = matched >= 0
         if not m.any():
