@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from tasks.cloud import DegenerateInputError
 from tasks.connect import OBSERVED
 from tasks.lines import angles, is_closed, transform_segments, wall_graph
+from tasks.preview import Key, View, frame_picture
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import support_sampler
 from tasks.walls.image import Grid, projection_image
@@ -127,15 +128,23 @@ def orient_walls(walls: NDArray, polygon: Any) -> NDArray:
 
 
 def render_preview(
-    counts: NDArray, binary: NDArray, walls: NDArray, origin: NDArray, grid: Grid, min_side_px: int = 800
+    counts: NDArray,
+    binary: NDArray,
+    walls: NDArray,
+    origin: NDArray,
+    grid: Grid,
+    min_side_px: int = 800,
+    title: str = "walls",
 ) -> NDArray:
     """RGB picture, north up: data in grey (darker = taller column), the cells kept as wall data in light
-    blue, observed walls in dark blue, extended ones in orange, wall ends as red dots, a 1 m bar below.
-    Coarse grids are enlarged (whole pixels) so that the longer side has at least `min_side_px`."""
+    blue, observed walls in dark blue, extended ones in orange, wall ends as red dots; framed with `title`,
+    axes in metres of the levelled room frame, a legend of those colours, a north arrow and a 1 m bar
+    (tasks.preview). Coarse grids are enlarged (whole pixels) so that the longer side has at least
+    `min_side_px`."""
     n_max = max(float(counts.max()), 1.0)
     grey = (255 - 140 * np.sqrt(counts / n_max)).astype(np.uint8)
     img = np.repeat(grey[..., None], 3, axis=2)
-    img[binary] = (150, 190, 235)
+    img[binary] = WALL_CELLS
     scale = int(min(10, max(1, math.ceil(min_side_px / max(counts.shape)))))
     if scale > 1:
         img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
@@ -150,17 +159,31 @@ def render_preview(
 
     px = grid.to_pixels(walls.reshape(-1, 2)).reshape(-1, 4) if len(walls) else np.zeros((0, 4))
     for s, o in zip(px, origin, strict=True):
-        colour = (25, 60, 170) if o == OBSERVED else (240, 140, 20)
+        colour = OBSERVED_WALL if o == OBSERVED else EXTENDED_WALL
         cv2.line(img, at(s[:2]), at(s[2:]), colour, thick, cv2.LINE_AA, shift)
     for s in px:
         for p in (s[:2], s[2:]):
-            cv2.circle(img, at(p), 5 << shift, (210, 30, 30), -1, cv2.LINE_AA, shift)
-    bar = round(scale / grid.size)
-    foot = np.full((34, img.shape[1], 3), 255, dtype=np.uint8)
-    if img.shape[1] > bar + 60:
-        cv2.rectangle(foot, (10, 14), (10 + bar, 20), (0, 0, 0), -1)
-        cv2.putText(foot, "1 m", (16 + bar, 23), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
-    return np.concatenate([img, foot])
+            cv2.circle(img, at(p), 5 << shift, WALL_END, -1, cv2.LINE_AA, shift)
+    legend = [Key("points (darker: taller)", (145, 145, 145), "box")]
+    if binary.any():
+        legend.append(Key("wall cells", WALL_CELLS, "box"))
+    if any(o == OBSERVED for o in origin):
+        legend.append(Key("observed wall", OBSERVED_WALL))
+    if any(o != OBSERVED for o in origin):
+        legend.append(Key("extended wall", EXTENDED_WALL))
+    if len(px):
+        legend.append(Key("wall end", WALL_END, "dot"))
+    view = View(float(grid.origin[0]), float(grid.origin[1] + counts.shape[0] * grid.size), grid.size / scale)
+    return frame_picture(img, view, title, legend, "metres, levelled room frame")
+
+
+WALL_CELLS, OBSERVED_WALL, EXTENDED_WALL, WALL_END = (
+    (150, 190, 235),
+    (25, 60, 170),
+    (240, 140, 20),
+    (210, 30, 30),
+)
+"""The preview's colours (RGB)."""
 
 
 def _check_input(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg: WallsConfig) -> NDArray:

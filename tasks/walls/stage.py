@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 
 from tasks import artefacts as art
 from tasks.context import StageContext
+from tasks.preview import retitle
 from tasks.walls.config import WallsConfig
 from tasks.walls.model import model_walls
 
@@ -101,7 +102,7 @@ def run(ctx: StageContext, cfg: WallsConfig, out: Path) -> dict[str, Any]:
     )
     vertices = model.mesh_vertices @ back[:3, :3].T + back[:3, 3]
     art.write_ply_mesh(out / "model.ply", vertices, model.mesh_triangles)
-    art.write_png(out / "preview.png", model.preview)
+    art.write_png(out / "preview.png", retitle(model.preview, f"room {ctx.room}: walls"))
     return {
         "frame": frame,
         "metrics": {**model.metrics, "walls": len(walls), "closed": model.closed, "alpha": model.alpha},
