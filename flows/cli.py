@@ -254,6 +254,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", type=Path, default=None, help="calibration.json from `calibrate`")
     p.add_argument("--sensor", default="kinect_v1", help="sensor profile when there is no calibration")
 
+    from flows import report_cmd
+
+    report_cmd.add_parser(sub)
     return parser
 
 
@@ -562,6 +565,10 @@ def _dispatch(args: argparse.Namespace) -> int:
         return cmd_status(args)
     if args.command == "config":
         return cmd_config(args)
+    if args.command == "report":
+        from flows import report_cmd
+
+        return report_cmd.run(args)
     return COMMANDS[args.command](args)
 
 
