@@ -35,7 +35,8 @@ def wall_outline(seg: NDArray, thickness_m: float) -> NDArray:
 
 def face_support(seg: NDArray, thickness_m: float, faces: NDArray) -> float:
     """Share of a wall centreline (sampled every 5 cm) that has a modelled room face beside it: parallel
-    within 10 degrees and within half the thickness plus 10 cm. 0 when no room saw it."""
+    within 10 degrees, within half the thickness plus 10 cm, and not beyond the face's ends. 0 when no room
+    saw it."""
     a, b = np.asarray(seg[:2], float), np.asarray(seg[2:], float)
     length = float(np.hypot(*(b - a)))
     if length == 0 or len(faces) == 0:
@@ -54,8 +55,9 @@ def face_support(seg: NDArray, thickness_m: float, faces: NDArray) -> float:
         return 0.0
     f, fd, flen = f[keep], fd[keep], flen[keep]
     rel = samples[:, None, :] - f[None, :, :2]  # (S, F, 2)
-    s = np.clip((rel * fd[None]).sum(axis=2) / flen[None] ** 2, 0, 1)
-    dist = np.hypot(*(rel - s[..., None] * fd[None]).transpose(2, 0, 1))
+    s = (rel * fd[None]).sum(axis=2) / flen[None] ** 2  # where along each face a sample falls
+    dist = np.abs(rel[..., 0] * fd[None, :, 1] - rel[..., 1] * fd[None, :, 0]) / flen[None]
+    dist = np.where((s >= 0) & (s <= 1), dist, np.inf)  # beside the face, not beyond its ends
     return float((dist.min(axis=1) <= thickness_m / 2 + SUPPORT_TOL_M).mean())
 
 
