@@ -323,7 +323,9 @@ def test_a_run_manifest_gives_states_errors_and_versions(tmp_path) -> None:
 
 def test_report_command(tmp_path, capsys) -> None:
     work = synthetic_work(tmp_path)
+    before = {p: p.stat().st_mtime_ns for p in (work / "cache").rglob("*")}
     assert main(["report", str(work)]) == 0
+    assert {p: p.stat().st_mtime_ns for p in (work / "cache").rglob("*")} == before  # nothing recomputed
     assert (work / "outputs" / "report.html").is_file()
     assert main(["report", str(tmp_path / "nowhere")]) == 2
     assert "no such folder" in capsys.readouterr().err

@@ -238,10 +238,16 @@ def _flatten(data: Any, prefix: str = "") -> dict[str, Any]:
 def config_changes(run_config: Path) -> list[tuple[str, str, str]]:
     """(key, default, run's value) of every setting of a run's saved config.yaml that differs from the
     defaults (configs/default.yaml over the code's defaults); "-" where one side lacks the key."""
+    import yaml
+
     from tasks import config as cfgmod
 
     defaults = _flatten(cfgmod._plain(dataclasses.asdict(cfgmod.load_config())))
-    ran = _flatten(cfgmod.read_yaml(run_config) or {})
+    try:  # written by yaml.safe_dump: the C loader reads it 10x faster than the checked reader
+        ran = yaml.load(Path(run_config).read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        ran = cfgmod.read_yaml(run_config)  # its one-line error names the file and line
+    ran = _flatten(ran or {})
     changes = []
     for key in sorted(set(defaults) | set(ran)):
         a, b = defaults.get(key, "-"), ran.get(key, "-")
