@@ -182,8 +182,8 @@ def histogram_svg(
     marks: dict[str, float],
     band: tuple[float, float] | None,
 ) -> str:
-    """A room's height histogram (points per height bin, heights up the vertical axis) with its floor and
-    ceiling marked and the furniture slice shaded, as an <svg> 420 x 300 px."""
+    """A room's height histogram (points per height bin on a square-root scale, heights up the vertical
+    axis) with its floor and ceiling marked and the furniture slice shaded, as an <svg> 420 x 300 px."""
     z_low, z_high, counts = (np.asarray(v, float) for v in (z_low, z_high, counts))
     if len(counts) == 0:
         return '<p class="note">empty height histogram</p>'
@@ -194,8 +194,8 @@ def histogram_svg(
     def y(z: float) -> float:
         return top + (zmax - z) / max(zmax - zmin, 1e-9) * (height - top - bottom)
 
-    def x(c: float) -> float:
-        return left + c / cmax * (width - left - right)
+    def x(c: float) -> float:  # square-root scale: the floor and ceiling peaks dwarf the walls linearly
+        return left + math.sqrt(c / cmax) * (width - left - right)
 
     parts = [f'<svg class="histogram" xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}">']
     if band is not None:
@@ -231,7 +231,7 @@ def histogram_svg(
         f'<text x="{left}" y="{height - bottom + 16}" class="hist-text">0</text>'
         f'<text x="{width - right}" y="{height - bottom + 16}" text-anchor="end" class="hist-text">{int(cmax)}</text>'
         f'<text x="{(left + width - right) / 2:.0f}" y="{height - 6}" text-anchor="middle" class="hist-text">'
-        "points per bin</text>"
+        "points per bin (square-root scale)</text>"
         f'<text x="14" y="{(top + height - bottom) / 2:.0f}" class="hist-text" '
         f'transform="rotate(-90 14 {(top + height - bottom) / 2:.0f})" text-anchor="middle">height z (m)</text>'
     )
