@@ -93,6 +93,21 @@ def test_walls_preview_has_a_legend_entry_for_each_colour_drawn_and_only_those()
     assert both.shape[1] >= 70 + 120 * 7 + 180  # enlarged 7x to at least 800 px, then framed
 
 
+def test_walls_preview_axes_put_a_wall_at_its_metres() -> None:
+    from tasks.walls.image import Grid
+    from tasks.walls.model import OBSERVED_WALL, render_preview
+
+    grid = Grid(np.array([-1.0, 2.0]), 0.05, (100, 120))  # x -1..5, y 2..7 m, enlarged 7x: 1 px = 1/140 m
+    wall = np.array([[1.0, 3.0, 1.0, 6.0]])  # north-south at x = 1 m, y 3..6 m
+    img = render_preview(np.zeros((100, 120)), np.zeros((100, 120), bool), wall, np.array(["observed"]), grid)
+    drawing = img[TITLE_PX : TITLE_PX + 700, 70 : 70 + 840]  # 1x frame: the drawing at (36, 70)
+    rows, cols = np.nonzero(np.all(drawing == np.array(OBSERVED_WALL, np.uint8), axis=2))
+    m_per_px = 0.05 / 7
+    assert -1.0 + (cols.mean() + 0.5) * m_per_px == pytest.approx(1.0, abs=0.02)
+    assert 7.0 - (rows.min() + 0.5) * m_per_px == pytest.approx(6.0, abs=0.05)  # y up: north at the top
+    assert 7.0 - (rows.max() + 0.5) * m_per_px == pytest.approx(3.0, abs=0.05)
+
+
 def test_changes_overlay_legend_lists_the_kinds_present() -> None:
     from tasks.changes.detect import ADDED, Change
     from tasks.changes.overlay import GREEN, RED, overlay_png
