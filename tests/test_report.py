@@ -286,6 +286,7 @@ def test_the_report_reads_the_published_folders_and_shows_every_room(tmp_path) -
     assert "<script" not in page and "<link" not in page and "url(" not in page
     assert not re.search(r"(?:src|href)=\"(?:https?:)?//", page)
     assert "walls.alpha_candidates" in page
+    assert "<h1>Survey report: s</h1>" in page  # the survey the run read, from its saved config
 
 
 def test_a_run_manifest_gives_states_errors_and_versions(tmp_path) -> None:

@@ -95,6 +95,8 @@ class ReportData:
     """outputs/metrics.json (accuracy against truth), when the survey has truth."""
     notes: list[str] = field(default_factory=list)
     """What could not be read, one line each (the report still shows the rest)."""
+    survey: str = ""
+    """The survey folder the last run read, as its command line named it (its saved config's first line)."""
 
 
 # ------------------------------------------------------------------------------------------- the store
@@ -394,7 +396,15 @@ def gather(work: Path) -> ReportData:
             metrics = read_json(path)
         except ArtefactError as exc:
             notes.append(str(exc))
-    return ReportData(work, rooms, building, rows, run, versions, changes, config_file, metrics, notes)
+    survey = ""
+    if config_file is not None:
+        words = config_file.read_text(errors="replace").split("\n", 1)[0].split()
+        verbs = [i for i, w in enumerate(words) if w in ("run", "rerun")]
+        if words[:1] == ["#"] and verbs and verbs[0] + 1 < len(words):
+            survey = words[verbs[0] + 1]
+    return ReportData(
+        work, rooms, building, rows, run, versions, changes, config_file, metrics, notes, survey
+    )
 
 
 def utc(seconds: float) -> str:

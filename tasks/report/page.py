@@ -412,12 +412,13 @@ def render(data: ReportData) -> str:
             )
             + "</ul></section>"
         )
-    title = f"Survey report: {data.work.name}"
+    title = f"Survey report: {Path(data.survey).name or data.work.name}"
     return (
         '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
         '<meta name="viewport" content="width=device-width, initial-scale=1">'
         f"<title>{escape(title)}</title><style>{STYLE}</style></head><body><header>"
-        f"<h1>{escape(title)}</h1><p>{len(data.rooms)} rooms, {len(failed)} failed; run "
+        f"<h1>{escape(title)}</h1><p>work dir {escape(str(data.work))}: {len(data.rooms)} rooms, "
+        f"{len(failed)} failed; run "
         f"{escape(data.run['run_id'])} finished {escape(data.run['finished'])}.</p>"
         f'<nav><a href="#floor-plan">floor</a>{" <a href=#failed>failed rooms</a>" if failed else ""} rooms: {nav} '
         f'{"<a href=#accuracy>accuracy</a> " if data.metrics else ""}<a href="#run">run</a></nav></header><main>'
