@@ -380,6 +380,7 @@ def check_deliverables(work: Path) -> dict:
     plan_walls = [g for g, s in status.items() if s != "NEW"]
     assert len(plan_walls) == len(kinds["wall"])
     assert len(f.by_type("IfcWall")) == len(status)
+    assert layers.get("A-WALL-NEWW", 0) == list(status.values()).count("NEW")
     assert len(f.by_type("IfcSpace")) == len(kinds["room"])
     assert len(f.by_type("IfcDoor")) == len(kinds["door"])
     thick = ifc.wall_thicknesses(out / "floor.ifc")
