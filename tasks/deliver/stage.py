@@ -87,6 +87,10 @@ def run(ctx: StageContext, cfg: DeliverConfig, out: Path) -> dict[str, Any]:
         "rooms": len(floor.rooms),
         "cloud_voxel_m": cfg.cloud_voxel_m,
         "room_clouds": room_clouds,
+        "rooms_without_cloud": {
+            **{rid: "no levelled cloud" for rid in ctx.rooms if rid not in room_clouds},
+            **ctx.failed_rooms,
+        },
         "changes_read": "changes" in ctx.upstream,
     }
     return {"frame": "plan frame (m), z = 0 on the floor", "metrics": metrics}
