@@ -411,3 +411,38 @@ def test_mini_deliverables(mini_run):
     assert code == 0
     figures = check_deliverables(work)
     assert figures["room_clouds"] == ["hall", "r1", "r2", "r3", "r4", "r5"]
+
+
+DETERMINISM_SCRIPT = """
+import sys
+from pathlib import Path
+import numpy as np, shapely
+from tasks.deliver import dxf, ifc, mesh
+from tasks.deliver.floor import ChangeMark, Door, Floor, Room, Wall
+walls = [Wall(f"wall:{i}", np.array(s, dtype=float), 0.2, 2.5, "existing", "plan", ("A", None), i)
+         for i, s in enumerate([(0, 0, 4, 0), (4, 0, 4, 3), (4, 3, 0, 3), (0, 3, 0, 0)])]
+floor = Floor(walls, [], [Door("door:0", np.array([1.0, 0.0, 1.9, 0.0]), 0, "observed", ("A",))],
+              [Room("A", "R1", "101", shapely.box(0.1, 0.1, 3.9, 2.9), 2.5)],
+              [ChangeMark(np.array([2.5, 3.0, 3.5, 3.0]), "removed", "A", 2)])
+out = Path(sys.argv[1])
+dxf.write(floor, out / "floor.dxf")
+ifc.write(floor, out / "floor.ifc", "2000-01-01T00:00:00", 2.0)
+mesh.write(floor, out / "floor.ply", 0.1, 2.0)
+"""
+
+
+def test_deliverable_bytes_do_not_depend_on_the_process(tmp_path):
+    """Two processes with different string hashing (set orders) write the same bytes."""
+    import os
+    import subprocess
+    import sys
+
+    repo = Path(__file__).resolve().parents[1]
+    digests = []
+    for seed in ("1", "4"):  # ezdxf 1.4 (before the fix) orders its CLASSES differently under these two
+        out = tmp_path / seed
+        out.mkdir()
+        env = {**os.environ, "PYTHONHASHSEED": seed, "PYTHONPATH": str(repo)}
+        subprocess.run([sys.executable, "-c", DETERMINISM_SCRIPT, str(out)], check=True, env=env, cwd=repo)
+        digests.append({p.name: art.sha256_file(p) for p in sorted(out.iterdir())})
+    assert digests[0] == digests[1] and len(digests[0]) == 3

@@ -126,9 +126,22 @@ def write(floor: Floor, path: Path) -> dict[str, int]:
     for i in range(len(lines) - 3):  # "  9", name, group code, value
         if lines[i].strip() == "9" and lines[i + 1].strip() in FIXED_HEADER:
             lines[i + 3] = FIXED_HEADER[lines[i + 1].strip()]
-    text = EZDXF_STAMP.sub(r"\1 @ 2000-01-01T00:00:00+00:00", "\n".join(lines))
+    text = _sorted_classes(EZDXF_STAMP.sub(r"\1 @ 2000-01-01T00:00:00+00:00", "\n".join(lines)))
     path.write_bytes(text.encode("utf-8"))
     counts: dict[str, int] = dict.fromkeys(LAYERS, 0)
     for e in doc.modelspace():
         counts[e.dxf.layer] = counts.get(e.dxf.layer, 0) + 1
     return counts
+
+
+def _sorted_classes(text: str) -> str:
+    """The CLASSES section with its CLASS records sorted: ezdxf adds the classes of the entity types in
+    use in a set's order, which changes from one process to the next (their order means nothing)."""
+    head = "  0\nSECTION\n  2\nCLASSES\n"
+    start = text.find(head)
+    if start < 0:
+        return text
+    body_start = start + len(head)
+    end = text.index("  0\nENDSEC\n", body_start)
+    records = [r for r in text[body_start:end].split("  0\nCLASS\n") if r]
+    return text[:body_start] + "".join("  0\nCLASS\n" + r for r in sorted(records)) + text[end:]
