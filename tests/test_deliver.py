@@ -96,12 +96,10 @@ def test_a_lone_added_face_in_a_door_gap_takes_the_plan_walls_line_and_thickness
 
 
 def test_a_lone_added_face_gets_the_default_thickness_behind_it():
-    room = shapely.box(0, 0, 4, 3)
-    face = np.array([[1.0, 1.5, 2.0, 1.5]])  # normal (0, 1): the room is on both sides; then at -y
+    face = np.array([[1.0, 1.5, 2.0, 1.5]])  # normal (0, 1); the room lies on that side
     (seg, t), = pair_added(face, ["A"], {"A": shapely.box(0, 1.5, 4, 3)}, np.zeros((0, 4)), np.zeros(0), CFG)  # fmt: skip
     assert t == pytest.approx(CFG.added_thickness_m)
     assert seg[[1, 3]] == pytest.approx([1.45, 1.45])  # behind the face, away from the room
-    del room
 
 
 def test_doors_seen_from_both_sides_are_one_door_on_the_walls_centreline():

@@ -365,13 +365,10 @@ def write(floor: Floor, path: Path, timestamp: str, door_height_m: float) -> dic
 
 def validate(path: Path, express_rules: bool = True) -> list[str]:
     """ifcopenshell.validate's errors on a file (schema types, attributes, inverses, where rules)."""
-    import logging
-
     import ifcopenshell.validate
 
     logger = ifcopenshell.validate.json_logger()
     ifcopenshell.validate.validate(str(path), logger, express_rules=express_rules)
-    del logging
     return [f"{s.get('instance', '')}: {s.get('message', '')}" for s in logger.statements]
 
 
