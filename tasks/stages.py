@@ -175,6 +175,17 @@ STAGES: dict[str, Stage] = {
             room_upstream=("walls",),
             deliverables=("changes.parquet", "changes.geojson", "changes.png"),
         ),
+        Stage(
+            "deliver",
+            "after",
+            "tasks.deliver.stage",
+            "tasks.deliver.config:DeliverConfig",
+            upstream=("fuse", "changes", "plan"),
+            optional=("changes",),
+            room_upstream=("preprocess",),
+            deliverables=("floor.dxf", "floor.ifc", "floor.ply", "floor.prj"),
+            room_deliverables=("cloud.ply",),
+        ),
     )
 }
 """Every stage, in an order where each comes after the stages it reads."""

@@ -380,11 +380,108 @@ def rooms_on_sides(
     return out
 
 
+DOOR_MERGE_M = 0.6
+"""Doors seen by two rooms (one on each face of a wall) within this of each other, parallel and
+overlapping, are one door in floor.geojson."""
+HOST_REACH_M = 0.25
+"""A door's wall is a parallel plan wall whose centreline lies within half its thickness plus this."""
+
+
+def _unit(seg: NDArray) -> NDArray:
+    d = np.asarray(seg[2:], dtype=np.float64) - np.asarray(seg[:2], dtype=np.float64)
+    return d / max(float(np.hypot(*d)), 1e-12)
+
+
+def _near(a: NDArray, b: NDArray, reach: float) -> bool:
+    """Whether segments a and b are parallel, within `reach` across and overlapping along a."""
+    u = _unit(a)
+    if abs(float(u @ _unit(b))) < 0.95:
+        return False
+    n = np.array([-u[1], u[0]])
+    mid_b = 0.5 * (b[:2] + b[2:])
+    if abs(float((mid_b - a[:2]) @ n)) > reach:
+        return False
+    sa = sorted([0.0, float((a[2:] - a[:2]) @ u)])
+    sb = sorted([float((b[:2] - a[:2]) @ u), float((b[2:] - a[:2]) @ u)])
+    return min(sa[1], sb[1]) - max(sa[0], sb[0]) > 0.0
+
+
+def host_wall(door: NDArray, centrelines: Segments, thickness_m: NDArray) -> int | None:
+    """The plan wall a door belongs to: parallel, its centreline within half the wall's thickness plus
+    HOST_REACH_M of the door's middle, and nearest along (a door in the plan's gap between two walls
+    belongs to the nearer of them)."""
+    door = np.asarray(door, dtype=np.float64)
+    mid = 0.5 * (door[:2] + door[2:])
+    best, best_cost = None, np.inf
+    for i, (c, t) in enumerate(zip(as_segments(centrelines), thickness_m, strict=True)):
+        u = _unit(c)
+        if abs(float(u @ _unit(door))) < 0.95:
+            continue
+        n = np.array([-u[1], u[0]])
+        across = abs(float((mid - c[:2]) @ n))
+        if across > float(t) / 2 + HOST_REACH_M:
+            continue
+        s = float((mid - c[:2]) @ u)
+        length = float(np.hypot(*(c[2:] - c[:2])))
+        along = max(0.0, -s, s - length)
+        if along > 1.5:
+            continue
+        cost = along + across
+        if cost < best_cost:
+            best, best_cost = i, cost
+    return best
+
+
+def floor_doors(floor: FusedFloor) -> list[dict[str, Any]]:
+    """The floor's doors, each once: the openings the placed rooms saw (a door seen from both sides is one),
+    then the plan's doors that no room saw and no capture showed closed. Each lies on its wall's
+    centreline (`wall`: the index of that plan wall, None when no plan wall holds it)."""
+    groups: list[list[tuple[str, NDArray]]] = []
+    for rid, f in floor.rooms.items():
+        if not f.in_plan:
+            continue
+        for d in np.asarray(f.doors, dtype=np.float64).reshape(-1, 4):
+            group = next((g for g in groups if any(_near(m, d, DOOR_MERGE_M) for _, m in g)), None)
+            if group is None:
+                groups.append([(rid, d)])
+            else:
+                group.append((rid, d))
+    closed = {k for f in floor.rooms.values() if f.in_plan for k in f.closed_plan_doors}
+    found: list[tuple[NDArray, str, list[str]]] = []
+    for g in groups:
+        ref = g[0][1]
+        members = [m if _unit(m) @ _unit(ref) > 0 else np.r_[m[2:], m[:2]] for _, m in g]
+        found.append((np.mean(members, axis=0), "observed", sorted({rid for rid, _ in g})))
+    for k, d in enumerate(np.asarray(floor.plan_doors, dtype=np.float64).reshape(-1, 4)):
+        if k in closed or any(_near(seg, d, DOOR_MERGE_M) for seg, _, _ in found):
+            continue
+        found.append((d, "plan", []))
+    feats = []
+    thick = floor.thickness.thickness_m
+    for seg, source, seen_by in found:
+        host = host_wall(seg, floor.centrelines, thick)
+        if host is not None:  # onto the wall's centreline
+            c = floor.centrelines[host]
+            u = _unit(c)
+            seg = np.r_[c[:2] + u * ((seg[:2] - c[:2]) @ u), c[:2] + u * ((seg[2:] - c[:2]) @ u)]
+        props = {
+            "kind": "door",
+            "source": source,
+            "rooms": seen_by,
+            "wall_id": host,
+            "width_m": float(np.hypot(*(seg[2:] - seg[:2]))),
+        }
+        feats.append(_line(seg, props))
+    return feats
+
+
 def floor_features(floor: FusedFloor) -> list[dict[str, Any]]:
     """floor.geojson: placed rooms (polygon, id, plan room, area), their walls (inner faces with origin),
-    the plan walls (centrelines with thickness, its source and the room on each side) and doors."""
+    the plan walls (centrelines with thickness, its source and the room on each side) and the doors, each
+    once (floor_doors)."""
     survey_of = {f.placed.correspondence.plan_room: rid for rid, f in floor.rooms.items() if f.in_plan}
     feats: list[dict[str, Any]] = []
+    thick = floor.thickness.thickness_m
     for rid, f in floor.rooms.items():
         if not f.in_plan:
             continue
@@ -396,6 +493,7 @@ def floor_features(floor: FusedFloor) -> list[dict[str, Any]]:
                     "geometry": shapely.geometry.mapping(poly),
                     "properties": {
                         "kind": "room",
+                        "id": rid,
                         "room_id": rid,
                         "plan_room": f.placed.correspondence.plan_room,
                         "area_m2": float(poly.area),
@@ -404,28 +502,36 @@ def floor_features(floor: FusedFloor) -> list[dict[str, Any]]:
                 }
             )
         for w, o in zip(f.walls, f.origin, strict=True):
-            feats.append(_line(w, {"kind": "wall_face", "room_id": rid, "origin": str(o)}))
-        for d in f.doors:
-            feats.append(_line(d, {"kind": "door", "room_id": rid, "source": "model"}))
-    sides = rooms_on_sides(floor.centrelines, floor.thickness.thickness_m, floor.plan_rooms, survey_of)
-    for c, t, s, (left, right) in zip(
-        floor.centrelines, floor.thickness.thickness_m, floor.thickness.source, sides, strict=True
+            host = host_wall(w, floor.centrelines, thick)
+            props = {
+                "kind": "wall_face",
+                "room_id": rid,
+                "origin": str(o),
+                "wall_id": host,
+                "thickness_m": None if host is None else float(thick[host]),
+                "rooms": [rid],
+            }
+            feats.append(_line(w, props))
+    sides = rooms_on_sides(floor.centrelines, thick, floor.plan_rooms, survey_of)
+    for i, (c, t, s, (left, right)) in enumerate(
+        zip(floor.centrelines, thick, floor.thickness.source, sides, strict=True)
     ):
         feats.append(
             _line(
                 c,
                 {
                     "kind": "wall",
+                    "wall_id": i,
                     "thickness_m": float(t),
                     "thickness_source": str(s),
                     "origin": "plan",
+                    "rooms": [left, right],
                     "room_left": left,
                     "room_right": right,
                 },
             )
         )
-    for d in floor.plan_doors:
-        feats.append(_line(d, {"kind": "door", "source": "plan"}))
+    feats += floor_doors(floor)
     return feats
 
 

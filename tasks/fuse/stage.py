@@ -33,6 +33,23 @@ from tasks.fuse.floor import FusedFloor, FusedRoom, floor_features, fuse_floor
 from tasks.fuse.place import RoomInput
 
 PLAN_FRAME = "plan frame (m)"
+PLAN_CRS_WKT = (
+    'LOCAL_CS["indoor-survey plan frame",'
+    'LOCAL_DATUM["plan raster: x right, y up, metres",32767],'
+    'UNIT["metre",1,AUTHORITY["EPSG","9001"]],'
+    'AXIS["X",EAST],AXIS["Y",NORTH]]'
+)
+"""The plan frame as a local engineering CRS (WKT 1, what floor.prj holds): metres, x right and y up on the
+plan raster, not georeferenced (GeoJSON's default WGS84 would read the metres as degrees)."""
+PLAN_CRS = {"type": "name", "properties": {"name": PLAN_CRS_WKT}}
+"""The GeoJSON (2008) "crs" member naming PLAN_CRS_WKT, which GDAL and QGIS read."""
+
+
+def write_plan_geojson(path: Path, features: list[dict[str, Any]]) -> Path:
+    """A FeatureCollection in the plan frame: the "crs" member (PLAN_CRS) and the frame note."""
+    return art.write_json(
+        path, {"type": "FeatureCollection", "crs": PLAN_CRS, "frame": PLAN_FRAME, "features": features}
+    )
 
 
 def read_plan(plan: art.StageResult) -> tuple[list[PlanRoom], np.ndarray, np.ndarray, np.ndarray]:
@@ -127,7 +144,7 @@ def write_outputs(
     floor: FusedFloor, rooms: list[RoomInput], failed: dict[str, str], out: Path, cfg: FuseConfig
 ) -> dict[str, Any]:
     """Write the stage's files (module doc) and return its manifest entries."""
-    art.write_geojson(out / "floor.geojson", floor_features(floor), PLAN_FRAME)
+    write_plan_geojson(out / "floor.geojson", floor_features(floor))
     t, r = floor.thickness, floor.thickness_residuals
     art.write_table(
         out / "thickness.parquet",
@@ -239,4 +256,7 @@ def _write_room(out: Path, rid: str, f: FusedRoom, room: RoomInput) -> None:
                 "properties": {"room_id": rid, "kind": "room", "area_m2": float(poly.area)},
             }
         )
-    art.write_geojson(out / f"{rid}.plan.geojson", feats, frame)
+    if f.in_plan:
+        write_plan_geojson(out / f"{rid}.plan.geojson", feats)
+    else:
+        art.write_geojson(out / f"{rid}.plan.geojson", feats, frame)
