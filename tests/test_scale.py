@@ -269,3 +269,23 @@ def test_scale_from_kinect_v1_depth_is_unbiased(seed):
     assert report.to_json()["radial_k_inv_m"] == radial.k_inv_m
     uncorrected = estimate_scale(sfm, iter(frames), calib, ScaleConfig())
     assert uncorrected.scale * k < 0.999
+
+
+def test_depth_in_rgb_averages_one_surface_in_inverse_depth_and_lets_the_nearest_win():
+    """Two depth pixels landing on one colour pixel: readings of one surface (2.00 and 2.04 m) are averaged
+    in inverse depth (2 / (1/2.00 + 1/2.04)), not the nearer taken; a surface farther than
+    max_depth_step_m behind (2.50 m) is hidden by the nearer one."""
+    from tasks.register.scale import depth_in_rgb
+
+    ir = CameraModel(np.array([[100.0, 0, 1.5], [0, 100.0, 1.5], [0, 0, 1]]), np.zeros(5), (4, 4))
+    rgb = CameraModel(np.array([[50.0, 0, 0.5], [0, 50.0, 0.5], [0, 0, 1]]), np.zeros(5), (2, 2))
+    calib = Calibration(ir, rgb, RigidPose(np.eye(3), np.zeros(3)))
+    cfg = ScaleConfig(depth_stride=1, max_depth_step_m=0.05)
+    depth = np.zeros((4, 4))
+    # IR pixels (row 1, col 1) and (row 1, col 0) project to colour pixel (0, 0) (both round there)
+    depth[1, 1], depth[1, 0] = 2.0, 2.04
+    depth[2, 2], depth[2, 3] = 2.5, 1.5  # colour pixel (1, 1): the 1.5 m surface hides the 2.5 m one
+    z = depth_in_rgb(depth, calib, rgb, cfg)
+    assert z[0, 0] == pytest.approx(2.0 / (1 / 2.0 + 1 / 2.04), rel=1e-6)
+    assert z[1, 1] == pytest.approx(1.5, rel=1e-6)
+    assert np.isnan(z[0, 1]) and np.isnan(z[1, 0])

@@ -6,6 +6,12 @@ SfM points; the depth image of the same frame measures those points in metres. F
 their depth points in the RGB camera frame (object) is solved in closed form with Horn's unit quaternion
 method (appendix A.1, eq A.10-A.13) inside RANSAC, then the per-frame scales are combined robustly (median,
 with the MAD and IQR as spread). `apply_scale` turns the SfM poses into metric depth-camera-to-room poses.
+
+The estimate is unbiased for Kinect-like depth: the depth camera's radial error (estimated on the capture,
+`tasks.register.fusion.RadialDepthError`) is taken out before the depth is compared, the depth points
+that fall on one colour pixel are averaged in inverse depth rather than the nearest kept (`depth_in_rgb`),
+and the per-frame and overall medians of depth ratios commute with z = b·c/d, so even disparity noise
+leaves them unbiased. Left in, the first two made every scale short by about 0.25 % and 0.1 %.
 """
 
 from __future__ import annotations
