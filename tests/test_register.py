@@ -307,7 +307,7 @@ def test_register_room_maps_again_when_the_per_frame_scales_drift(tmp_path, rng,
         seeds.append(cfg.random_seed)
         return FakeSfm(cfg.random_seed)
 
-    def fake_scale(sfm, depths, calib, cfg):
+    def fake_scale(sfm, depths, calib, cfg, radial_k=0.0):
         for _ in depths:
             pass
         return ScaleReport(1.0, 0.01, 0.01, 0.01, [], relative_trend=trends[sfm.seed])

@@ -253,12 +253,13 @@ def fuse_capture(
     calibration: Calibration,
     cfg: RegisterConfig,
     refined: dict[int, NDArray[np.float64]] | None = None,
+    radial: RadialDepthError | None = None,
 ) -> tuple[FusedCloud, RadialDepthError | None]:
     """`fuse_frames` after estimating the depth camera's radial error (`RadialDepthError`) on every n-th
-    placed frame (`radial_frames` of them) when `cfg.radial_correction`. `frames(ids)` streams the frames
-    whose id is in `ids` (None: all), so that only the sample is decoded for the estimate."""
-    radial = None
-    if cfg.radial_correction:
+    placed frame (`radial_frames` of them) when `cfg.radial_correction` and no `radial` estimate (made
+    on the capture before, e.g. for the metric scale) is given. `frames(ids)` streams the frames whose id
+    is in `ids` (None: all), so that only the sample is decoded for the estimate."""
+    if radial is None and cfg.radial_correction:
         step = max(1, len(poses) // max(cfg.radial_frames, 1))
         sample = set(sorted(int(f) for f in poses)[::step])
         radial = estimate_radial_depth_error(frames(sample), calibration, cfg)

@@ -20,7 +20,13 @@ from scipy.spatial.transform import Rotation
 from tasks.camera import Calibration, CameraModel, RigidPose, profile_calibration
 from tasks.cloud import DegenerateInputError
 from tasks.register.config import RegisterConfig, ScaleConfig, SfmConfig
-from tasks.register.fusion import FrameData, FusedCloud, RadialDepthError, fuse_capture
+from tasks.register.fusion import (
+    FrameData,
+    FusedCloud,
+    RadialDepthError,
+    estimate_radial_depth_error,
+    fuse_capture,
+)
 from tasks.register.scale import ScaleReport, apply_scale, estimate_scale
 from tasks.register.sfm import SfmResult, run_sfm
 from tasks.register.track_fallback import place_by_track
@@ -174,10 +180,14 @@ def register_room(
         )
 
     metrics: dict[str, Any] = {"frames": len(frame_ids)}
+    # the depth camera's radial error, estimated once on the capture's depth alone: the scale and the
+    # fused cloud both take it out (left in the depth, it made every metric scale short)
+    radial = _radial_error(frames_path, frame_ids, calib, cfg, depth_units_per_m)
     images = _colour_images(frames_path)
     say(f"sfm on {len(images)} colour frames")
+    radial_k = 0.0 if radial is None else radial.k_inv_m
     sfm, report, sfm_error, tried = _sfm_with_retry(
-        images, len(frame_ids), depth_frames, calib, cfg, sfm_cfg, scale_cfg, workdir, metrics, say
+        images, len(frame_ids), depth_frames, calib, cfg, sfm_cfg, scale_cfg, workdir, metrics, say, radial_k
     )
     del images
     registered = 0 if sfm is None else int(sfm.registered.sum())
@@ -206,7 +216,7 @@ def register_room(
 
     say(f"fusing {len(poses)} placed frames")
     t0 = time.perf_counter()
-    cloud, radial = _fuse_placed(frames_path, poses, calib, cfg, depth_units_per_m)
+    cloud, radial = _fuse_placed(frames_path, poses, calib, cfg, depth_units_per_m, radial)
     metrics["fuse_s"] = round(time.perf_counter() - t0, 3)
     if radial is not None:
         metrics["radial_depth_error"] = asdict(radial)
@@ -261,12 +271,14 @@ def _sfm_with_retry(
     workdir: Path,
     metrics: dict[str, Any],
     say: Callable[[str], None],
+    radial_k: float = 0.0,
 ) -> tuple[SfmResult | None, ScaleReport | None, str, list[dict[str, Any]]]:
     """SfM and its metric scale, made again with the next seed (up to `cfg.sfm_attempts` runs) while the
     per-frame scales drift along the capture; the run registering most frames, then the straightest, is
     kept. Returns (the kept reconstruction or the last one registering too few frames, its scale report
     (None: not usable), why SfM failed ("" when it did not), one record per scaled attempt). Adds the
-    scale timing to `metrics`."""
+    scale timing to `metrics`. radial_k: the depth camera's radial error taken out of the depth
+    (`estimate_scale`)."""
     sfm: SfmResult | None = None
     sfm_error = ""
     report = None
@@ -301,6 +313,7 @@ def _sfm_with_retry(
                 depth_frames(),
                 calib,
                 scale_cfg,
+                radial_k,
             )
         except DegenerateInputError as exc:
             sfm_error = f"no metric scale for the SfM poses ({exc})"
@@ -378,14 +391,37 @@ def _track_placement(
     return poses, methods, scale_json
 
 
+def _radial_error(
+    frames_path: Path,
+    frame_ids: list[int],
+    calib: Calibration,
+    cfg: RegisterConfig,
+    depth_units_per_m: float | None,
+) -> RadialDepthError | None:
+    """The depth camera's radial error (`estimate_radial_depth_error`) on every n-th frame of the capture
+    (`cfg.radial_frames` of them); None when `cfg.radial_correction` is off."""
+    if not cfg.radial_correction:
+        return None
+    step = max(1, len(frame_ids) // max(cfg.radial_frames, 1))
+    sample = set(sorted(frame_ids)[::step])
+    stream = (
+        (int(r["frame_id"]), _decode_depth(r, depth_units_per_m), None)
+        for r in _depth_rows(frames_path)
+        if int(r["frame_id"]) in sample
+    )
+    return estimate_radial_depth_error(stream, calib, cfg)
+
+
 def _fuse_placed(
     frames_path: Path,
     poses: dict[int, NDArray[np.float64]],
     calib: Calibration,
     cfg: RegisterConfig,
     depth_units_per_m: float | None,
+    radial: RadialDepthError | None = None,
 ) -> tuple[FusedCloud, RadialDepthError | None]:
-    """The placed frames fused (`fuse_capture`); `poses` takes the poses used (ICP-refined ones)."""
+    """The placed frames fused (`fuse_capture`, with the capture's `radial` error when given); `poses`
+    takes the poses used (ICP-refined ones)."""
     from tasks.ingest.frames import iter_frames
 
     used_poses: dict[int, NDArray[np.float64]] = {}
@@ -399,6 +435,6 @@ def _fuse_placed(
                 continue
             yield fid, _decode_depth(r, depth_units_per_m), decode_rgb(r)
 
-    cloud, radial = fuse_capture(fuse_stream, poses, calib, cfg, used_poses)
+    cloud, radial = fuse_capture(fuse_stream, poses, calib, cfg, used_poses, radial)
     poses.update(used_poses)
     return cloud, radial

@@ -6,6 +6,12 @@ SfM points; the depth image of the same frame measures those points in metres. F
 their depth points in the RGB camera frame (object) is solved in closed form with Horn's unit quaternion
 method (appendix A.1, eq A.10-A.13) inside RANSAC, then the per-frame scales are combined robustly (median,
 with the MAD and IQR as spread). `apply_scale` turns the SfM poses into metric depth-camera-to-room poses.
+
+The estimate is unbiased for Kinect-like depth: the depth camera's radial error (estimated on the capture,
+`tasks.register.fusion.RadialDepthError`) is taken out before the depth is compared, the depth points
+that fall on one colour pixel are averaged in inverse depth rather than the nearest kept (`depth_in_rgb`),
+and the per-frame and overall medians of depth ratios commute with z = b·c/d, so even disparity noise
+leaves them unbiased. Left in, the first two made every scale short by about 0.25 % and 0.1 %.
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from numpy.typing import NDArray
 from tasks.camera import Calibration, CameraModel, depth_to_points
 from tasks.cloud import DegenerateInputError
 from tasks.register.config import ScaleConfig
+from tasks.register.fusion import radial_position
 from tasks.register.sfm import SfmResult
 
 ROOM_FROM_CAMERA_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -57,6 +64,10 @@ class ScaleReport:
     """Change of the per-frame scales from the first frame to the last (Theil-Sen line through them in
     capture order) / scale: a reconstruction bent by the mapper drifts in scale along the capture, while
     depth noise spreads the scales without a trend."""
+    radial_k_inv_m: float = 0.0
+    """The depth camera's radial inverse-depth error (1/m at the image corners) taken out of the depth."""
+    same_surface_tol_m: float = 0.0
+    """Depth points landing on one colour pixel within this of the nearest were averaged (inverse depth)."""
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -65,6 +76,8 @@ class ScaleReport:
             "spread_iqr": self.iqr,
             "relative_spread": self.relative_spread,
             "relative_trend": self.relative_trend,
+            "radial_k_inv_m": self.radial_k_inv_m,
+            "same_surface_tol_m": self.same_surface_tol_m,
             "frames_used": len(self.frames_used),
             "frame_names": self.frames_used,
             "per_frame": {
@@ -180,10 +193,21 @@ def depth_in_rgb(
     calib: Calibration,
     rgb_camera: CameraModel,
     cfg: ScaleConfig,
+    radial_k: float = 0.0,
 ) -> NDArray[np.float32]:
     """The depth image moved into the RGB camera (eq 3.13 back-projection, eq 3.14 IR→RGB): (H, W) z in the
     RGB frame at each RGB pixel of `rgb_camera` (the camera the SfM observations refer to), NaN where no
-    depth point lands; the nearest point wins."""
+    depth point lands.
+
+    The depth camera's radial error `radial_k` (inverse depth at the image corners, 1/m, see
+    `tasks.register.fusion.RadialDepthError`) is taken out first: a Kinect v1's makes the depth short off
+    the image centre, which made every scale short (-0.25 % on the synthetic rooms).
+
+    Several depth points land on one RGB pixel wherever the depth image is the denser (at 320x240 the IR
+    focal length is 1.12 times the colour one): the nearest surface wins (occlusion), and the points of
+    that surface (within `max_depth_step_m` of the nearest, the window's edge test) are averaged in inverse
+    depth, where Kinect noise is even. Keeping only the nearest point, the minimum of several noisy
+    readings, made the depth short by about 0.1 %."""
     d = np.asarray(depth_m, dtype=np.float64)
     stride = cfg.depth_stride or max(1, round(d.shape[1] / 320))
     if stride > 1:
@@ -193,6 +217,8 @@ def depth_in_rgb(
     pts, _ = depth_to_points(d, "m", calib.ir)
     keep = (pts[:, 2] >= cfg.min_depth_m) & (pts[:, 2] <= cfg.max_depth_m)
     pts = pts[keep]
+    if radial_k and len(pts):
+        pts = remove_radial_error(pts, calib.ir, radial_k)
     pose = calib.ir_to_rgb
     p_rgb = pts if pose is None else pose.apply(pts)
     uv, z = rgb_camera.project(p_rgb)
@@ -202,10 +228,30 @@ def depth_in_rgb(
     vi = np.rint(uv[ok, 1]).astype(np.intp)
     zz = z[ok]
     inside = (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
-    zbuf = np.full((h, w), np.inf, np.float32)
-    np.minimum.at(zbuf, (vi[inside], ui[inside]), zz[inside].astype(np.float32))
-    zbuf[~np.isfinite(zbuf)] = np.nan
+    ui, vi, zz = ui[inside], vi[inside], zz[inside]
+    nearest = np.full((h, w), np.inf)
+    np.minimum.at(nearest, (vi, ui), zz)
+    same = zz <= nearest[vi, ui] + cfg.max_depth_step_m
+    inv_sum = np.zeros((h, w))
+    count = np.zeros((h, w))
+    np.add.at(inv_sum, (vi[same], ui[same]), 1.0 / zz[same])
+    np.add.at(count, (vi[same], ui[same]), 1.0)
+    zbuf = np.full((h, w), np.nan, np.float32)
+    hit = count > 0
+    zbuf[hit] = (count[hit] / inv_sum[hit]).astype(np.float32)
     return zbuf
+
+
+def remove_radial_error(
+    pts: NDArray[np.float64], camera: CameraModel, radial_k: float
+) -> NDArray[np.float64]:
+    """Depth-camera points with the radial inverse-depth error taken out (1/z' = 1/z - k·ρ, ρ the squared
+    image radius, 1 at the corners: `tasks.register.fusion.frame_points`' correction); each point slides
+    along its ray. Points the correction would more than double (a k far beyond any sensor's) are
+    dropped."""
+    denom = 1.0 - radial_k * radial_position(pts, camera) * pts[:, 2]
+    ok = denom > 0.5
+    return pts[ok] / denom[ok, None]
 
 
 def observation_points(
@@ -246,15 +292,17 @@ def frame_scale(
     calib: Calibration,
     cfg: ScaleConfig,
     rng: np.random.Generator,
+    radial_k: float = 0.0,
 ) -> FrameScale | None:
-    """eq 3.16 for one registered frame: its SfM points against their depth points; None when the frame
-    has too few usable correspondences or its similarity explains too few of them."""
+    """eq 3.16 for one registered frame: its SfM points against their depth points (the depth without the
+    radial error `radial_k`, see `depth_in_rgb`); None when the frame has too few usable correspondences
+    or its similarity explains too few of them."""
     if name not in sfm.observations or sfm.camera is None:
         return None
     rows, uv = sfm.observations[name]
     if len(rows) < cfg.min_points_per_frame:
         return None
-    zbuf = depth_in_rgb(depth_m, calib, sfm.camera, cfg)
+    zbuf = depth_in_rgb(depth_m, calib, sfm.camera, cfg, radial_k)
     obj, valid = observation_points(uv, zbuf, sfm.camera, cfg)
     if valid.sum() < cfg.min_points_per_frame:
         return None
@@ -317,21 +365,27 @@ def estimate_scale(
     depth_frames: Iterable[tuple[str, NDArray[np.floating]]],
     calib: Calibration,
     cfg: ScaleConfig,
+    radial_k: float = 0.0,
 ) -> ScaleReport:
     """The scale stage (eq 3.16, App. A): per-frame Helmert fits of SfM points to depth, combined robustly.
 
     depth_frames: (frame name as in `sfm`, (H, W) depth in metres of the depth camera, 0/NaN = none),
-    streamed; frames that SfM did not register are skipped. Raises DegenerateInputError when no frame
+    streamed; frames that SfM did not register are skipped. radial_k: the depth camera's radial
+    inverse-depth error at the image corners (1/m; `tasks.register.fusion.estimate_radial_depth_error` on
+    the capture), taken out of the depth before it is compared. Raises DegenerateInputError when no frame
     yields a scale."""
     rng = np.random.default_rng(cfg.random_seed)
     frames = []
     for name, depth in depth_frames:
         if name not in sfm.cam_from_world:
             continue
-        fs = frame_scale(name, depth, sfm, calib, cfg, rng)
+        fs = frame_scale(name, depth, sfm, calib, cfg, rng, radial_k)
         if fs is not None:
             frames.append(fs)
-    return combine_scales(frames, cfg)
+    report = combine_scales(frames, cfg)
+    report.radial_k_inv_m = float(radial_k)
+    report.same_surface_tol_m = float(cfg.max_depth_step_m)
+    return report
 
 
 def apply_scale(
