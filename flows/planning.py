@@ -153,7 +153,7 @@ def execute(call: StageCall, upstream: dict[str, StageResult], fan_in: FanIn | N
     without = ran_without(call, upstream)
     if without:
         manifest["ran_without"] = without
-        log.warning("[%s] %s: runs without %s", call.room, call.stage, ", ".join(without))
+        log.info("[%s] %s: runs without %s", call.room, call.stage, ", ".join(without))
     if fan_in.rooms or fan_in.failed:
         manifest["rooms"] = {room: sorted(results) for room, results in fan_in.rooms.items()}
         manifest["failed_rooms"] = fan_in.failed
