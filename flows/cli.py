@@ -293,8 +293,16 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     rooms = list(dict.fromkeys(rooms))  # --rooms r5 r5: once
     for room in rooms:
         survey.room(room)
-    # A room whose capture is missing or unreadable is not an invocation error: it fails alone, with its
-    # reason (planning.capture_problem), and the other rooms run.
+    # A room whose capture is missing or unreadable fails alone, with its reason, and the other rooms run
+    # (flows.planning.plan_survey); only when no requested room can run is it bad input.
+    requested = [survey.room(r) for r in rooms] if rooms else survey.rooms
+    problems = {room.id: planning.capture_problem(room.capture) for room in requested}
+    if requested and all(problems.values()):
+        raise CliError(
+            "; ".join(
+                f"{survey.root / 'survey.yaml'}: room {room}: {problem}" for room, problem in problems.items()
+            )
+        )
     if survey.plan is not None and not survey.plan.image.is_file():
         raise CliError(f"{survey.root / 'survey.yaml'}: plan.image {survey.plan.image} does not exist")
     force: list[tuple[str, str]] = []

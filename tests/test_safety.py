@@ -257,9 +257,13 @@ def test_missing_and_unreadable_captures_fail_their_room_alone(tmp_path, capsys,
     main(["status", str(survey), "--work", str(work)])
     lines = capsys.readouterr().out.splitlines()
     assert any(line.split()[:3] == ["gone", "ingest", "failed"] for line in lines), lines
-    # every room broken: nothing finished, exit 1
-    only_broken = write_survey(tmp_path / "t", {"gone": "gone.ply"})
-    assert main(["run", str(only_broken), "--work", str(tmp_path / "w2")]) == 1
+    # no requested room can run: bad input, one line, nothing written
+    capsys.readouterr()
+    code = main(["run", str(survey), "--work", str(tmp_path / "w2"), "--rooms", "gone", "odd"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "room gone: capture" in err[0] and "room odd:" in err[0]
+    assert not (tmp_path / "w2").exists()
 
 
 # ------------------------------------------------------------------------------------ outputs manifest
@@ -363,8 +367,15 @@ def test_oserror_half_way_through_a_stage_writer_leaves_nothing_partial(
     assert "room a, stage walls" in err and "No space left on device" in err
     assert temporaries(work) == []  # nothing partial remains
     assert not list((work / "cache" / "a" / "walls").glob(".*"))
-    # the previous artefacts and outputs are intact, byte for byte
-    assert snapshot(work) == before
+    # the previous artefacts are intact, byte for byte, and so are room a's outputs; room b's walls were
+    # recomputed to the same bytes; only the floor index is new (it now lists room a as failed)
+    after = snapshot(work)
+    assert {k: after.get(k) for k in before if k != "outputs/rooms.parquet"} == {
+        k: v for k, v in before.items() if k != "outputs/rooms.parquet"
+    }
+    assert {k for k in after if k not in before} == {
+        k for k in after if k.startswith("cache/_building/floor_index/")
+    } - {k for k in before}
     assert store.lookup("a", "walls", walls_a.key) == walls_a
     manifest = json.loads((work / "outputs" / "manifest.json").read_text())
     assert manifest["partial"] is True
