@@ -6,6 +6,7 @@ so they never pay Prefect's start-up.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import logging
 import os
@@ -21,6 +22,7 @@ from typing import Any
 from tasks import config as cfgmod
 from tasks.artefacts import (
     BUILDING,
+    ArtefactError,
     ArtefactStore,
     StageResult,
     atomic_path,
@@ -360,11 +362,13 @@ def plan_survey(
     # not checked (it is never run: a building-after stage reads its current results, if it has any).
     failed, chains = {}, {}
     for room in survey.rooms:
-        problem = capture_problem(room.capture)
-        if problem is None:
-            chains[room.id] = room_stages(room.capture)
-        elif room.id in requested:
+        if room.id not in requested:
+            with contextlib.suppress(ValueError, OSError):  # a room without a usable capture: no chain
+                chains[room.id] = room_stages(room.capture)
+        elif problem := capture_problem(room.capture):
             failed[room.id] = problem
+        else:
+            chains[room.id] = room_stages(room.capture)
     first_stage = stages_of("room")[0].name
     after_stages = stages_of("after")
     readers = [s for chain in chains.values() for s in chain] + [s.name for s in after_stages]
@@ -444,9 +448,11 @@ def current_results(
         if any(ref not in found for ref in item.upstream.values()):
             continue
         store = store_for(call.work)
-        hit = store.lookup(
-            call.room, call.stage, cache_key(call, {n: found[r] for n, r in item.upstream.items()})
-        )
+        try:
+            key = cache_key(call, {n: found[r] for n, r in item.upstream.items()})
+        except (ArtefactError, OSError):  # another room's capture gone or unreadable: it has no result
+            continue
+        hit = store.lookup(call.room, call.stage, key)
         if hit is not None:
             found[item.ref] = hit
     return found

@@ -523,3 +523,19 @@ def test_two_concurrent_runs_compute_every_stage_once(tmp_path, prefect_harness)
     first_id = next(line for line in out1.splitlines() if "stage runs:" in line).split("run ")[-1]
     assert manifest["run_id"] != first_id
     assert all(r["state"] == "cached" and r["run_id"] == first_id for r in manifest["stages"])
+
+
+def test_optional_inputs_a_stage_ran_without_are_named(tmp_path):
+    from flows.planning import StageCall, ran_without
+    from tasks.artefacts import StageResult
+
+    ingest = StageResult("a", "ingest", "k", str(tmp_path))
+    calibrate = StageResult("_building", "calibrate", "k", str(tmp_path))
+    call = StageCall("register", "a", str(tmp_path), {}, {}, raw_inputs={"capture": "x.mcap"})
+    # register without a plan (failed or none), a calibration (failed) and a track (none in the survey)
+    assert ran_without(call, {"ingest": ingest}) == ["calibrate", "plan", "track"]
+    with_track = StageCall("register", "a", str(tmp_path), {}, {}, raw_inputs={"track": "t.csv"})
+    assert ran_without(with_track, {"ingest": ingest, "calibrate": calibrate}) == ["plan"]
+    # a stage with nothing optional never says so
+    walls = StageCall("walls", "a", str(tmp_path), {}, {})
+    assert ran_without(walls, {"preprocess": ingest}) == []
