@@ -434,11 +434,22 @@ def test_sigkill_at_20_moments_of_a_cold_run(tmp_path, prefect_harness):
     moments = np.sort(np.random.default_rng(2026).uniform(0.03, 0.97, 20) * cold)
     outcomes = []
     for trial, moment in enumerate(moments):
-        work = tmp_path / f"w{trial}"
-        cmd = cli("-q", "run", str(survey), "--work", str(work))
-        proc = subprocess.Popen(cmd, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        time.sleep(moment)
-        finished_first = proc.poll() is not None
+        # A run may go faster than the timed one (the machine is shared): one that finishes before its
+        # kill is not a trial; it is run again, in a fresh work dir, killed at half the moment.
+        early = 0
+        while True:
+            work = tmp_path / f"w{trial}-{early}"
+            cmd = cli("-q", "run", str(survey), "--work", str(work))
+            proc = subprocess.Popen(
+                cmd, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+            )
+            try:
+                proc.wait(timeout=moment)
+            except subprocess.TimeoutExpired:
+                break  # still running at its moment: kill it
+            early += 1
+            moment /= 2
+            assert early < 5, "the run keeps finishing before it can be killed"
         proc.send_signal(signal.SIGKILL)
         proc.wait()
         left = temporaries(work) if work.is_dir() else []
@@ -464,7 +475,7 @@ def test_sigkill_at_20_moments_of_a_cold_run(tmp_path, prefect_harness):
         outcomes.append(
             {
                 "moment_s": round(float(moment), 2),
-                "finished_before_kill": finished_first,
+                "runs_that_finished_first": early,
                 "left_partial": len(left),
                 "rerun_code": rerun.returncode,
                 "partial_reads": reads,
@@ -482,7 +493,6 @@ def test_sigkill_at_20_moments_of_a_cold_run(tmp_path, prefect_harness):
     assert all(o["equal"] and o["complete"] for o in outcomes), report
     assert all(o["partial_reads"] == [] for o in outcomes), report
     assert all(o["temporaries_after"] == 0 for o in outcomes), report
-    assert sum(not o["finished_before_kill"] for o in outcomes) >= 18, report  # the kills hit running runs
 
 
 @pytest.mark.slow
