@@ -3,13 +3,15 @@
 Every command checks its inputs before any work starts (a bad survey, config key, file or work dir gives
 one line naming it and exit code 2), prints progress on long work to stderr, and leaves what was computed
 before untouched when it fails. Whatever goes wrong, a command ends with one line, never a traceback
-(INDOOR_SURVEY_DEBUG=1 shows it): exit 0 done, 1 a stage failed (or an unexpected error), 2 bad input or
-invocation.
+(INDOOR_SURVEY_DEBUG=1 shows it): exit 0 done, 3 partial (some rooms or stages failed, others finished),
+1 nothing finished (or an unexpected error), 2 bad input or invocation (a busy work dir with --no-wait).
+Commands that write a work dir hold its lock (flows.worklock) while they do; `status` only reads.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import sys
@@ -42,8 +44,9 @@ class CliError(Exception):
     """A one-line error for the user (exit code 2)."""
 
 
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
-"""README "Exit codes": done; a stage failed or an unexpected error; bad input or invocation."""
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_PARTIAL = 0, 1, 2, 3
+"""README "Errors and exit codes": done; nothing finished (every room failed) or an unexpected error; bad
+input or invocation; partial (some rooms or stages failed, the others finished)."""
 
 DEBUG_VARIABLE = "INDOOR_SURVEY_DEBUG"
 
@@ -76,6 +79,7 @@ def writable_folder(path: Path, what: str) -> Path:
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:
+    from flows.worklock import WorkDirBusy
     from tasks.artefacts import ArtefactError
     from tasks.cloud import DegenerateInputError
     from tasks.config import ConfigError
@@ -83,6 +87,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
 
     return (
         CliError,
+        WorkDirBusy,
         ConfigError,
         ArtefactError,
         IngestError,
@@ -130,6 +135,15 @@ def _add_private_work(p: argparse.ArgumentParser) -> None:
         help="stage cache: the verb runs the pipeline's own stages there, so a repeat recomputes nothing "
         "(default: OUT/.cache)",
     )
+    _add_no_wait(p)
+
+
+def _add_no_wait(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--no-wait",
+        action="store_true",
+        help="when another command is writing the work dir, exit 2 naming it instead of waiting for it",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -147,6 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_work(p)
     _add_config_args(p)
     p.add_argument("--rooms", nargs="+", default=[], metavar="ID", help="only these rooms (default: all)")
+    _add_no_wait(p)
 
     p = sub.add_parser("rerun", help="recompute one stage (and what follows it) for one room or all")
     p.add_argument("survey", type=Path)
@@ -154,6 +169,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--room", default=None, help="only this room (default: every room)")
     _add_work(p)
     _add_config_args(p)
+    _add_no_wait(p)
 
     p = sub.add_parser("status", help="per room and stage: done, stale (inputs or config changed) or missing")
     p.add_argument("survey", type=Path)
@@ -280,12 +296,16 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     rooms = list(dict.fromkeys(rooms))  # --rooms r5 r5: once
     for room in rooms:
         survey.room(room)
-    for room in survey.rooms:
-        if not room.capture.exists():
-            raise CliError(
-                f"{survey.root / 'survey.yaml'}: room {room.id}: capture {room.capture} does not exist"
+    # A room whose capture is missing or unreadable fails alone, with its reason, and the other rooms run
+    # (flows.planning.plan_survey); only when no requested room can run is it bad input.
+    requested = [survey.room(r) for r in rooms] if rooms else survey.rooms
+    problems = {room.id: planning.capture_problem(room.capture) for room in requested}
+    if requested and all(problems.values()):
+        raise CliError(
+            "; ".join(
+                f"{survey.root / 'survey.yaml'}: room {room}: {problem}" for room, problem in problems.items()
             )
-        planning.capture_kind(room.capture)  # a capture of a kind no reader takes: refused now
+        )
     if survey.plan is not None and not survey.plan.image.is_file():
         raise CliError(f"{survey.root / 'survey.yaml'}: plan.image {survey.plan.image} does not exist")
     force: list[tuple[str, str]] = []
@@ -311,6 +331,8 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
         force=tuple(force),
     )
     writable_folder(work, "--work")  # the last check: from here on the run writes
+    _lock(args, work)
+    planning.store_for(work).sweep_temporaries()  # what a killed run left half-written
     started = time.perf_counter()
     rows = planning.all_current(req)
     saved = planning.save_resolved_config(work, cfg, argv)
@@ -328,6 +350,9 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     print(f"{'room':<12} {'stage':<12} {'state':<9} {'seconds':>8}")
     for row in rows:
         note = f"  {row.error}" if row.error else ""
+        without = _ran_without(row)
+        if without:
+            note += f"  ran without {', '.join(without)}"
         print(f"{row.room:<12} {row.stage:<12} {row.state:<9} {row.seconds:8.2f}{note}")
     counts = {
         s: sum(r.state == s for r in rows) for s in ("computed", "cached", "stored", "failed", "skipped")
@@ -335,7 +360,7 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     summary = ", ".join(f"{n} {s}" for s, n in counts.items() if n)
     for what, path in survey.outside_inputs():
         print(f"note: {what} {path} lies outside the survey folder {survey.root}")
-    print(f"{len(rows)} stage runs: {summary}; {elapsed:.1f} s; config saved to {saved}")
+    print(f"{len(rows)} stage runs: {summary}; {elapsed:.1f} s; config saved to {saved}; run {req.run_id}")
     metrics = planning.write_truth_metrics(req, rows)
     if metrics is not None:
         from tasks.artefacts import read_json
@@ -354,19 +379,43 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     failed = [r for r in rows if r.state == "failed"]
     for row in failed:
         print(f"error: room {row.room}, stage {row.stage}: {_one_line(row.error)}", file=sys.stderr)
-    return EXIT_FAILED if failed else EXIT_OK
+    return {"done": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXIT_FAILED}[planning.exit_state(rows)]
+
+
+def _ran_without(row: object) -> list[str]:
+    """The optional inputs a finished stage ran without (from its manifest: computed now or earlier)."""
+    result = getattr(row, "result", None)
+    if result is None:
+        return []
+    try:
+        without = result.manifest.get("ran_without") or []
+    except Exception:
+        return []
+    return [str(name) for name in without]
+
+
+def _lock(args: argparse.Namespace, work: Path) -> None:
+    """Hold `work`'s lock until the command ends (waiting for another writer, or with --no-wait not)."""
+    from flows.worklock import work_lock
+
+    stack: contextlib.ExitStack = args.exit_stack
+    stack.enter_context(work_lock(work, wait=not getattr(args, "no_wait", False)))
 
 
 def cmd_status(args: argparse.Namespace) -> int:
     from flows import planning, status
 
     work = check_folder(args.work, "--work")
+    if not work.is_dir():
+        raise CliError(f"--work {args.work}: no such work dir (pass --work DIR of an earlier run)")
     planning.store_for(work).read_only = True  # status reads: it writes nothing into the work dir
     states = status.survey_status(args.survey, work, args.config, args.set)
     print(f"{'room':<12} {'stage':<12} {'status':<8} detail")
     for state in states:
         call = state.planned.call
         print(f"{call.room:<12} {call.stage:<12} {state.status:<8} {state.detail}")
+    for line in status.outputs_mismatch(work, args.config, args.set):
+        print(line)
     return 0
 
 
@@ -543,7 +592,8 @@ def _out_and_work(args: argparse.Namespace) -> None:
     if args.work is not None:
         check_folder(args.work, "--work")
     writable_folder(args.out, "--out")
-    writable_folder(args.work if args.work is not None else Path(args.out) / ".cache", "--work")
+    work = writable_folder(args.work if args.work is not None else Path(args.out) / ".cache", "--work")
+    _lock(args, work)
 
 
 COMMANDS = {
@@ -581,7 +631,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     _setup_logging(args.quiet)
     debug = bool(os.environ.get(DEBUG_VARIABLE))
     try:
-        return _dispatch(args)
+        with contextlib.ExitStack() as stack:  # holds a work-dir lock taken by the command
+            args.exit_stack = stack
+            return _dispatch(args)
     except StageError as exc:  # a stage's unexpected failure, already one line naming its inputs
         if debug:
             traceback.print_exc()

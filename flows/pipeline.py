@@ -139,6 +139,7 @@ def building_flow(req: RunRequest) -> list[StageOutcome]:
     building = {ref[1]: f.result() for ref, f in before.items() if f.state.is_completed()}
     rooms = {room: room_task.submit(chain, building) for room, chain in plan.rooms.items() if chain}
     wait(list(rooms.values()))
+    rows += plan.failed_rows()  # rooms whose capture cannot be read: failed alone, before any stage
     for room, future in rooms.items():
         if future.state.is_completed():
             rows += future.result()
@@ -163,7 +164,7 @@ def building_flow(req: RunRequest) -> list[StageOutcome]:
             finished[item.call.stage] = Executed(row.result, "stored", 0.0)
     store = store_for(req.work)
     store.save_memo()
-    publish_deliverables(store, rows)
+    publish_deliverables(store, rows, req)  # outputs/, then outputs/manifest.json last
     return rows
 
 

@@ -6,9 +6,14 @@ so they never pay Prefect's start-up.
 
 from __future__ import annotations
 
+import contextlib
+import datetime as dt
 import logging
+import os
+import platform
 import threading
 import time
+import uuid
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -17,6 +22,7 @@ from typing import Any
 from tasks import config as cfgmod
 from tasks.artefacts import (
     BUILDING,
+    ArtefactError,
     ArtefactStore,
     StageResult,
     atomic_path,
@@ -45,6 +51,10 @@ class StageCall:
     """Survey-given values a stage needs besides files and config (the plan's scale); in the key."""
     force: bool = False
     extra_config: dict[str, dict[str, Any]] = field(default_factory=dict)
+    run_id: str = ""
+    """The run that makes this call, and the hash of its whole configuration: recorded in the manifest of
+    what it computes (never in the key), so outputs/manifest.json can say which run computed a stage."""
+    config_hash: str = ""
 
 
 @dataclass(frozen=True)
@@ -139,7 +149,13 @@ def execute(call: StageCall, upstream: dict[str, StageResult], fan_in: FanIn | N
         "config": call.config,
         "extra_config": call.extra_config,
         "code_version": stage.code_version(),
+        "run_id": call.run_id,
+        "config_hash": call.config_hash,
     }
+    without = ran_without(call, upstream)
+    if without:
+        manifest["ran_without"] = without
+        log.info("[%s] %s: runs without %s", call.room, call.stage, ", ".join(without))
     if fan_in.rooms or fan_in.failed:
         manifest["rooms"] = {room: sorted(results) for room, results in fan_in.rooms.items()}
         manifest["failed_rooms"] = fan_in.failed
@@ -148,12 +164,47 @@ def execute(call: StageCall, upstream: dict[str, StageResult], fan_in: FanIn | N
     def write(out: Path) -> dict[str, Any]:
         t0 = time.perf_counter()
         report = run(ctx, cfg, out)  # {"metrics": {...}, other manifest entries...}
+        if without and isinstance(report.get("metrics"), dict):
+            report = {**report, "metrics": {**report["metrics"], "ran_without": without}}
         return {**report, "compute_seconds": round(time.perf_counter() - t0, 3)}
 
     result = store.commit(call.room, call.stage, key, write, manifest)
     seconds = time.perf_counter() - started
     log.info("[%s] %s: done in %.1f s", call.room, call.stage, seconds)
     return Executed(result, "computed", seconds)
+
+
+def ran_without(call: StageCall, upstream: dict[str, StageResult]) -> list[str]:
+    """The optional inputs a stage call runs without: optional upstream stages that failed or are not
+    part of the survey (register without plan or calibrate), and optional raw survey files the survey
+    lacks (a track)."""
+    stage = STAGES[call.stage]
+    missing = [name for name in stage.optional if name not in upstream]
+    missing += [
+        name for name in stage.raw_inputs if name not in REQUIRED_RAW_INPUTS and name not in call.raw_inputs
+    ]
+    return missing
+
+
+def capture_problem(capture: Path) -> str | None:
+    """Why a room's capture cannot be read at all (missing, unreadable, of a kind no reader takes), in one
+    line naming it; None when it can be handed to ingest (which checks its content)."""
+    capture = Path(capture)
+    if not capture.exists():
+        return f"capture {capture} does not exist"
+    try:
+        if capture.is_dir():
+            os.listdir(capture)
+        else:
+            with open(capture, "rb") as fh:
+                fh.read(1)
+    except OSError as exc:
+        return f"capture {capture} cannot be read ({exc.strerror or exc})"
+    try:
+        capture_kind(capture)
+    except (ValueError, OSError) as exc:
+        return " ".join(str(exc).split())
+    return None
 
 
 def room_stages(capture: Path) -> list[str]:
@@ -174,6 +225,18 @@ class RunRequest:
     rooms: tuple[str, ...] = ()
     force: tuple[tuple[str, str], ...] = ()
     """(room, stage) pairs to recompute whatever the cache says."""
+    run_id: str = field(default_factory=lambda: new_run_id())
+    """This run's id (UTC start time and a random suffix), recorded with what it computes."""
+
+
+def new_run_id() -> str:
+    return dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ") + "-" + uuid.uuid4().hex[:6]
+
+
+def config_hash(cfg: cfgmod.PipelineConfig) -> str:
+    """Hash of the whole resolved configuration but `flow` (how stages are scheduled changes no
+    artefact): what outputs/manifest.json records and `status` compares."""
+    return hash_json({name: cfgmod.section(cfg, name) for name in cfgmod.STAGE_SECTIONS})
 
 
 def survey_inputs(
@@ -272,6 +335,17 @@ class SurveyPlan:
     rooms: dict[str, list[PlannedStage]]
     after: list[PlannedStage]
     others: dict[str, list[PlannedStage]] = field(default_factory=dict)
+    failed: dict[str, str] = field(default_factory=dict)
+    """Requested rooms that fail before any stage runs (a missing or unreadable capture): the reason."""
+    first_stage: dict[str, str] = field(default_factory=dict)
+    """Room -> the stage its failure is reported on (the room's first stage)."""
+
+    def failed_rows(self) -> list[StageOutcome]:
+        """The pre-check failures as the run's outcome rows."""
+        return [
+            StageOutcome(room, self.first_stage.get(room, "ingest"), "failed", 0.0, reason)
+            for room, reason in self.failed.items()
+        ]
 
     def items(self) -> list[PlannedStage]:
         """The stage runs of the request, in dependency order."""
@@ -284,10 +358,22 @@ def plan_survey(
     """Every stage run a request implies. Forcing a room stage forces what follows it in that room and
     the building-after stages that read it."""
     requested = set(req.rooms or survey.room_ids)
-    chains = {room.id: room_stages(room.capture) for room in survey.rooms}
+    # A room whose capture cannot be read fails alone, with its reason; a room outside the request is
+    # not checked (it is never run: a building-after stage reads its current results, if it has any).
+    failed, chains = {}, {}
+    for room in survey.rooms:
+        if room.id not in requested:
+            with contextlib.suppress(ValueError, OSError):  # a room without a usable capture: no chain
+                chains[room.id] = room_stages(room.capture)
+        elif problem := capture_problem(room.capture):
+            failed[room.id] = problem
+        else:
+            chains[room.id] = room_stages(room.capture)
+    first_stage = stages_of("room")[0].name
     after_stages = stages_of("after")
     readers = [s for chain in chains.values() for s in chain] + [s.name for s in after_stages]
     needed = {up for name in readers for up in STAGES[name].upstream}
+    stamp = {"run_id": req.run_id, "config_hash": config_hash(cfg)}
     before: list[PlannedStage] = []
     for stage in stages_of("before"):
         raw = survey_inputs(survey, None, stage.name)
@@ -295,12 +381,15 @@ def plan_survey(
         if missing or not (stage.name in needed or stage.deliverables):
             continue
         force = (BUILDING, stage.name) in req.force
-        before.append(PlannedStage(make_call(req.work, cfg, profile, None, stage.name, force, survey), {}))
+        call = replace(make_call(req.work, cfg, profile, None, stage.name, force, survey), **stamp)
+        before.append(PlannedStage(call, {}))
     available = {item.call.stage for item in before}
     forced_after: set[str] = set()
     rooms: dict[str, list[PlannedStage]] = {}
     others: dict[str, list[PlannedStage]] = {}
     for room in survey.rooms:
+        if room.id not in chains:
+            continue
         chain, forced = [], False
         for stage_name in chains[room.id]:
             if (room.id, stage_name) in req.force:
@@ -312,7 +401,7 @@ def plan_survey(
                     upstream[name] = (room.id, name)
                 elif name in available:
                     upstream[name] = (BUILDING, name)
-            call = make_call(req.work, cfg, profile, room, stage_name, forced, survey)
+            call = replace(make_call(req.work, cfg, profile, room, stage_name, forced, survey), **stamp)
             chain.append(PlannedStage(call, upstream))
         (rooms if room.id in requested else others)[room.id] = chain
     after = []
@@ -321,11 +410,11 @@ def plan_survey(
         if any(name not in available for name in required):  # fusion needs a plan: none, no fusion
             continue
         force = stage.name in forced_after or (BUILDING, stage.name) in req.force
-        call = make_call(req.work, cfg, profile, None, stage.name, force, survey)
+        call = replace(make_call(req.work, cfg, profile, None, stage.name, force, survey), **stamp)
         upstream = {name: (BUILDING, name) for name in stage.upstream if name in available}
         after.append(PlannedStage(call, upstream, stage.room_upstream))
         available.add(stage.name)
-    return SurveyPlan(before, rooms, after, others)
+    return SurveyPlan(before, rooms, after, others, failed, dict.fromkeys(failed, first_stage))
 
 
 def fan_in_for(
@@ -359,9 +448,11 @@ def current_results(
         if any(ref not in found for ref in item.upstream.values()):
             continue
         store = store_for(call.work)
-        hit = store.lookup(
-            call.room, call.stage, cache_key(call, {n: found[r] for n, r in item.upstream.items()})
-        )
+        try:
+            key = cache_key(call, {n: found[r] for n, r in item.upstream.items()})
+        except (ArtefactError, OSError):  # another room's capture gone or unreadable: it has no result
+            continue
+        hit = store.lookup(call.room, call.stage, key)
         if hit is not None:
             found[item.ref] = hit
     return found
@@ -406,12 +497,160 @@ def deliverable_files(rows: list[StageOutcome]) -> dict[tuple[str, ...], tuple[P
     return files
 
 
-def publish_deliverables(store: ArtefactStore, rows: list[StageOutcome]) -> None:
-    """Copy finished deliverables to outputs/ (rooms' to outputs/rooms/<id>/), only what changed."""
+def publish_deliverables(
+    store: ArtefactStore, rows: list[StageOutcome], req: RunRequest | None = None
+) -> None:
+    """Copy finished deliverables to outputs/ (rooms' to outputs/rooms/<id>/), only what changed: every
+    new file is first copied beside its destination under a temporary name, then all are renamed into
+    place, so a failure while copying (a full disk) changes nothing. Then, last and atomically,
+    outputs/manifest.json (with `req`: its run id and configuration; merged into the previous one)."""
+    changed = {}
     for relative, (source, digest) in deliverable_files(rows).items():
         dest = store.outputs.joinpath(*relative)
         if not (dest.is_file() and sha256_file(dest) == digest):
-            store.publish(source, *relative)
+            changed[relative] = source
+    store.publish_all(changed)
+    if req is not None:
+        write_json(store.outputs / MANIFEST, outputs_manifest(store, rows, req))
+
+
+MANIFEST = "manifest.json"
+"""outputs/manifest.json: what the deliverables in outputs/ are, written last by every run."""
+
+DONE_STATES = ("computed", "cached")
+
+
+def read_outputs_manifest(work: str | Path) -> dict[str, Any] | None:
+    """outputs/manifest.json of a work dir, or None when there is none or it is not one."""
+    from tasks.artefacts import ArtefactError, read_json
+
+    path = Path(work) / "outputs" / MANIFEST
+    try:
+        data = read_json(path) if path.is_file() else None
+    except ArtefactError:
+        return None
+    ok = (
+        isinstance(data, dict)
+        and isinstance(data.get("stages"), list)
+        and isinstance(data.get("rooms"), dict)
+    )
+    return data if ok else None
+
+
+def software_versions() -> dict[str, str]:
+    """The versions that make the outputs: this package, Python and the main numeric libraries."""
+    from importlib import metadata
+
+    def version(*names: str) -> str:
+        for name in names:
+            try:
+                return metadata.version(name)
+            except metadata.PackageNotFoundError:
+                continue
+        return "unknown"
+
+    return {
+        "indoor-survey": version("indoor-survey"),
+        "python": platform.python_version(),
+        "numpy": version("numpy"),
+        "open3d": version("open3d", "open3d-cpu"),
+        "pycolmap": version("pycolmap"),
+        "prefect": version("prefect"),
+    }
+
+
+def outputs_manifest(store: ArtefactStore, rows: list[StageOutcome], req: RunRequest) -> dict[str, Any]:
+    """This run's rows merged into the previous manifest: a room this run touched is described by this
+    run alone; the other rooms', and building stages this run did not run, are kept. A cached row keeps
+    the run id and config hash of the run that computed it (from the stage's cache manifest, else from
+    the previous outputs manifest)."""
+    cfg = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets))
+    survey = cfgmod.load_survey(Path(req.survey))
+    current = config_hash(cfg)
+    previous = read_outputs_manifest(store.work) or {"stages": [], "rooms": {}}
+    known = {
+        (r.get("room"), r.get("stage"), r.get("key")): r for r in previous["stages"] if isinstance(r, dict)
+    }
+    stages: dict[tuple[str, str], dict[str, Any]] = {}
+    for row in rows:
+        room = "" if row.room == BUILDING else row.room
+        state = "cached" if row.state == "stored" else row.state
+        key = row.result.key if row.result is not None else ""
+        made_by = {"run_id": req.run_id, "config_hash": current}
+        if state == "cached" and row.result is not None:
+            try:
+                manifest = row.result.manifest
+            except Exception:  # an unreadable manifest would have failed the lookup; be safe anyway
+                manifest = {}
+            earlier = known.get((room, row.stage, key), {})
+            made_by = {
+                name: manifest.get(name) or earlier.get(name) or "" for name in ("run_id", "config_hash")
+            }
+        stages[(room, row.stage)] = {
+            "room": room,
+            "stage": row.stage,
+            "state": state,
+            "seconds": float(row.seconds),
+            "error": " ".join(row.error.split()),
+            "key": key,
+            **made_by,
+        }
+    valid_rooms = set(survey.room_ids)
+    touched = {row.room for row in rows if row.room != BUILDING}
+    for old in previous["stages"]:
+        if not isinstance(old, dict):
+            continue
+        room, stage = old.get("room", ""), old.get("stage", "")
+        if (room, stage) in stages or room in touched or (room and room not in valid_rooms):
+            continue
+        if stage not in STAGES:
+            continue
+        stages[(room, stage)] = old
+    rooms: dict[str, dict[str, Any]] = {}
+    for room in survey.room_ids:
+        earlier = previous["rooms"].get(room)
+        if room not in touched:
+            if isinstance(earlier, dict):
+                rooms[room] = earlier
+            continue
+        own = [r for r in rows if r.room == room]
+        bad = next((r for r in own if r.state not in (*DONE_STATES, "stored")), None)
+        if bad is None:
+            rooms[room] = {"run_id": req.run_id, "config_hash": current, "state": "done", "error": ""}
+        else:  # its outputs/rooms/<id>/ are still an earlier run's (if any run published them)
+            rooms[room] = {
+                "run_id": earlier.get("run_id", "") if isinstance(earlier, dict) else "",
+                "config_hash": earlier.get("config_hash", "") if isinstance(earlier, dict) else "",
+                "state": "failed",
+                "error": f"{bad.stage}: {' '.join(bad.error.split())}",
+            }
+    order = {name: i for i, name in enumerate(STAGES)}
+    ordered = sorted(stages.values(), key=lambda r: (r["room"] != "", r["room"], order.get(r["stage"], 99)))
+    partial = any(r["state"] not in DONE_STATES for r in ordered) or any(
+        r["state"] != "done" for r in rooms.values()
+    )
+    return {
+        "run_id": req.run_id,
+        "finished": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        "config_hash": current,
+        "partial": partial,
+        "stages": ordered,
+        "rooms": rooms,
+        "versions": software_versions(),
+    }
+
+
+def exit_state(rows: list[StageOutcome]) -> str:
+    """ "done" (nothing failed or was skipped), "partial" (something failed, but at least one room
+    finished every stage) or "failed" (no room finished: every room failed, e.g. because a stage they
+    all need failed)."""
+    if all(r.state in (*DONE_STATES, "stored") for r in rows):
+        return "done"
+    rooms: dict[str, bool] = {}
+    for row in rows:
+        if row.room != BUILDING:
+            rooms[row.room] = rooms.get(row.room, True) and row.state in (*DONE_STATES, "stored")
+    return "partial" if any(rooms.values()) else "failed"
 
 
 def save_resolved_config(work: Path, cfg: cfgmod.PipelineConfig, argv: Iterable[str]) -> Path:
@@ -466,7 +705,7 @@ class StageState:
     planned: PlannedStage
     status: str
     """"done" (a verified artefact for today's inputs, config and code), "stale" (an older artefact exists
-    but something it depends on changed) or "missing"."""
+    but something it depends on changed), "missing", or "failed" (the room's capture cannot be read)."""
     result: StageResult | None
     detail: str
 
@@ -480,6 +719,9 @@ def survey_state(req: RunRequest) -> list[StageState]:
     plan = plan_survey(req, cfg, survey, profile)
     done = current_results(plan, plan.others)  # rooms outside the request: read, never run
     states = []
+    for room, reason in plan.failed.items():  # fails before any stage: the capture cannot be read
+        call = make_call(req.work, cfg, profile, survey.room(room), plan.first_stage[room], survey=survey)
+        states.append(StageState(PlannedStage(call, {}), "failed", None, reason))
     for item in plan.items():
         call = item.call
         previous = store.latest(call.room, call.stage)
@@ -522,12 +764,15 @@ def all_current(req: RunRequest) -> list[StageOutcome] | None:
     """When every stage of the request is done, the run's outcome without running anything (and without
     starting Prefect: its start-up would be most of a no-op rerun); else None."""
     states = survey_state(req)
-    if req.force or any(s.status != "done" for s in states):
+    if req.force or any(s.status not in ("done", "failed") for s in states):
         return None
     rows = [
-        StageOutcome(s.planned.call.room, s.planned.call.stage, "cached", 0.0, "", s.result) for s in states
+        StageOutcome(s.planned.call.room, s.planned.call.stage, "cached", 0.0, "", s.result)
+        if s.status == "done"
+        else StageOutcome(s.planned.call.room, s.planned.call.stage, "failed", 0.0, s.detail)
+        for s in states
     ]
-    publish_deliverables(store_for(req.work), rows)
+    publish_deliverables(store_for(req.work), rows, req)
     return rows
 
 

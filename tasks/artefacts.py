@@ -1027,8 +1027,13 @@ class ArtefactStore:
     def sweep_temporaries(self) -> int:
         """Remove temporary folders left by killed runs (never read by lookups); returns how many."""
         count = 0
+        if self.outputs.is_dir():  # copies a killed publish left (atomic_path's `.<name>.<hex>.tmp`)
+            for tmp in self.outputs.rglob(".*.tmp"):
+                if tmp.is_file():
+                    tmp.unlink(missing_ok=True)
+                    count += 1
         if not self.cache.is_dir():
-            return 0
+            return count
         for tmp in self.cache.glob("*/*/.tmp-*"):
             shutil.rmtree(tmp, ignore_errors=True)
             count += 1
@@ -1093,6 +1098,28 @@ class ArtefactStore:
         with atomic_path(dest) as tmp:
             shutil.copyfile(src, tmp)
         return dest
+
+    def publish_all(self, files: dict[tuple[str, ...], Path]) -> list[Path]:
+        """Copy several committed artefacts to `outputs/<relative...>` in two phases: every copy is made
+        beside its destination under a temporary name first, then all are renamed into place. A failure
+        while copying (a full disk) removes the copies and leaves outputs/ exactly as it was; a run killed
+        meanwhile leaves only temporaries, which no reader takes for deliverables and the next run
+        sweeps."""
+        staged: list[tuple[Path, Path]] = []
+        try:
+            for relative, src in files.items():
+                dest = self.outputs.joinpath(*relative)
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                tmp = dest.with_name(f".{dest.name}.{uuid.uuid4().hex[:8]}.tmp")
+                staged.append((tmp, dest))
+                shutil.copyfile(src, tmp)
+        except BaseException:
+            for tmp, _ in staged:
+                tmp.unlink(missing_ok=True)
+            raise
+        for tmp, dest in staged:
+            os.replace(tmp, dest)
+        return [dest for _, dest in staged]
 
 
 def read_track(path: Path) -> NDArray[np.float64]:
