@@ -12,8 +12,11 @@ Prefect's settings must be applied (`flows.prefect_env.apply()`) before this mod
 from __future__ import annotations
 
 import argparse
+import asyncio
+import contextlib
 import json
 import logging
+import signal
 import sys
 import time
 from collections import Counter
@@ -153,16 +156,37 @@ def serve(
     with prefect_env.embedded_server(work) as url:
         if url is not None:
             print(f"Prefect API (embedded, lives with this process): {url}", file=sys.stderr)
+        from prefect.runner import Runner
         from prefect.types.entrypoint import EntrypointType
 
-        survey_flow.serve(
+        runner = Runner(name=name)  # its schedule is paused when serve stops, resumed when it starts
+        runner.add_flow(
+            survey_flow,
             name=name,
             schedule=Cron(cron, timezone=timezone),
             parameters=parameters,
             description=f"indoor-survey run of {parameters['survey']} into {parameters['work']}",
             entrypoint_type=EntrypointType.MODULE_PATH,  # flows.serve.survey_flow: independent of the cwd
-            print_starting_message=False,
         )
+        _run_until_stopped(runner)
+
+
+def _run_until_stopped(runner: Any) -> None:
+    """`runner.start()` until SIGINT or SIGTERM, either of which stops it cleanly (Prefect's own SIGTERM
+    handler exits from inside the event loop, with tracebacks in the log: it is replaced by a cancel)."""
+
+    async def main() -> None:
+        started = asyncio.ensure_future(runner.start())
+        for _ in range(200):  # start() installs its handler before its first await
+            if started.done() or signal.getsignal(signal.SIGTERM) == runner.handle_sigterm:
+                break
+            await asyncio.sleep(0.05)
+        asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, started.cancel)
+        with contextlib.suppress(asyncio.CancelledError):
+            await started
+
+    with contextlib.suppress(KeyboardInterrupt):
+        asyncio.run(main())
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
