@@ -50,10 +50,10 @@ def check_cron(cron: str, timezone: str | None = None) -> None:
     try:
         CronSchedule(cron=cron, timezone=timezone)
     except ValueError as exc:
-        first = str(exc).strip().splitlines()
-        detail = first[-1].strip() if first else "invalid"
+        errors = getattr(exc, "errors", None)  # pydantic: the first error's message, without its URL
+        detail = errors()[0]["msg"] if callable(errors) and errors() else str(exc)
         what = f"--cron {cron!r}" + (f" --timezone {timezone!r}" if timezone else "")
-        raise ServeError(f"{what}: {detail}") from None
+        raise ServeError(f"{what}: {' '.join(str(detail).split())}") from None
 
 
 def _record(work: Path, rows: list[planning.StageOutcome], saved: Path) -> Path:
@@ -191,7 +191,18 @@ def _run_until_stopped(runner: Any) -> None:
 
 def cmd_serve(args: argparse.Namespace) -> int:
     """The `serve` verb: checks everything before it registers anything."""
-    from flows.cli import CliError, check_folder, writable_folder
+    from flows.cli import CliError
+
+    try:
+        return _serve_checked(args)
+    except (
+        CliError
+    ) as exc:  # also when the CLI runs as `python -m flows.cli`, whose CliError is another class
+        raise ServeError(str(exc)) from None
+
+
+def _serve_checked(args: argparse.Namespace) -> int:
+    from flows.cli import check_folder, writable_folder
     from flows.runners import RunnerError, check_choice
 
     work = check_folder(args.work, "--work").resolve()
@@ -200,16 +211,16 @@ def cmd_serve(args: argparse.Namespace) -> int:
     try:
         check_cron(args.cron, args.timezone)
         check_choice(args.runner, args.dask_address)
-    except (ServeError, RunnerError) as exc:
-        raise CliError(str(exc)) from None
+    except RunnerError as exc:
+        raise ServeError(str(exc)) from None
     for room in survey.rooms:
         if not room.capture.exists():
-            raise CliError(
+            raise ServeError(
                 f"{survey.root / 'survey.yaml'}: room {room.id}: capture {room.capture} does not exist"
             )
     name = args.name or survey.name
     if not name or "/" in name:
-        raise CliError(f"--name {name!r}: a deployment name must be non-empty and without '/'")
+        raise ServeError(f"--name {name!r}: a deployment name must be non-empty and without '/'")
     writable_folder(work, "--work")
     print(
         f"serving {FLOW_NAME}/{name}: {survey.root} into {work} on cron '{args.cron}'"

@@ -84,6 +84,27 @@ def _wait_for(what: str, timeout: float, probe):
         time.sleep(1.0)
 
 
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--cron", "0 2 * *"], "expected five fields"),
+        (["--cron", "61 2 * * *"], "Invalid cron string"),
+        (["--cron", "0 2 * * *", "--timezone", "Mars/Base"], "Invalid timezone"),
+        (["--cron", "0 2 * * *", "--dask-address", "tcp://h:1"], "needs --runner dask"),
+    ],
+)
+def test_serve_refuses_a_bad_schedule_before_anything_starts(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str], message: str
+) -> None:
+    from flows.cli import EXIT_BAD_INPUT, main
+
+    code = main(["serve", str(REPO / "data" / "mini"), "--work", str(tmp_path / "w"), *argv])
+    err = capsys.readouterr().err.strip()
+    assert code == EXIT_BAD_INPUT
+    assert message in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "w").exists()
+
+
 @pytest.mark.slow
 def test_serve_registers_the_cron_deployment_and_runs_it(tmp_path: Path) -> None:
     import psutil
