@@ -15,6 +15,7 @@ Everything here is imported only when a run starts (Prefect and Dask are slow to
 
 from __future__ import annotations
 
+import logging
 import re
 from typing import Any
 
@@ -59,6 +60,9 @@ def task_runner(kind: str, workers: int, address: str | None = None) -> Any:
         return ThreadPoolTaskRunner(max_workers=workers)
     from prefect_dask import DaskTaskRunner
 
+    # Dask's start-up and shut-down chatter (tens of INFO lines) is not the run's progress
+    logging.getLogger("distributed").setLevel(logging.WARNING)
+
     if address:
         return DaskTaskRunner(address=address)
     return DaskTaskRunner(
@@ -67,7 +71,8 @@ def task_runner(kind: str, workers: int, address: str | None = None) -> Any:
             "n_workers": workers,
             "threads_per_worker": 1,
             "processes": True,
-            "dashboard_address": None,  # no web server: nothing listens but the scheduler on 127.0.0.1
+            # the scheduler's HTTP routes (it always starts them) on a free loopback port, not 8787
+            "dashboard_address": "127.0.0.1:0",
             "host": "127.0.0.1",
         },
     )
