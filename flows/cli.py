@@ -36,6 +36,7 @@ examples:
   indoor-survey run data/mini --work work/mini --set preprocess.voxel_size_m=0.03
   indoor-survey rerun data/mini --work work/mini --stage preprocess --room r5
   indoor-survey status data/mini --work work/mini
+  indoor-survey serve data/mini --work work/mini --cron "0 2 * * *"
   indoor-survey model-room room.ply --out room_model
 """
 
@@ -146,6 +147,22 @@ def _add_no_wait(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_runner(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--runner",
+        choices=["threads", "dask"],
+        default="threads",
+        help="what runs the rooms at once: a thread pool (default), or Dask (a local cluster of "
+        "flow.max_workers processes, or the scheduler at --dask-address)",
+    )
+    p.add_argument(
+        "--dask-address",
+        default=None,
+        metavar="tcp://HOST:PORT",
+        help="with --runner dask: an existing Dask scheduler; its workers must see WORK at the same path",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="indoor-survey",
@@ -162,6 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_args(p)
     p.add_argument("--rooms", nargs="+", default=[], metavar="ID", help="only these rooms (default: all)")
     _add_no_wait(p)
+    _add_runner(p)
 
     p = sub.add_parser("rerun", help="recompute one stage (and what follows it) for one room or all")
     p.add_argument("survey", type=Path)
@@ -170,6 +188,24 @@ def build_parser() -> argparse.ArgumentParser:
     _add_work(p)
     _add_config_args(p)
     _add_no_wait(p)
+    _add_runner(p)
+
+    p = sub.add_parser(
+        "serve",
+        help="run the survey on a cron schedule as a Prefect deployment (until stopped)",
+        description="Registers deployment indoor-survey/NAME with the schedule and runs it when due (each run "
+        "recomputes only what changed, as `run` does); uses the Prefect API of PREFECT_API_URL, else an "
+        'embedded one. Ctrl-C or SIGTERM stops it. See README "Schedules".',
+    )
+    p.add_argument("survey", type=Path, help="survey folder (with survey.yaml)")
+    p.add_argument("--cron", required=True, help='schedule, five fields, e.g. "0 2 * * *" (02:00 daily)')
+    p.add_argument(
+        "--timezone", default=None, help="time zone of the schedule, e.g. Europe/Berlin (default UTC)"
+    )
+    p.add_argument("--name", default=None, help="deployment name (default: the survey's name)")
+    _add_work(p)
+    _add_config_args(p)
+    _add_runner(p)
 
     p = sub.add_parser("status", help="per room and stage: done, stale (inputs or config changed) or missing")
     p.add_argument("survey", type=Path)
@@ -321,6 +357,14 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
             )
         else:
             force = [(planning.BUILDING, force_stage)]
+    runner, address = getattr(args, "runner", "threads"), getattr(args, "dask_address", None)
+    if address or runner != "threads":
+        from flows.runners import RunnerError, check_choice
+
+        try:
+            check_choice(runner, address)
+        except RunnerError as exc:
+            raise CliError(str(exc)) from None
     argv = ["indoor-survey", *sys.argv[1:]]
     req = planning.RunRequest(
         survey=str(survey.root),
@@ -343,7 +387,7 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
         with prefect_env.embedded_server(work):  # Prefect's server lives and dies with this run
             from flows import pipeline  # starts Prefect only when there is work
 
-            rows = pipeline.run_survey(req)
+            rows = pipeline.run_survey(req, runner, address)
     else:
         print("every stage is current: nothing to compute (Prefect not started)", file=sys.stderr)
     elapsed = time.perf_counter() - started
@@ -376,6 +420,11 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
                 **{k: v or 0.0 for k, v in summary.items() if k != "mean_accuracy_mean_m"},
             )
         )
+    from flows.report_cmd import write_report_safely
+
+    report = write_report_safely(work, lambda line: print(line, file=sys.stderr))
+    if report is not None:
+        print(f"report: {report}")
     failed = [r for r in rows if r.state == "failed"]
     for row in failed:
         print(f"error: room {row.room}, stage {row.stage}: {_one_line(row.error)}", file=sys.stderr)
@@ -613,6 +662,13 @@ def _dispatch(args: argparse.Namespace) -> int:
         return cmd_run(args, force_stage=args.stage)
     if args.command == "status":
         return cmd_status(args)
+    if args.command == "serve":
+        from flows import prefect_env
+
+        prefect_env.apply()
+        from flows.serve import cmd_serve
+
+        return cmd_serve(args)
     if args.command == "config":
         return cmd_config(args)
     if args.command == "report":

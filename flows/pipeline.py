@@ -21,7 +21,6 @@ from typing import Any
 from prefect import allow_failure, flow, task
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import PrefectFuture, wait
-from prefect.task_runners import ThreadPoolTaskRunner
 
 from flows.planning import (
     Executed,
@@ -196,8 +195,13 @@ def outcomes(futures: dict[tuple[str, str], PrefectFuture]) -> list[StageOutcome
     return rows
 
 
-def run_survey(req: RunRequest) -> list[StageOutcome]:
-    """Run the building flow and report every stage's outcome."""
+def run_survey(
+    req: RunRequest, runner: str = "threads", dask_address: str | None = None
+) -> list[StageOutcome]:
+    """Run the building flow and report every stage's outcome; rooms run on `runner` ("threads" or
+    "dask", see flows/runners.py), `flow.max_workers` at once."""
+    from flows.runners import task_runner
+
     workers = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets)).flow.max_workers
     store_for(req.work).sweep_temporaries()
-    return building_flow.with_options(task_runner=ThreadPoolTaskRunner(max_workers=max(1, workers)))(req)
+    return building_flow.with_options(task_runner=task_runner(runner, workers, dask_address))(req)

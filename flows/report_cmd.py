@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 HELP = "rebuild WORK/outputs/report.html from a finished work dir (recomputes nothing)"
@@ -43,3 +44,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"report written to {path} in {time.perf_counter() - started:.1f} s", file=sys.stderr)
     print(path)
     return 0
+
+
+def write_report_safely(work: Path, warn: Callable[[str], object]) -> Path | None:
+    """The report at the end of a run: its path, or None after a one-line warning (a report that cannot
+    be written never fails a run whose stages finished)."""
+    from tasks.report import write_report
+
+    try:
+        return write_report(work)
+    except Exception as exc:
+        warn(f"warning: report not written: {' '.join(str(exc).split())}")
+        return None

@@ -1,0 +1,267 @@
+"""Growth benchmark of the whole workflow: cold run, no-op rerun and walls-only rerun of synthetic surveys
+of several sizes, as a user runs them (`indoor-survey run` / `rerun` in a child process).
+
+    python -m bench.run                    # 5, 10 and 20 rooms
+    python -m bench.run --sizes 5          # a quick check
+    python -m bench.run --sizes 5,10 --json bench-run.json
+
+Run from the repository root. The surveys are made of the survey generator's TLS rooms (`indoor-survey synth
+--profile tls`: every room a registered two-station cloud, so a room costs ingest + preprocess + walls and
+no registration): the generator draws one building of five rooms and a hallway per seed, so a survey of N
+rooms takes the rooms of seeds 0, 1, 2, ... in turn (ids `r1`.. for seed 0, `s<seed>-r1`.. for the others)
+and the plan and IMU track of seed 0. Rooms of other seeds have no plan room: fusion matches them by shape
+or leaves them unplaced, and reports the differences as changes, as it would for a building the plan does
+not show. No truth/ is copied (no metrics.json: the benchmark times the workflow, not its accuracy).
+
+For each size it prints: the cold time (a fresh work dir); the no-op rerun (`run` again: nothing changed)
+and the walls-only rerun (`rerun --stage walls`: every room's walls recomputed, then what reads them) as
+ratios of the cold time; each stage's share of the cold run's stage time (the run summary's seconds per
+stage, summed over rooms); the peak resident memory of the whole process tree (the CLI, Prefect's server
+and any worker), sampled every 0.1 s with psutil; and the largest over the smallest size's cold time.
+The machine's load average is printed with each run: the figures are wall-clock times.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+ROOMS_PER_SEED = ("r1", "r2", "r3", "r4", "r5", "hall")
+
+
+def _peak_rss_sampler(pid: int, stop: threading.Event, out: list[int]) -> None:
+    """Sample the RSS of process `pid` and all its descendants until `stop`; the maximum goes to out[0]."""
+    import psutil
+
+    try:
+        root = psutil.Process(pid)
+    except psutil.Error:
+        return
+    while not stop.is_set():
+        total = 0
+        try:
+            procs = [root, *root.children(recursive=True)]
+        except psutil.Error:
+            break
+        for proc in procs:
+            try:
+                total += proc.memory_info().rss
+            except psutil.Error:
+                pass
+        out[0] = max(out[0], total)
+        stop.wait(0.1)
+
+
+def timed(command: list[str], log: Path) -> dict[str, Any]:
+    """Run `command` (output to `log`); wall seconds, peak RSS of its process tree (bytes), exit code."""
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
+    }
+    peak = [0]
+    stop = threading.Event()
+    load = os.getloadavg()[0]
+    wall_start = time.time()
+    started = time.perf_counter()
+    with log.open("w") as out:
+        proc = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT, env=env, cwd=REPO)
+        try:
+            import psutil  # noqa: F401
+
+            sampler = threading.Thread(target=_peak_rss_sampler, args=(proc.pid, stop, peak), daemon=True)
+            sampler.start()
+        except ImportError:
+            sampler = None
+        code = proc.wait()
+        seconds = time.perf_counter() - started
+        stop.set()
+        if sampler is not None:
+            sampler.join()
+    if sampler is None:  # no psutil: the largest child's peak (a lower bound of the tree's)
+        import resource
+
+        peak[0] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
+    if code != 0:
+        raise SystemExit(f"{' '.join(command)} exited with {code}; see {log}")
+    return {
+        "seconds": seconds,
+        "peak_rss": peak[0],
+        "load": load,
+        "log": str(log),
+        "first_stage_s": first_stage_after(log, wall_start),
+    }
+
+
+def first_stage_after(log: Path, wall_start: float) -> float | None:
+    """Seconds from the command's start to its first stage ("HH:MM:SS [room] stage: computing" in its
+    log): the start-up (imports, checks, Prefect's server) before any stage work; None if none ran."""
+    for line in log.read_text().splitlines():
+        if line.endswith(": computing") and line[:2].isdigit():
+            h, m, sec = (int(v) for v in line[:8].split(":"))
+            day = time.localtime(wall_start)
+            stamp = time.mktime((day.tm_year, day.tm_mon, day.tm_mday, h, m, sec, 0, 0, -1))
+            if stamp < wall_start - 1:  # past midnight
+                stamp += 86400
+            return max(0.0, stamp - wall_start)
+    return None
+
+
+def stage_seconds(log: Path) -> dict[str, float]:
+    """Seconds per stage name, summed over rooms, from a run's summary table (computed stages only)."""
+    totals: dict[str, float] = defaultdict(float)
+    for line in log.read_text().splitlines():
+        parts = line.split()
+        if len(parts) >= 4 and parts[2] == "computed":
+            try:
+                totals[parts[1]] += float(parts[3])
+            except ValueError:
+                continue
+    return dict(totals)
+
+
+def source_survey(cache: Path, seed: int) -> Path:
+    """The generator's TLS survey of `seed` (all five rooms and the hallway), made once."""
+    folder = cache / f"tls-seed{seed}"
+    if not (folder / "survey.yaml").is_file():
+        from tasks.synth.survey import generate_survey
+
+        generate_survey(folder, seed=seed, profile="tls", overwrite=True)
+    return folder
+
+
+def compose_survey(cache: Path, rooms: int, out: Path) -> Path:
+    """A survey of `rooms` TLS rooms (seed 0's first, then seed 1's...), seed 0's plan and track."""
+    if out.exists():
+        shutil.rmtree(out)
+    base = source_survey(cache, 0)
+    spec = yaml.safe_load((base / "survey.yaml").read_text())
+    shutil.copytree(base / "plan", out / "plan")
+    entries: list[dict[str, Any]] = []
+    if spec.get("track"):
+        shutil.copytree(base / Path(spec["track"]).parent, out / Path(spec["track"]).parent)
+    seed = 0
+    while len(entries) < rooms:
+        src = source_survey(cache, seed)
+        by_id = {r["id"]: r for r in yaml.safe_load((src / "survey.yaml").read_text())["rooms"]}
+        for room in ROOMS_PER_SEED:
+            if len(entries) == rooms:
+                break
+            entry = dict(by_id[room])
+            rid = room if seed == 0 else f"s{seed}-{room}"
+            capture = src / entry["capture"]
+            dest = out / "rooms" / rid / capture.name
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            os.link(capture, dest) if capture.stat().st_dev == out.stat().st_dev else shutil.copy2(
+                capture, dest
+            )
+            entry.update(id=rid, capture=f"rooms/{rid}/{capture.name}")
+            if seed != 0:
+                entry.pop("plan_room", None)
+            entries.append(entry)
+        seed += 1
+    spec.update(name=f"bench-{rooms}-rooms", rooms=entries)
+    spec.pop("truth", None)
+    spec.pop("calibration", None)
+    (out / "survey.yaml").write_text(yaml.safe_dump(spec, sort_keys=False))
+    return out
+
+
+def bench_size(rooms: int, root: Path, sets: list[str]) -> dict[str, Any]:
+    survey = compose_survey(root / "sources", rooms, root / f"survey-{rooms}")
+    work = root / f"work-{rooms}"
+    if work.exists():
+        shutil.rmtree(work)
+    cli = [sys.executable, "-m", "flows.cli"]
+    extra = [a for s in sets for a in ("--set", s)]
+    cold = timed([*cli, "run", str(survey), "--work", str(work), *extra], root / f"cold-{rooms}.log")
+    noop = timed([*cli, "run", str(survey), "--work", str(work), *extra], root / f"noop-{rooms}.log")
+    walls = timed(
+        [*cli, "rerun", str(survey), "--work", str(work), "--stage", "walls", *extra],
+        root / f"walls-{rooms}.log",
+    )
+    stages = stage_seconds(Path(cold["log"]))
+    total = sum(stages.values()) or 1.0
+    return {
+        "rooms": rooms,
+        "cold_s": cold["seconds"],
+        "noop_s": noop["seconds"],
+        "walls_s": walls["seconds"],
+        "noop_ratio": noop["seconds"] / cold["seconds"],
+        "walls_ratio": walls["seconds"] / cold["seconds"],
+        "stage_seconds": stages,
+        "stage_share": {name: s / total for name, s in sorted(stages.items(), key=lambda kv: -kv[1])},
+        "walls_stage_seconds": stage_seconds(Path(walls["log"])),
+        "cold_first_stage_s": cold["first_stage_s"],
+        "walls_first_stage_s": walls["first_stage_s"],
+        "peak_rss_mb": max(cold["peak_rss"], noop["peak_rss"], walls["peak_rss"]) / 2**20,
+        "cold_peak_rss_mb": cold["peak_rss"] / 2**20,
+        "load": [cold["load"], noop["load"], walls["load"]],
+    }
+
+
+def _s(seconds: float | None) -> str:
+    return "n/a" if seconds is None else f"{seconds:.0f} s"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.run", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--sizes", default="5,10,20", help="room counts, comma separated (default 5,10,20)")
+    parser.add_argument(
+        "--root",
+        type=Path,
+        default=Path("/tmp/indoor-survey-bench/run"),
+        help="surveys, work dirs and logs (the generated rooms are kept for the next time)",
+    )
+    parser.add_argument(
+        "--set", action="append", default=[], metavar="STAGE.KEY=VALUE", help="config override"
+    )
+    parser.add_argument("--json", type=Path, default=None, help="also write the figures to this file")
+    args = parser.parse_args(argv)
+    try:
+        sizes = sorted({int(s) for s in args.sizes.split(",") if s.strip()})
+    except ValueError:
+        parser.error(f"--sizes {args.sizes!r}: expected room counts such as 5,10,20")
+    if not sizes or min(sizes) < 1:
+        parser.error(f"--sizes {args.sizes!r}: room counts must be at least 1")
+    args.root.mkdir(parents=True, exist_ok=True)
+    print(f"{os.cpu_count()} cores; TLS rooms; root {args.root}", flush=True)
+    results = []
+    for rooms in sizes:
+        r = bench_size(rooms, args.root, args.set)
+        results.append(r)
+        shares = ", ".join(f"{k} {100 * v:.0f}%" for k, v in r["stage_share"].items())
+        print(
+            f"{rooms:3d} rooms: cold {r['cold_s']:6.1f} s | no-op {r['noop_s']:5.1f} s = "
+            f"{100 * r['noop_ratio']:4.1f}% | walls-only {r['walls_s']:5.1f} s = {100 * r['walls_ratio']:4.1f}% | "
+            f"peak RSS {r['peak_rss_mb']:.0f} MB | load {r['load'][0]:.1f}\n"
+            f"           stage shares: {shares}\n"
+            f"           start-up before the first stage: cold {_s(r['cold_first_stage_s'])}, "
+            f"walls-only {_s(r['walls_first_stage_s'])}; walls-only stage time "
+            f"{sum(r['walls_stage_seconds'].values()):.1f} s",
+            flush=True,
+        )
+    if len(results) > 1:
+        small, large = results[0], results[-1]
+        print(
+            f"growth: {large['rooms']}/{small['rooms']} rooms = {large['cold_s'] / small['cold_s']:.2f}x cold time "
+            f"(rooms ratio {large['rooms'] / small['rooms']:.1f}x)"
+        )
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
