@@ -181,7 +181,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_no_wait(p)
     _add_runner(p)
 
-    p = sub.add_parser("rerun", help="recompute one stage (and what follows it) for one room or all")
+    p = sub.add_parser(
+        "rerun",
+        help="recompute one stage for one room or all (what follows it: only where its artefacts changed)",
+    )
     p.add_argument("survey", type=Path)
     p.add_argument("--stage", required=True, help="stage to recompute, e.g. preprocess")
     p.add_argument("--room", default=None, help="only this room (default: every room)")

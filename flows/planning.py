@@ -32,7 +32,7 @@ from tasks.artefacts import (
 )
 from tasks.context import StageContext
 from tasks.ingest.capture import capture_kind
-from tasks.stages import STAGES, downstream_of, load_class, stages_of
+from tasks.stages import STAGES, load_class, stages_of
 
 log = logging.getLogger("indoor_survey")
 
@@ -355,8 +355,9 @@ class SurveyPlan:
 def plan_survey(
     req: RunRequest, cfg: cfgmod.PipelineConfig, survey: cfgmod.Survey, profile: dict[str, Any]
 ) -> SurveyPlan:
-    """Every stage run a request implies. Forcing a room stage forces what follows it in that room and
-    the building-after stages that read it."""
+    """Every stage run a request implies. A forced stage is recomputed; what follows it is recomputed only
+    when that changed its artefacts (keys are content keys: a forced stage that writes the same bytes
+    leaves its dependants current)."""
     requested = set(req.rooms or survey.room_ids)
     # A room whose capture cannot be read fails alone, with its reason; a room outside the request is
     # not checked (it is never run: a building-after stage reads its current results, if it has any).
@@ -384,17 +385,14 @@ def plan_survey(
         call = replace(make_call(req.work, cfg, profile, None, stage.name, force, survey), **stamp)
         before.append(PlannedStage(call, {}))
     available = {item.call.stage for item in before}
-    forced_after: set[str] = set()
     rooms: dict[str, list[PlannedStage]] = {}
     others: dict[str, list[PlannedStage]] = {}
     for room in survey.rooms:
         if room.id not in chains:
             continue
-        chain, forced = [], False
+        chain = []
         for stage_name in chains[room.id]:
-            if (room.id, stage_name) in req.force:
-                forced = True
-                forced_after |= downstream_of(stage_name)
+            forced = (room.id, stage_name) in req.force
             upstream = {}
             for name in STAGES[stage_name].upstream:
                 if name in chains[room.id][: chains[room.id].index(stage_name)]:
@@ -409,7 +407,7 @@ def plan_survey(
         required = [name for name in stage.upstream if name not in stage.optional]
         if any(name not in available for name in required):  # fusion needs a plan: none, no fusion
             continue
-        force = stage.name in forced_after or (BUILDING, stage.name) in req.force
+        force = (BUILDING, stage.name) in req.force
         call = replace(make_call(req.work, cfg, profile, None, stage.name, force, survey), **stamp)
         upstream = {name: (BUILDING, name) for name in stage.upstream if name in available}
         after.append(PlannedStage(call, upstream, stage.room_upstream))

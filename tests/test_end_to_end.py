@@ -61,7 +61,8 @@ def test_rerun_recomputes_nothing(mini_run, capsys):
 
 def test_floor_index_fans_in_every_room_and_follows_a_targeted_rerun(mini_run, capsys):
     """The building-after stage reads every room: rooms.parquet lists all of them; `rerun --stage walls
-    --room r2` recomputes r2's walls and the index, and nothing of r1."""
+    --room r2` recomputes r2's walls, which writes the same bytes, so the index stays current (its key is a
+    content key), and nothing of r1 is touched."""
     _, work = mini_run
     rooms = pq.read_table(work / "outputs" / "rooms.parquet").to_pylist()
     assert [r["room_id"] for r in rooms] == ["r1", "r2", "r3", "r4", "r5", "hall"]
@@ -77,7 +78,7 @@ def test_floor_index_fans_in_every_room_and_follows_a_targeted_rerun(mini_run, c
         if len(line.split()) >= 3 and line.split()[0] in ("r1", "r2", "_building")
     }
     assert states[("r2", "walls")] == "computed"
-    assert states[("_building", "floor_index")] == "computed"
+    assert states[("_building", "floor_index")] in ("cached", "stored")
     assert states.get(("r1", "walls"), "not run") != "computed"
     assert len([p for p in (work / "cache" / "r1" / "walls").iterdir() if not p.name.startswith(".")]) == 1
     rerun = pq.read_table(work / "outputs" / "rooms.parquet").to_pylist()
