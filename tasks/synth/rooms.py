@@ -80,7 +80,11 @@ class Room:
 # ------------------------------------------------------------------------------------------- rooms
 
 KINDS = ("rectangle", "l_shape", "wall70", "alcove_column")
-"""The rooms of the accuracy tests; "square10" (10 m x 10 m) is the benchmark's."""
+"""The rooms of the accuracy tests; "square10" (10 m x 10 m) is the benchmark's; "trapezoid<deg>" (e.g.
+"trapezoid7.5") is the near-parallel family (`NEAR_PARALLEL_DEG`)."""
+NEAR_PARALLEL_DEG = (3.0, 5.0, 7.5, 10.0, 15.0)
+"""Opening angles of the near-parallel rooms: a 5 m x 4 m trapezoid whose long opposite walls are this many
+degrees apart, with one wall at 70° to its neighbour (old town houses, wings meeting at 5-15°)."""
 
 
 def _outline(kind: str) -> tuple[NDArray, tuple[NDArray, ...]]:
@@ -92,6 +96,14 @@ def _outline(kind: str) -> tuple[NDArray, tuple[NDArray, ...]]:
         return np.array([(0, 0), (6.0, 0), (6.0, 3.0), (3.5, 3.0), (3.5, 5.0), (0, 5.0)]), ()
     if kind == "wall70":
         return np.array([(0, 0), (5.0, 0), (5.0, 4.0), (4.0 / math.tan(math.radians(70)), 4.0)]), ()
+    if kind.startswith("trapezoid"):
+        # south wall along x, east wall at 90°, north wall turned by `delta` from the south wall (its
+        # west end lower), west wall at 70° to the south wall
+        delta = math.radians(float(kind.removeprefix("trapezoid")))
+        t70 = math.tan(math.radians(70))
+        # the north wall y = 4 - (5 - x) tan(delta) meets the west wall y = x tan70
+        x_nw = (4.0 - 5.0 * math.tan(delta)) / (t70 - math.tan(delta))
+        return np.array([(0, 0), (5.0, 0), (5.0, 4.0), (x_nw, x_nw * t70)]), ()
     if kind == "alcove_column":
         outline = np.array(
             [(0, 0), (1.5, 0), (1.5, 0.35), (2.0, 0.35), (2.0, 0), (6.0, 0), (6.0, 4.0), (4.0, 4.0),
@@ -214,7 +226,9 @@ class Sensor:
 SENSORS = {
     "kinect_v1": Sensor("kinect_v1", 0.003, True, 0.0026, 0.003, 0.003, None),
     "tls": Sensor("tls", 0.002, False, 0.0, 0.001, 0.0, 2),
+    "noise12": Sensor("noise12", 0.012, False, 0.0, 0.003, 0.003, None),
 }
+""""noise12": 12 mm range noise at any range (the near-parallel rooms of issue 14), Kinect-like otherwise."""
 
 
 def _sample_quads(quads: list[tuple[NDArray, NDArray, float, float]], density: float, rng) -> tuple:
