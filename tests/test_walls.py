@@ -562,3 +562,63 @@ def test_near_parallel_walls_keep_their_own_angles(delta):
         assert max(_wall_angle_errors(room, model)) <= 0.3
         assert ev["completeness"] >= 0.97 and ev["correctness"] >= 0.97 and ev["corner_f1"] == 1.0, ev
         assert ev["accuracy_mean_m"] <= 0.010, ev
+
+
+# ------------------------------------------------------------------------------ scoring on labelled points
+
+
+def _labelled_box(rng):
+    """A 4 m x 3 m room's labelled points: the south, east and north walls 2 cm outside the model's faces
+    (the west wall unseen), a door in the north wall, clutter in the room, a ceiling patch."""
+    walls = [wall_points(a, b, 0.0, 2.5, rng, step=0.05) for a, b in [((0, -0.02), (4, -0.02)),
+             ((4.02, 0), (4.02, 3)), ((4, 3.02), (0, 3.02))]]  # fmt: skip
+    door = wall_points((1.0, 3.02), (2.0, 3.02), 0.0, 2.0, rng, step=0.05)
+    clutter = np.column_stack([rng.uniform(1, 3, 500), rng.uniform(1, 2, 500), rng.uniform(0, 1, 500)])
+    pts = np.concatenate([*walls, door, clutter])
+    labels = ["wall"] * sum(map(len, walls)) + ["door"] * len(door) + ["clutter"] * len(clutter)
+    return pts, np.array(labels)
+
+
+def test_scoring_on_labelled_points_has_the_known_answer(rng):
+    from tasks.evaluate import evaluate_walls_on_points
+
+    pts, labels = _labelled_box(rng)
+    box = np.array([[0, 0, 4, 0], [4, 0, 4, 3], [4, 3, 0, 3], [0, 3, 0, 0.0]])
+    ev = evaluate_walls_on_points(box, pts[:, :2], labels)
+    assert ev["completeness"] == 1.0
+    assert ev["accuracy_mean_m"] == pytest.approx(0.02, abs=1e-9)
+    assert ev["accuracy_median_m"] == pytest.approx(0.02, abs=1e-9)
+    # the west wall (3 m of 14) has no structural point within 10 cm; its end samples touch the others
+    assert ev["correctness"] == pytest.approx(11 / 14, abs=0.02)
+    # a model wall 30 cm inside the south wall explains none of its points
+    moved = box + np.array([0, 0.3, 0, 0.3])[None] * np.array([[1], [0], [0], [0]])
+    ev2 = evaluate_walls_on_points(moved, pts[:, :2], labels)
+    south = int((labels == "wall").sum() / 3)
+    assert ev2["completeness"] == pytest.approx(1 - south / (labels == "wall").sum(), abs=0.02)
+
+
+def test_evaluate_walls_points_on_the_command_line(tmp_path, capsys, rng):
+    from flows.cli import main
+    from tasks import artefacts as art
+
+    pts, labels = _labelled_box(rng)
+    folder = tmp_path / "Annotations"
+    folder.mkdir()
+    for k, name in enumerate(["wall", "door", "clutter"]):
+        np.savetxt(
+            folder / f"{name}_{k + 1}.txt",
+            np.column_stack([pts[labels == name], np.zeros((int((labels == name).sum()), 3))]),
+        )
+    box = np.array([[0, 0, 4, 0], [4, 0, 4, 3], [4, 3, 0, 3], [0, 3, 0, 0.0]])
+    table = art.segments_table(box, height=np.full(4, 2.5), origin=np.full(4, "observed"), support=np.ones(4))
+    art.write_table(tmp_path / "walls.parquet", table, art.WALLS_SCHEMA)
+    capsys.readouterr()
+    assert main(["evaluate-walls", str(tmp_path / "walls.parquet"), str(folder), "--points"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["completeness"] == 1.0 and out["accuracy_mean_m"] == pytest.approx(0.02, abs=1e-6)
+    (tmp_path / "bad.txt").write_text("1 2 3\n")
+    assert (
+        main(["evaluate-walls", str(tmp_path / "walls.parquet"), str(tmp_path / "bad.txt"), "--points"]) != 0
+    )
+    err = capsys.readouterr().err
+    assert "bad.txt" in err and "no label" in err and len(err.strip().splitlines()) == 1
