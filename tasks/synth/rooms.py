@@ -648,7 +648,9 @@ def degrade_handheld(
     return out, HandheldDegradation(spacing, cut, unseen_share, floor_share, unseen, seen)
 
 
-def wall_labels(points: NDArray[np.float64], walls: NDArray[np.float64], tol_m: float = 0.05) -> NDArray[np.str_]:
+def wall_labels(
+    points: NDArray[np.float64], walls: NDArray[np.float64], tol_m: float = 0.05
+) -> NDArray[np.str_]:
     """(N,) "wall" for points within `tol_m` (plan view) of a wall face and above the floor's 5 cm,
     "other" for the rest: the labelled points a real dataset would give (doors and windows leave no
     points here)."""
