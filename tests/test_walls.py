@@ -622,3 +622,71 @@ def test_evaluate_walls_points_on_the_command_line(tmp_path, capsys, rng):
     )
     err = capsys.readouterr().err
     assert "bad.txt" in err and "no label" in err and len(err.strip().splitlines()) == 1
+
+
+# ------------------------------------------------------------------------------ degraded handheld rooms
+
+
+def test_the_handheld_degradation_does_what_it_says(rng):
+    from tasks.lines import lengths
+    from tasks.synth.rooms import degrade_handheld
+
+    room = make_room("rectangle", rng)
+    walls = truth_walls(room)
+    pts = sample_room(
+        room, "kinect_v1", rng, density=4000.0, z_range=(0.0, 2.7), floor_ceiling_density=4000.0
+    )
+    out, d = degrade_handheld(pts, walls, rng)
+    assert 0.03 <= d.spacing_m <= 0.05 and 1.3 <= d.cut_m <= 2.0 and 0.2 <= d.unseen_share <= 0.3
+    assert out[:, 2].max() <= d.cut_m  # no ceiling, nothing above the cut
+    assert lengths(d.unseen).sum() / lengths(walls).sum() == pytest.approx(d.unseen_share, abs=1e-9)
+    assert lengths(d.unseen).sum() + lengths(d.seen).sum() == pytest.approx(lengths(walls).sum())
+    # one point per spacing cube at most
+    cells = np.floor(out / d.spacing_m).astype(np.int64)
+    assert len(np.unique(cells, axis=0)) == len(out)
+    # the floor is partly seen: fewer floor points than the seen share of the full cloud would hold
+    floor_in = (pts[:, 2] < 0.05).sum()
+    assert 0 < (out[:, 2] < 0.05).sum() < floor_in
+
+
+def _degraded(kind: str, seed: int):
+    from tasks.cloud import Cloud
+    from tasks.preprocess.config import PreprocessConfig
+    from tasks.preprocess.pipeline import preprocess
+    from tasks.synth.rooms import degrade_handheld, wall_labels
+
+    rng = np.random.default_rng(seed)
+    room = make_room(kind, rng)
+    walls = truth_walls(room)
+    pts = sample_room(
+        room, "kinect_v1", rng, density=4000.0, z_range=(0.0, 2.7), floor_ceiling_density=4000.0
+    )
+    out, d = degrade_handheld(pts, walls[: len(room.outline)], rng)
+    pre = preprocess(Cloud(out), PreprocessConfig())
+    model = model_walls(pre.slice.points, pre.floor_z_m, pre.ceiling_z_m, CFG)
+    return out, wall_labels(out, walls), d, pre, model
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [8301, 8302])
+@pytest.mark.parametrize("kind", ["rectangle", "l_shape"])
+def test_a_degraded_handheld_room_is_modelled_with_parameters_from_the_data(kind, seed):
+    """3-5 cm spacing, walls cut at 1.3-2.0 m without a ceiling, a quarter of the walls unseen: the room
+    is not refused; the slice is where the walls were seen, the grid follows the spacing, both recorded;
+    the walls explain most wall points within 20 mm."""
+    from tasks.evaluate import evaluate_walls_on_points
+
+    pts, labels, d, pre, model = _degraded(kind, seed)
+    assert pre.metrics["slice_high_z_m"] <= d.cut_m and "top of the walls" in pre.metrics["slice_reason"]
+    assert pre.metrics["slice_vertical_surfaces_only"]
+    assert model.metrics["grid_size_m"] > CFG.grid_size_m
+    assert model.metrics["point_spacing_m"] == pytest.approx(d.spacing_m, rel=0.4)
+    back = np.linalg.inv(pre.levelling)
+    ends = np.concatenate([model.walls[:, :2], model.walls[:, 2:]])
+    pivot_z = pre.metrics["levelling_pivot_m"][2]
+    xy = (np.column_stack([ends, np.full(len(ends), pivot_z)]) @ back[:3, :3].T + back[:3, 3])[:, :2]
+    walls = np.column_stack([xy[: len(model.walls)], xy[len(model.walls) :]])
+    ev = evaluate_walls_on_points(walls, pts[:, :2], labels)
+    assert ev["completeness"] >= 0.85, ev
+    assert ev["accuracy_mean_m"] <= 0.020, ev
+    assert ev["correctness"] >= 0.75, ev
