@@ -306,14 +306,27 @@ def same_walls(a: NDArray, b: NDArray, tol_m: float) -> bool:
     )
 
 
+CLOSED_MIN_LENGTH_SHARE = 0.5
+"""`choose_alpha`: a closed candidate counts as closed only with at least this share of the candidates'
+median wall length."""
+
+
 def choose_alpha(cands: list[Candidate], tol_m: float) -> tuple[int, str]:
     """Index of the chosen candidate and the reason (see the module docstring). Models closed as they
     are rank before models closed only by bridging wider gaps, which rank before unclosed ones."""
     n = len(cands)
+    # a closed model holding under half the wall length the candidates typically find is a piece of
+    # furniture or a closet the walls of a poorly seen room happen to enclose, not the room
+    length = np.array([float(lengths(c.walls).sum()) for c in cands])
+    typical = float(np.median(length)) if n else 0.0
+    room_sized = length >= CLOSED_MIN_LENGTH_SHARE * typical
     tiers = (
-        ("closed", lambda c: c.closed and c.counts.get("bridged_gap_m") is None),
-        ("closed (after bridging wider gaps)", lambda c: c.closed),
-        ("unclosed (no candidate gave a closed wall graph)", lambda c: True),
+        (
+            "closed",
+            lambda c: c.closed and c.counts.get("bridged_gap_m") is None and room_sized[cands.index(c)],
+        ),
+        ("closed (after bridging wider gaps)", lambda c: c.closed and room_sized[cands.index(c)]),
+        ("unclosed (no candidate gave a closed, room-sized wall graph)", lambda c: True),
     )
     for what, ok in tiers:
         best, best_len = -1, 0
