@@ -7,7 +7,8 @@ unit converts once with `LinesConfig.scaled(units_per_metre)`.
 
 Steps, as in the thesis:
 - `merge_segments`: 3-level hierarchical clustering (orientation k-means on doubled angles with k from
-  the explained variance, eq 5.8; offset; connectivity) and averaging by regression (5.2.4.2);
+  the explained variance, eq 5.8, then a per-cluster split of angles that are bimodal beyond their noise;
+  offset; connectivity) and averaging by regression (5.2.4.2);
 - `regularize`: parallel clusters made equal, near-perpendicular ones made exactly 90° (eq 5.9);
 - then `tasks.connect.connect`: extension and trimming to intersections, perpendicular extension of free
   ends, removal of extensions without data (5.2.5.2);
