@@ -20,7 +20,10 @@ Steps, in this order:
 5. **Height histogram** (5.1.5): bins of the voxel size, so counts measure horizontal area; the lowest and
    highest significant peaks are floor and ceiling, refined below the bin size.
 6. **Furniture slice** (5.1.5): points from `slice_min_m` to `slice_max_m` above the floor, and at least
-   `slice_ceiling_margin_m` below the ceiling (lamps, and rooms lower than 2.5 m).
+   `slice_ceiling_margin_m` below the ceiling (lamps, and rooms lower than 2.5 m). Where the walls were
+   seen only lower (a handheld scan: no ceiling, walls ending at 1.3-2 m) the slice is the highest
+   `slice_min_band_m` band under their top, and without a ceiling to tell walls by their reach it keeps only
+   the points of smooth vertical surfaces (MLS normals): `slice_reason` in the metrics says which.
 
 Choices and what was measured (`python -m bench.preprocess --order-study --level-study --voxel-study`,
 synthetic furnished 6 x 5 x 2.7 m room tilted 3°, 2 % outliers; 2 cores shared with other work, so
