@@ -234,7 +234,19 @@ def build_parser() -> argparse.ArgumentParser:
         help="wall completeness, correctness, accuracy, corner F1, angle error, room IoU of PRED vs TRUTH",
     )
     p.add_argument("pred", type=Path, help="predicted walls: walls.parquet or plan.geojson")
-    p.add_argument("truth", type=Path, help="truth walls: Parquet (x0 y0 x1 y1 ...) or GeoJSON LineStrings")
+    p.add_argument(
+        "truth",
+        type=Path,
+        help="truth walls: Parquet (x0 y0 x1 y1 ...) or GeoJSON LineStrings; with --points, labelled points",
+    )
+    p.add_argument(
+        "--points",
+        action="store_true",
+        help="TRUTH is labelled points (a folder of <class>_<n>.txt files, or a text/CSV file of x y z label "
+        "rows): completeness = share of wall points within the tolerance of a model wall, correctness = "
+        "share of model wall length within it of a wall, column, door or window point, accuracy = mean and "
+        "median distance of those wall points (plan view)",
+    )
     p.add_argument("--tol-m", type=float, default=0.10, help="distance tolerance in metres (default 0.10)")
 
     p = sub.add_parser(
@@ -509,9 +521,18 @@ def cmd_evaluate_walls(args: argparse.Namespace) -> int:
     import json
 
     from tasks.artefacts import read_segments
-    from tasks.evaluate import evaluate_walls
+    from tasks.evaluate import evaluate_walls, evaluate_walls_on_points, read_labelled_points
 
     pred, _ = read_segments(args.pred)
+    if args.points:
+        try:
+            pts, labels = read_labelled_points(args.truth)
+        except ValueError as exc:
+            raise CliError(str(exc)) from None
+        if not (labels == "wall").any():
+            raise CliError(f"{args.truth}: no point is labelled wall")
+        print(json.dumps(evaluate_walls_on_points(pred, pts[:, :2], labels, args.tol_m), indent=2))
+        return 0
     truth, _ = read_segments(args.truth)
     if len(truth) == 0:
         raise CliError(f"{args.truth}: no walls")

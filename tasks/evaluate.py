@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -152,3 +153,102 @@ def evaluate_walls(
         rooms_truth=len(tr),
     )
     return out
+
+
+# ------------------------------------------------------------------------------- labelled points
+
+WALL_CLASSES = ("wall",)
+"""Labels of the points a model's walls should explain (completeness, accuracy)."""
+STRUCTURAL_CLASSES = ("wall", "column", "door", "window")
+"""Labels of the points that back a model wall (correctness): a wall line across a door is still right."""
+
+
+def evaluate_walls_on_points(
+    pred: NDArray,
+    points_xy: NDArray,
+    labels: Sequence[str] | NDArray,
+    tol_m: float = 0.10,
+    step_m: float = 0.01,
+) -> dict[str, Any]:
+    """Metrics of predicted walls (M, 4) against labelled points (a real room has no polygon truth), in
+    plan view (x-y, metres, one frame):
+    - completeness: the share of wall-labelled points within `tol_m` of a predicted wall;
+    - correctness: the share of the predicted walls' length (samples every `step_m`) within `tol_m` of a
+      structural point (wall, column, door, window);
+    - accuracy: the mean and median distance of the wall points within `tol_m`."""
+    from scipy.spatial import cKDTree
+
+    pred = as_segments(pred)
+    xy = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
+    lab = np.char.lower(np.asarray(labels, dtype=str))
+    if len(lab) != len(xy):
+        raise ValueError(f"{len(xy)} points but {len(lab)} labels")
+    wall = xy[np.isin(lab, WALL_CLASSES)]
+    structural = xy[np.isin(lab, STRUCTURAL_CLASSES)]
+    d_wall, _ = _nearest(wall, pred)
+    within = d_wall <= tol_m
+    acc = d_wall[within]
+    pp, _ = sample_segments(pred, step_m)
+    if len(pp) and len(structural):
+        backed = np.isfinite(cKDTree(structural).query(pp, distance_upper_bound=tol_m)[0])
+    else:
+        backed = np.zeros(len(pp), dtype=bool)
+    return {
+        "completeness": float(within.mean()) if len(wall) else float("nan"),
+        "correctness": float(backed.mean()) if len(pp) else 0.0,
+        "accuracy_mean_m": float(acc.mean()) if len(acc) else float("nan"),
+        "accuracy_median_m": float(np.median(acc)) if len(acc) else float("nan"),
+        "wall_points": len(wall),
+        "structural_points": len(structural),
+        "walls_pred": len(pred),
+        "length_pred_m": float(np.hypot(pred[:, 2] - pred[:, 0], pred[:, 3] - pred[:, 1]).sum()),
+    }
+
+
+def read_labelled_points(path: Path) -> tuple[NDArray[np.float64], NDArray[np.str_]]:
+    """Labelled points: ((N, 3) x y z in metres, (N,) class names). `path` is either
+    - a folder of one text file per object named `<class>_<n>.txt` (rows `x y z ...`, the common indoor
+      annotation layout: wall_1.txt, door_2.txt, clutter_5.txt), or
+    - one text or CSV file of rows `x y z label` (label a class name; a header line is skipped).
+    Raises ValueError (one line, naming the file) for anything else."""
+    import re
+
+    path = Path(path)
+    if path.is_dir():
+        files = sorted(path.glob("*.txt"))
+        if not files:
+            raise ValueError(f"{path}: no <class>_<n>.txt files in this folder")
+        pts, labels = [], []
+        for f in files:
+            m = re.fullmatch(r"([A-Za-z]+)(?:_\d+)?", f.stem)
+            if m is None:
+                raise ValueError(f"{f}: name is not <class>_<n>.txt")
+            try:
+                arr = np.loadtxt(f, ndmin=2, usecols=(0, 1, 2))
+            except ValueError as exc:
+                raise ValueError(f"{f}: rows must start with x y z numbers ({exc})") from None
+            pts.append(arr)
+            labels += [m.group(1).lower()] * len(arr)
+        return np.concatenate(pts).astype(np.float64), np.asarray(labels)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such file or folder")
+    delim = "," if path.suffix.lower() == ".csv" else None
+    rows = []
+    with path.open() as fh:
+        for k, line in enumerate(fh, 1):
+            parts = [p for p in (line.split(delim) if delim else line.split()) if p.strip()]
+            if not parts:
+                continue
+            try:
+                xyz = [float(p) for p in parts[:3]]
+            except ValueError:
+                if k == 1:
+                    continue  # a header
+                raise ValueError(f"{path}: line {k} does not start with x y z numbers") from None
+            if len(parts) < 4:
+                raise ValueError(f"{path}: line {k} has no label (rows are x y z label)")
+            rows.append((*xyz, parts[3].strip().lower()))
+    if not rows:
+        raise ValueError(f"{path}: no labelled points")
+    pts = np.array([r[:3] for r in rows], dtype=np.float64)
+    return pts, np.array([r[3] for r in rows])

@@ -45,6 +45,15 @@ class PreprocessConfig:
     """Furniture slice upper edge above the floor (m)."""
     slice_ceiling_margin_m: float = 0.15
     """The slice stops at least this far below the ceiling: lamps, rooms lower than slice_max_m (m)."""
+    slice_min_band_m: float = 0.5
+    """The slice is at least this tall (m). Where the walls were seen only up to a lower height (a handheld
+    scan: no ceiling, walls ending at 1.3 m) the band is the highest one of this height under the top of
+    the walls: low furniture (tables, chairs, beds) stays below it or does not reach its top."""
+    wall_normal_max_z: float = 0.5
+    """Without a captured ceiling, or with the slice lowered under `slice_min_m`, the slice keeps only the
+    points of smooth vertical surfaces: normal's vertical component at most this (sin 30°)."""
+    min_wall_span_m: float = 0.6
+    """The levelled cloud must span at least this height: less holds no wall band (m)."""
 
     def __post_init__(self) -> None:
         checks = [
@@ -62,6 +71,9 @@ class PreprocessConfig:
             (self.surface_search_m > 0, "surface_search_m must be positive"),
             (0 <= self.slice_min_m < self.slice_max_m, "slice_min_m must be >= 0 and below slice_max_m"),
             (self.slice_ceiling_margin_m >= 0, "slice_ceiling_margin_m must be >= 0"),
+            (self.slice_min_band_m > 0, "slice_min_band_m must be positive"),
+            (self.min_wall_span_m > 0, "min_wall_span_m must be positive"),
+            (0 < self.wall_normal_max_z <= 1, "wall_normal_max_z must be in (0, 1]"),
         ]
         for ok, message in checks:
             if not ok:

@@ -170,10 +170,10 @@ def floor_and_ceiling(
     with a warning; neither captured is an error."""
     bottom, top = _band_edges(hist)
     span = top - bottom
-    if span < cfg.slice_min_m:
+    if span < cfg.min_wall_span_m:
         raise DegenerateInputError(
             f"the levelled cloud spans only {span:.2f} m in height (a single plane?); "
-            f"a room needs more than slice_min_m = {cfg.slice_min_m} m"
+            f"walls need at least min_wall_span_m = {cfg.min_wall_span_m} m"
         )
     bin_m = float(hist.edges_m[1] - hist.edges_m[0])
     min_count = cfg.peak_min_area_m2 / bin_m**2
@@ -198,6 +198,8 @@ def floor_and_ceiling(
         "histogram_peak_min_count": min_count,
         "data_bottom_z_m": bottom,
         "data_top_z_m": top,
+        "floor_captured": bool(peaks and peaks[0] - bottom <= cfg.surface_search_m),
+        "ceiling_captured": bool(peaks and top - peaks[-1] <= cfg.surface_search_m),
     }
     return floor, ceiling, stats
 

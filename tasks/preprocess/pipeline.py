@@ -20,7 +20,10 @@ Steps, in this order:
 5. **Height histogram** (5.1.5): bins of the voxel size, so counts measure horizontal area; the lowest and
    highest significant peaks are floor and ceiling, refined below the bin size.
 6. **Furniture slice** (5.1.5): points from `slice_min_m` to `slice_max_m` above the floor, and at least
-   `slice_ceiling_margin_m` below the ceiling (lamps, and rooms lower than 2.5 m).
+   `slice_ceiling_margin_m` below the ceiling (lamps, and rooms lower than 2.5 m). Where the walls were
+   seen only lower (a handheld scan: no ceiling, walls ending at 1.3-2 m) the slice is the highest
+   `slice_min_band_m` band under their top, and without a ceiling to tell walls by their reach it keeps only
+   the points of smooth vertical surfaces (MLS normals): `slice_reason` in the metrics says which.
 
 Choices and what was measured (`python -m bench.preprocess --order-study --level-study --voxel-study`,
 synthetic furnished 6 x 5 x 2.7 m room tilted 3°, 2 % outliers; 2 cores shared with other work, so
@@ -166,7 +169,18 @@ def preprocess(cloud: Cloud, cfg: PreprocessConfig | None = None) -> Preprocesse
     lap("histogram")
 
     height = ceiling_z - floor_z
-    slice_low, slice_high, in_slice = _slice_band(z, floor_z, ceiling_z, cfg)
+    slice_low, slice_high, in_slice, slice_reason = _slice_band(
+        z, floor_z, ceiling_z, cfg, peak_stats["ceiling_captured"]
+    )
+    vertical_only = not peak_stats["ceiling_captured"] or slice_low < floor_z + cfg.slice_min_m
+    dropped_not_vertical = 0
+    if vertical_only:
+        # no ceiling to tell walls by their reach (everything in the band reaches its top): keep the points
+        # of smooth vertical surfaces; plants, lamps, table tops and ragged edges go
+        wall_like = _vertical_surface(surfaces, levelling[:3, :3], cfg.wall_normal_max_z)
+        dropped_not_vertical = int((in_slice & ~wall_like).sum())
+        if (in_slice & wall_like).any():
+            in_slice = in_slice & wall_like
     furniture_slice = levelled.subset(in_slice)
     lap("slice")
 
@@ -189,6 +203,9 @@ def preprocess(cloud: Cloud, cfg: PreprocessConfig | None = None) -> Preprocesse
         "height_m": height,
         "slice_low_z_m": slice_low,
         "slice_high_z_m": slice_high,
+        "slice_reason": slice_reason,
+        "slice_vertical_surfaces_only": vertical_only,
+        "slice_dropped_not_vertical": dropped_not_vertical,
         "slice_points": int(in_slice.sum()),
         "points_out": len(levelled),
         "warnings": warnings,
@@ -232,22 +249,54 @@ def _levelling(
     return levelling, pivot, level_stats
 
 
+def _vertical_surface(
+    surfaces: LocalSurfaces, rotation: NDArray[np.float64], max_z: float
+) -> NDArray[np.bool_]:
+    """(N,) points whose local fit is a smooth surface (not an edge, not unfit) with a normal within
+    `max_z` (its levelled z component) of horizontal: walls and the faces of furniture, not the loose
+    cloud of a plant nor a table top."""
+    n = surfaces.normals @ rotation.T
+    with np.errstate(invalid="ignore"):
+        return ~surfaces.edge & (np.abs(n[:, 2]) <= max_z)
+
+
 def _slice_band(
-    z: NDArray[np.float64], floor_z: float, ceiling_z: float, cfg: PreprocessConfig
-) -> tuple[float, float, NDArray[np.bool_]]:
-    """The furniture slice's lower and upper height and which of the heights z (N,) lie in it: from
-    `slice_min_m` to `slice_max_m` above the floor, at least `slice_ceiling_margin_m` below the ceiling."""
+    z: NDArray[np.float64],
+    floor_z: float,
+    ceiling_z: float,
+    cfg: PreprocessConfig,
+    ceiling_captured: bool = True,
+) -> tuple[float, float, NDArray[np.bool_], str]:
+    """The furniture slice's lower and upper height, which of the heights z (N,) lie in it, and why: from
+    `slice_min_m` to `slice_max_m` above the floor, at least `slice_ceiling_margin_m` below the ceiling
+    (without a captured ceiling `ceiling_z` is the top of the walls, and the margin is a voxel: their
+    free top edge is thinned by the outlier filter). When that leaves less than `slice_min_band_m`
+    (a low room, walls seen only to 1.3-2 m), the slice is the highest band of that height under its top."""
     height = ceiling_z - floor_z
+    margin = cfg.slice_ceiling_margin_m if ceiling_captured else cfg.voxel_size_m
     slice_low = floor_z + cfg.slice_min_m
-    slice_high = min(floor_z + cfg.slice_max_m, ceiling_z - cfg.slice_ceiling_margin_m)
-    if slice_high <= slice_low:
+    slice_high = min(floor_z + cfg.slice_max_m, ceiling_z - margin)
+    reason = f"{cfg.slice_min_m}-{cfg.slice_max_m} m above the floor"
+    if slice_high < floor_z + cfg.slice_max_m:
+        reason += ", cut " + (
+            f"{margin} m below the ceiling" if ceiling_captured else f"{margin} m below the top of the walls"
+        )
+    if slice_high - slice_low < cfg.slice_min_band_m:
+        slice_low = slice_high - cfg.slice_min_band_m
+        reason = (
+            f"the highest {cfg.slice_min_band_m} m band under "
+            + ("the ceiling" if ceiling_captured else "the top of the walls (no ceiling captured)")
+            + f": walls seen up to {height:.2f} m above the floor"
+        )
+    if slice_low <= floor_z + cfg.voxel_size_m:
         raise DegenerateInputError(
-            f"room height {height:.2f} m leaves no furniture slice between {cfg.slice_min_m} m above the "
-            f"floor and {cfg.slice_ceiling_margin_m} m below the ceiling"
+            f"room height {height:.2f} m leaves no wall band of {cfg.slice_min_band_m} m above the floor "
+            f"(slice_min_band_m) and {margin} m below the "
+            + ("ceiling" if ceiling_captured else "top of the walls")
         )
     in_slice = (z >= slice_low) & (z <= slice_high)
     if not in_slice.any():
         raise DegenerateInputError(
             f"furniture slice {slice_low:.2f}-{slice_high:.2f} m (levelled frame) holds no points"
         )
-    return slice_low, slice_high, in_slice
+    return slice_low, slice_high, in_slice, reason

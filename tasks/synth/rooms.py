@@ -80,7 +80,11 @@ class Room:
 # ------------------------------------------------------------------------------------------- rooms
 
 KINDS = ("rectangle", "l_shape", "wall70", "alcove_column")
-"""The rooms of the accuracy tests; "square10" (10 m x 10 m) is the benchmark's."""
+"""The rooms of the accuracy tests; "square10" (10 m x 10 m) is the benchmark's; "trapezoid<deg>" (e.g.
+"trapezoid7.5") is the near-parallel family (`NEAR_PARALLEL_DEG`)."""
+NEAR_PARALLEL_DEG = (3.0, 5.0, 7.5, 10.0, 15.0)
+"""Opening angles of the near-parallel rooms: a 5 m x 4 m trapezoid whose long opposite walls are this many
+degrees apart, with one wall at 70° to its neighbour (old town houses, wings meeting at 5-15°)."""
 
 
 def _outline(kind: str) -> tuple[NDArray, tuple[NDArray, ...]]:
@@ -92,6 +96,14 @@ def _outline(kind: str) -> tuple[NDArray, tuple[NDArray, ...]]:
         return np.array([(0, 0), (6.0, 0), (6.0, 3.0), (3.5, 3.0), (3.5, 5.0), (0, 5.0)]), ()
     if kind == "wall70":
         return np.array([(0, 0), (5.0, 0), (5.0, 4.0), (4.0 / math.tan(math.radians(70)), 4.0)]), ()
+    if kind.startswith("trapezoid"):
+        # south wall along x, east wall at 90°, north wall turned by `delta` from the south wall (its
+        # west end lower), west wall at 70° to the south wall
+        delta = math.radians(float(kind.removeprefix("trapezoid")))
+        t70 = math.tan(math.radians(70))
+        # the north wall y = 4 - (5 - x) tan(delta) meets the west wall y = x tan70
+        x_nw = (4.0 - 5.0 * math.tan(delta)) / (t70 - math.tan(delta))
+        return np.array([(0, 0), (5.0, 0), (5.0, 4.0), (x_nw, x_nw * t70)]), ()
     if kind == "alcove_column":
         outline = np.array(
             [(0, 0), (1.5, 0), (1.5, 0.35), (2.0, 0.35), (2.0, 0), (6.0, 0), (6.0, 4.0), (4.0, 4.0),
@@ -214,7 +226,9 @@ class Sensor:
 SENSORS = {
     "kinect_v1": Sensor("kinect_v1", 0.003, True, 0.0026, 0.003, 0.003, None),
     "tls": Sensor("tls", 0.002, False, 0.0, 0.001, 0.0, 2),
+    "noise12": Sensor("noise12", 0.012, False, 0.0, 0.003, 0.003, None),
 }
+""""noise12": 12 mm range noise at any range (the near-parallel rooms of issue 14), Kinect-like otherwise."""
 
 
 def _sample_quads(quads: list[tuple[NDArray, NDArray, float, float]], density: float, rng) -> tuple:
@@ -538,3 +552,111 @@ def to_room_frame(
     """Levelled-frame points (N, 3) back in the true room frame."""
     full = levelling @ truth.room_to_input
     return (points - full[:3, 3]) @ full[:3, :3]
+
+
+# ------------------------------------------------------------------------------- handheld degradation
+
+
+@dataclass(frozen=True)
+class HandheldDegradation:
+    """What `degrade_handheld` did to a room cloud (the parameters are drawn per room)."""
+
+    spacing_m: float
+    """Random subsampling to one point per cube of this edge (3-5 cm)."""
+    cut_m: float
+    """Nothing above this height over the floor (1.3-2.0 m): no ceiling, walls end there."""
+    unseen_share: float
+    """Share of the wall length left unseen (0.2-0.3), in two spans."""
+    floor_share: float
+    """Share of the floor's extent that was seen (0.3-0.7, one side of a line)."""
+    unseen: NDArray[np.float64]
+    """(U, 4) the unseen pieces of the walls (x0 y0 x1 y1)."""
+    seen: NDArray[np.float64]
+    """(S, 4) the seen pieces of the walls."""
+
+
+def _perimeter_pieces(walls: NDArray, spans: list[tuple[float, float]]) -> tuple[NDArray, NDArray]:
+    """The walls cut at the perimeter positions of `spans` ((start, end) along the concatenated walls,
+    metres): (pieces inside a span (U, 4), pieces outside (S, 4))."""
+    L = np.hypot(walls[:, 2] - walls[:, 0], walls[:, 3] - walls[:, 1])
+    start = np.concatenate([[0.0], np.cumsum(L)[:-1]])
+    inside, outside = [], []
+    for w, s0, length in zip(walls, start, L, strict=True):
+        cuts = {0.0, float(length)}
+        for a, b in spans:
+            cuts |= {float(np.clip(a - s0, 0, length)), float(np.clip(b - s0, 0, length))}
+        cuts_sorted = sorted(cuts)
+        for t0, t1 in itertools.pairwise(cuts_sorted):
+            if t1 - t0 <= 1e-9:
+                continue
+            mid = s0 + 0.5 * (t0 + t1)
+            p0 = w[:2] + (w[2:] - w[:2]) * t0 / length
+            p1 = w[:2] + (w[2:] - w[:2]) * t1 / length
+            (inside if any(a <= mid <= b for a, b in spans) else outside).append([*p0, *p1])
+    return np.array(inside).reshape(-1, 4), np.array(outside).reshape(-1, 4)
+
+
+def degrade_handheld(
+    points: NDArray[np.float64], walls: NDArray[np.float64], rng: np.random.Generator, floor_z: float = 0.0
+) -> tuple[NDArray[np.float64], HandheldDegradation]:
+    """A room cloud (N, 3, z up, metres) degraded the way handheld and phone scans are: nothing above a
+    random cut between 1.3 and 2.0 m over `floor_z` (no ceiling), 20-30 % of the wall length (`walls`
+    (M, 4), the room's inner faces in order round the room) unseen in two spans (everything within 0.5 m
+    of them in plan view removed), the floor seen only on one side of a random line (30-70 % of it),
+    then randomly subsampled to one point per 3-5 cm cube. Returns (points, what was done)."""
+    walls = np.asarray(walls, dtype=np.float64).reshape(-1, 4)
+    spacing = float(rng.uniform(0.03, 0.05))
+    cut = float(rng.uniform(1.3, 2.0))
+    unseen_share = float(rng.uniform(0.2, 0.3))
+    floor_share = float(rng.uniform(0.3, 0.7))
+    total = float(np.hypot(walls[:, 2] - walls[:, 0], walls[:, 3] - walls[:, 1]).sum())
+    # two spans, apart from each other, sharing the unseen length at random
+    first = float(rng.uniform(0.3, 0.7)) * unseen_share * total
+    second = unseen_share * total - first
+    a = float(rng.uniform(0, total))
+    b = a + first + float(rng.uniform(0.1, 0.4)) * total
+    spans = []
+    for s, length in ((a, first), (b, second)):
+        s = s % total
+        if s + length <= total:
+            spans.append((s, s + length))
+        else:
+            spans += [(s, total), (0.0, s + length - total)]
+    unseen, seen = _perimeter_pieces(walls, spans)
+
+    pts = np.asarray(points, dtype=np.float64)
+    h = pts[:, 2] - floor_z
+    keep = h <= cut
+    if len(unseen):
+        from tasks.lines import point_segment_distances
+
+        near = np.zeros(len(pts), dtype=bool)
+        for k in range(0, len(pts), 20000):
+            near[k : k + 20000] = point_segment_distances(pts[k : k + 20000, :2], unseen).min(axis=1) < 0.5
+        keep &= ~near
+    floor = h < 0.05
+    phi = float(rng.uniform(0, 2 * np.pi))
+    along = pts[:, :2] @ np.array([math.cos(phi), math.sin(phi)])
+    if floor.any():
+        keep &= ~floor | (along <= np.quantile(along[floor], floor_share))
+    pts = pts[keep]
+    # random subsampling: one random point per cube of the spacing
+    order = rng.permutation(len(pts))
+    cells = np.floor(pts[order] / spacing).astype(np.int64)
+    _, first_idx = np.unique(cells, axis=0, return_index=True)
+    out = pts[np.sort(order[first_idx])]
+    return out, HandheldDegradation(spacing, cut, unseen_share, floor_share, unseen, seen)
+
+
+def wall_labels(
+    points: NDArray[np.float64], walls: NDArray[np.float64], tol_m: float = 0.05
+) -> NDArray[np.str_]:
+    """(N,) "wall" for points within `tol_m` (plan view) of a wall face and above the floor's 5 cm,
+    "other" for the rest: the labelled points a real dataset would give (doors and windows leave no
+    points here)."""
+    from tasks.lines import point_segment_distances
+
+    d = np.full(len(points), np.inf)
+    for k in range(0, len(points), 20000):
+        d[k : k + 20000] = point_segment_distances(points[k : k + 20000, :2], walls).min(axis=1)
+    return np.where((d <= tol_m) & (points[:, 2] > 0.05), "wall", "other")

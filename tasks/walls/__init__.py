@@ -5,7 +5,9 @@ correct 2D model of the inner wall faces, extruded from floor to ceiling.
 and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesis section in brackets):
 
 1. projection image (5.2.1, eq 5.3; `image`): the number of occupied voxels above each grid cell, so that
-   the image measures wall height rather than point density (overlapping frames count once);
+   the image measures wall height rather than point density (overlapping frames count once). The grid is
+   `grid_size_m` or, on a sparse cloud, half its point spacing (`model.grid_from_data`, recorded in the
+   metrics with the spacing);
 2. binarization (5.2.2, `image`): eq 5.5 keeps the cells whose column is at least α = H_noise / H_filter
    full, so clutter shorter than α of the slice disappears (eq 5.4, μ - 1.65σ, as the alternative). A
    cell's data must also span `min_column_height_m`: table tops and ceiling patches are flat;
@@ -19,7 +21,9 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    face of a thin free-standing wall whose first face reaches the top (`thin_wall_faces`), and a long line
    with no top-reaching data parallel and close beside it (`unshadowed_lines`: furniture is seen in front
    of a wall seen above it, while a corridor captured from a metre away never reaches the top);
-6. regularization (5.2.5.1, eq 5.9, `tasks.lines.regularize`); each wall's offset is refined to the median
+6. regularization (5.2.5.1, eq 5.9, `tasks.lines.regularize`), refused for a line it would move by more
+   than three times its data's noise (`topology.line_noise`: a wall a few degrees off its neighbours keeps
+   its angle); each wall's offset is refined to the median
    of the slice points near it (the skeleton is only good to a pixel), and its ends are moved out along it
    as far as its data goes (`extend_to_data`: the skeleton stops short of a band's end);
 7. topology (5.2.5.2, `tasks.connect.connect_detailed`; `topology`): extension and trimming (trimming only
@@ -39,6 +43,7 @@ its set of walls. Walls are stable over a wide range of α (their columns are fu
 not (they fade out gradually), and too large an α breaks the walls apart. The chosen α is the smallest of
 the longest run of consecutive candidates that give a closed wall graph and the same walls (every wall end
 within `stable_tol_m` of a wall of the neighbour's model); without a closed model, the longest run of
-equal models. The chosen α is run again with the refinement. Occupancy alone cannot tell a tall cabinet
+equal models; a closed model holding under half the candidates' median wall length (a closet the walls of
+a poorly seen room enclose) does not count as closed. The chosen α is run again with the refinement. Occupancy alone cannot tell a tall cabinet
 from the wall above a window (both fill part of the slice): the top-reach test does that, not α.
 """

@@ -14,7 +14,13 @@ class WallsConfig:
     """Settings of the wall modelling stage (thesis 5.2, table 6.3)."""
 
     grid_size_m: float = 0.01
-    """Projection image pixel size = voxel size of the occupancy count (m)."""
+    """Finest projection image pixel size = voxel size of the occupancy count (m). The grid used is the
+    larger of this and `grid_spacing_ratio` times the slice's point spacing (table 6.3: the grid from
+    the cloud): on a 1 cm grid the points of a sparse (3-5 cm) handheld scan are isolated dots that no
+    closing joins into a wall band."""
+    grid_spacing_ratio: float = 0.5
+    """Grid = this times the slice's median nearest-neighbour spacing, when that is above `grid_size_m`
+    (two cells per point spacing: the 3x3 closing bridges the one empty cell between points)."""
     gray_levels: int = 255
     """G in eq 5.3 / 5.5."""
     binarization: Literal["alpha", "gaussian"] = "alpha"

@@ -206,6 +206,35 @@ def _check_input(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cf
     return pts
 
 
+def point_spacing(points: NDArray, k: int = 6, max_points: int = 20000) -> float:
+    """The points' spacing on their surfaces, 1 / sqrt(points per m²): from the median distance d_k to
+    the k-th nearest neighbour (3D), as k points lie within pi d_k² of a surface, s = d_k sqrt(pi / k).
+    A regular grid of spacing s and random points of that density give about s alike (the nearest
+    neighbour alone would halve the random ones). Measured on at most `max_points` points taken evenly."""
+    from scipy.spatial import cKDTree
+
+    step = max(1, len(points) // max_points)
+    sample = points[::step]
+    d, _ = cKDTree(points).query(sample, k=k + 1)
+    return float(np.median(d[:, k]) * math.sqrt(math.pi / k))
+
+
+def grid_from_data(pts: NDArray, cfg: WallsConfig) -> tuple[WallsConfig, dict[str, Any]]:
+    """The grid from the cloud (table 6.3): `grid_spacing_ratio` times the point spacing, at least
+    `grid_size_m`, rounded to the millimetre; the lengths read in pixels of it follow (a line's end
+    tolerance is at least a cell). Returns (config with that grid, the choice for the metrics)."""
+    spacing = point_spacing(pts)
+    grid = max(cfg.grid_size_m, round(cfg.grid_spacing_ratio * spacing, 3))
+    if grid > cfg.grid_size_m:
+        reason = (
+            f"{cfg.grid_spacing_ratio} x point spacing {spacing:.4f} m (above grid_size_m {cfg.grid_size_m})"
+        )
+        cfg = replace(cfg, grid_size_m=grid, end_tol_m=max(cfg.end_tol_m, grid))
+    else:
+        reason = f"grid_size_m (point spacing {spacing:.4f} m x {cfg.grid_spacing_ratio} is finer)"
+    return cfg, {"point_spacing_m": spacing, "grid_size_m": grid, "grid_reason": reason}
+
+
 def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg: WallsConfig) -> WallModel:
     """The wall model of one room from the furniture slice (N, 3) of its levelled cloud (z up, metres).
 
@@ -215,6 +244,7 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     pts = _check_input(slice_points, floor_z_m, ceiling_z_m, cfg)
+    cfg, grid_choice = grid_from_data(pts, cfg)
     proj = projection_image(pts, cfg, ceiling_z_m)
     grid, counts = proj.grid, proj.counts
     xy = np.ascontiguousarray(pts[:, :2])
@@ -262,6 +292,7 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
         warnings.append("the walls enclose a room but some walls have free ends")
     metrics: dict[str, Any] = {
         "points": len(pts),
+        **grid_choice,
         "image_shape": list(counts.shape),
         "slice_voxel_layers": proj.n_levels,
         "alpha": best.alpha,

@@ -84,6 +84,8 @@ def model_for(
         "skeleton_px": int(skel.sum()),
         "hough_segments": len(hough),
         "orientation_clusters": len(found.merged.orientation_deg),
+        "orientation_criterion": found.merged.orientation_criterion,
+        "regularization_refused": found.refused,
         "merged_lines": len(found.merged.segments),
         "lines_below_top": found.below_top,
         "removed_extensions": len(found.conn.removed),
@@ -110,6 +112,8 @@ class _Topology:
     """The wall data: cells near the top, and the other tall cells along the kept lines."""
     share: Any
     """share(segments) -> (P,) support of segments by `binary`."""
+    refused: int = 0
+    """Lines whose regularization was refused (it would move them beyond their data's noise)."""
 
 
 def _wall_data(binary: NDArray, top: NDArray, lines: NDArray, grid: Grid, tol_m: float) -> NDArray:
@@ -139,6 +143,7 @@ def _topology(
     given), connect, then keep the room's walls."""
     merged = merge_segments(hough, lcfg)
     lines = merged.segments
+    noise = line_noise(hough, merged.labels, lines, grid.size)
     below_top = 0
     if cfg.top_reach_m is not None and len(lines):
         reach = top_reach_shares(lines, top, cfg.top_share_tol_m, lcfg.angle_tol_deg)
@@ -146,10 +151,16 @@ def _topology(
         keep = keep | thin_wall_faces(lines, keep, top, cfg, lcfg.angle_tol_deg)
         keep |= unshadowed_lines(lines, keep, top, cfg)
         below_top = int((~keep).sum())
-        lines = lines[keep]
+        lines, noise = lines[keep], noise[keep]
     wall_data = _wall_data(binary, proj.top, lines, grid, cfg.support_tol_m)
     share = support_sampler(wall_data, grid, cfg.support_tol_m)
     reg, rotation = regularize(lines, lcfg)
+    # a regularization that moves a line's ends further than its data's noise is refused: the data say
+    # the wall runs at its own angle (a wall a few degrees off its neighbours' direction)
+    refused = np.abs(rotation) * 0.5 * lengths(lines) > REFUSE_NOISE_SIGMAS * noise
+    if refused.any():
+        rotation = np.where(refused, 0.0, rotation)
+        reg = np.where(refused[:, None], lines, reg)
     refined = reg if xy is None else refine_offsets(reg, xy, proj.cell, grid, cfg.refine_band_m)
     refined = extend_to_data(refined, wall_data, grid, cfg.end_tol_m, cfg.end_gap_m, lcfg.extend_m)
     centres = 0.5 * (refined[:, :2] + refined[:, 2:])
@@ -172,7 +183,32 @@ def _topology(
     if hung.any():
         walls, origin = walls[~hung], origin[~hung]
         polygon, walls, origin, _ = _room_polygon(walls, origin, grid.size)
-    return _Topology(merged, conn, walls, origin, polygon, outside, hung, below_top, wall_data, share)
+    return _Topology(
+        merged, conn, walls, origin, polygon, outside, hung, below_top, wall_data, share, int(refused.sum())
+    )
+
+
+REFUSE_NOISE_SIGMAS = 3.0
+"""A regularization may move a line's ends by at most this many standard deviations of its data about it."""
+
+
+def line_noise(hough: NDArray, labels: NDArray, lines: NDArray, floor_m: float) -> NDArray[np.float64]:
+    """(M,) the noise of each merged line's data: the RMS distance of its member Hough segments' ends from
+    the line (`labels` maps Hough segment -> line, -1 for none), at least `floor_m` (the grid: a skeleton
+    is only good to a pixel)."""
+    out = np.full(len(lines), float(floor_m))
+    if len(lines) == 0 or len(hough) == 0:
+        return out
+    d = lines[:, 2:] - lines[:, :2]
+    L = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
+    nrm = np.column_stack([-d[:, 1], d[:, 0]]) / L[:, None]
+    ok = labels >= 0
+    j = labels[ok]
+    off = [((hough[ok][:, k : k + 2] - lines[j, :2]) * nrm[j]).sum(axis=1) for k in (0, 2)]
+    sq = np.bincount(j, off[0] ** 2 + off[1] ** 2, len(lines))
+    n = np.bincount(j, minlength=len(lines)) * 2
+    rms = np.sqrt(sq / np.maximum(n, 1))
+    return np.maximum(out, rms)
 
 
 def _hung_from_ceiling(walls: NDArray, polygon: Any, low_share) -> NDArray[np.bool_]:
@@ -270,14 +306,27 @@ def same_walls(a: NDArray, b: NDArray, tol_m: float) -> bool:
     )
 
 
+CLOSED_MIN_LENGTH_SHARE = 0.5
+"""`choose_alpha`: a closed candidate counts as closed only with at least this share of the candidates'
+median wall length."""
+
+
 def choose_alpha(cands: list[Candidate], tol_m: float) -> tuple[int, str]:
     """Index of the chosen candidate and the reason (see the module docstring). Models closed as they
     are rank before models closed only by bridging wider gaps, which rank before unclosed ones."""
     n = len(cands)
+    # a closed model holding under half the wall length the candidates typically find is a piece of
+    # furniture or a closet the walls of a poorly seen room happen to enclose, not the room
+    length = np.array([float(lengths(c.walls).sum()) for c in cands])
+    typical = float(np.median(length)) if n else 0.0
+    room_sized = length >= CLOSED_MIN_LENGTH_SHARE * typical
     tiers = (
-        ("closed", lambda c: c.closed and c.counts.get("bridged_gap_m") is None),
-        ("closed (after bridging wider gaps)", lambda c: c.closed),
-        ("unclosed (no candidate gave a closed wall graph)", lambda c: True),
+        (
+            "closed",
+            lambda c: c.closed and c.counts.get("bridged_gap_m") is None and room_sized[cands.index(c)],
+        ),
+        ("closed (after bridging wider gaps)", lambda c: c.closed and room_sized[cands.index(c)]),
+        ("unclosed (no candidate gave a closed, room-sized wall graph)", lambda c: True),
     )
     for what, ok in tiers:
         best, best_len = -1, 0
