@@ -8,7 +8,7 @@ import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
-from tasks import lines
+from tasks import lines_config as lines
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
-from tasks.lines import LinesConfig
+from tasks.lines_config import LinesConfig
 
 
 @dataclass(frozen=True)
