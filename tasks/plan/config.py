@@ -71,6 +71,20 @@ class PlanConfig:
     frames: the walls inside them (scale bars, legend symbols) are dropped. 0 disables."""
     legend_frame_cover: float = 0.9
     """Share of each side of a thin component's bounding box that its ink must cover to be a frame."""
+    heavy_walls_share: float = 0.6
+    """When the strokes drawn in a heavy pen (heavy_pen_m) span this share of the grid cells the whole
+    drawing's walls span, only they are walls (filled between faces): furniture, stairs and fixtures are
+    drawn in thin lines."""
+    heavy_pen_m: float = 0.06
+    """Line weight (metres of plan) from which a line is drawn in a heavy pen (cut walls, 0.5 mm at 1:100)."""
+    region_join_m: float = 1.2
+    """Wall strokes closer than this (across a door) belong to one network when the plan is looked for."""
+    region_min_share: float = 0.3
+    """Wall networks at least this share as long as the longest one are part of the plan (other wings);
+    shorter ones outside their box (scale bars, legend and title frames) are not."""
+    free_wall_min_m: float = 2.5
+    """A wall standing free in the plan (farther than region_join_m from the others) is at least this
+    long; shorter free pieces that are not columns are furniture."""
     bridge_max_m: float = 2.0
     """Longest wall stretch hidden under a symbol that is bridged (only across symbol pixels)."""
     hough_min_length_m: float = 0.15

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
+from skimage.morphology import skeletonize
 
 from tasks.plan.config import PlanConfig
 
@@ -278,6 +279,53 @@ def _bridge_symbols(
     return out
 
 
+def _networks(mask: NDArray[np.bool_], join_px: float) -> tuple[int, NDArray[np.int32], NDArray]:
+    """Label the stroke networks of a mask: strokes closer than join_px (across a door) are one network.
+    Returns (count, (h, w) labels of the mask's pixels, (count,) skeleton length of each, pixels)."""
+    r = max(1, round(join_px / 2))
+    grown = cv2.dilate(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
+    n, lab = cv2.connectedComponents(grown, connectivity=8)
+    skel = skeletonize(mask)
+    length = np.bincount(lab[skel], minlength=n).astype(np.float64)
+    length[0] = 0.0
+    return n, np.where(mask, lab, 0), length
+
+
+def _network_cells(mask: NDArray[np.bool_], join_px: float, cell_px: int) -> int:
+    """How many cell_px grid cells the longest stroke network of the mask touches (its span)."""
+    if not mask.any():
+        return 0
+    _n, lab, length = _networks(mask, join_px)
+    vs, us = np.nonzero(lab == int(np.argmax(length)))
+    return len(np.unique((vs // cell_px) * (mask.shape[1] // cell_px + 1) + us // cell_px))
+
+
+def plan_region(
+    walls: NDArray[np.bool_], join_px: float, min_share: float, long_px: float
+) -> tuple[NDArray[np.bool_], tuple[int, int, int, int]]:
+    """The drawing's plan: the box of the longest network of wall strokes (strokes closer than join_px
+    joined, so across doors) and the networks at least min_share as long (other wings). Legend panels,
+    title blocks, scale bars and frames beside the plan go. Returns the walls kept and the box (u0, v0,
+    u1, v1)."""
+    if not walls.any():
+        return walls, (0, 0, walls.shape[1], walls.shape[0])
+    _n, lab, length = _networks(walls, join_px)
+    big = np.flatnonzero(length >= min_share * length.max())
+    ys, xs = np.nonzero(np.isin(lab, big))
+    u0, v0, u1, v1 = int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
+    # in that box: the pieces of wall at least long_px across (the largest among them), and columns
+    # (compact and solid); a table's heavy double outline, a stair's or a counter's are neither
+    _m, comp, stats, _c = cv2.connectedComponentsWithStats(walls.astype(np.uint8), connectivity=8)
+    x, y, w, h, area = (stats[:, k] for k in range(5))
+    cx, cy = x + w / 2, y + h / 2
+    column = (area >= 0.7 * w * h) & (np.maximum(w, h) <= 2 * np.minimum(w, h))
+    inside = (cx >= u0) & (cx <= u1) & (cy >= v0) & (cy <= v1)
+    ok = inside & (column | (np.hypot(w, h) >= long_px))
+    ok[1 + int(np.argmax(area[1:]))] = True
+    ok[0] = False
+    return ok[comp], (u0, v0, u1, v1)
+
+
 @dataclass(frozen=True)
 class InkMasks:
     """The enhanced working image and what its colours say: which pixels are ink, which are symbols."""
@@ -364,6 +412,10 @@ class WallRaster:
     """Colour layers that draw walls (`_wall_layers`)."""
     layer_evidence: dict[int, float]
     """Every colour layer's wall evidence (metres of wall face); empty for a one-colour drawing."""
+    region: tuple[int, int, int, int]
+    """(u0, v0, u1, v1) working pixels: the box of the plan's wall network (`plan_region`)."""
+    heavy_pen: bool
+    """Whether the walls are the strokes drawn in a heavy pen (`wall_raster`)."""
 
 
 def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
@@ -392,9 +444,27 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
             w8 |= closing(along, np.ones(ker_span, np.uint8))
         faces = w8.astype(bool) & ink
     lines_f = ink.astype(np.float32)  # the drawn lines: outline walls measure between their faces
-    ink = _fill_outline_walls(ink, cfg.max_outline_width_m * px, faces, cfg.min_wall_thickness_m * px)
     k = max(1, round(cfg.min_wall_thickness_m * px)) | 1  # odd: an even kernel shifts by a pixel
-    walls_r = cv2.morphologyEx(ink.astype(np.uint8), cv2.MORPH_OPEN, np.ones((k, k), np.uint8)).astype(bool)
+    box = np.ones((k, k), np.uint8)
+    filled = _fill_outline_walls(ink, cfg.max_outline_width_m * px, faces, cfg.min_wall_thickness_m * px)
+    walls_r = cv2.morphologyEx(filled.astype(np.uint8), cv2.MORPH_OPEN, box).astype(bool)
+    # Filling every outline would turn the thin outlines of furniture, stairs and fixtures into solid
+    # blobs. Architects draw the cut walls in a heavier pen than everything else (solid, hatched inside a
+    # heavy outline, or two heavy faces): when the strokes at least heavy_pen_m wide span nearly as much
+    # of the plan as the whole drawing does, only they are walls, filled between faces.
+    join, cell = cfg.region_join_m * px, max(1, round(cfg.wall_face_min_m * px / 2))
+    hp = max(2, round(cfg.heavy_pen_m * px))
+    heavy = cv2.morphologyEx(ink.astype(np.uint8), cv2.MORPH_OPEN, np.ones((hp, hp), np.uint8))
+    heavy = cv2.dilate(heavy, np.ones((3, 3), np.uint8)).astype(bool) & ink
+    heavy = _remove_small_components(heavy, cfg.text_max_size_m * px)[0]  # where thin lines cross
+    walls_h = cv2.morphologyEx(
+        _fill_outline_walls(heavy, cfg.max_outline_width_m * px).astype(np.uint8), cv2.MORPH_OPEN, box
+    ).astype(bool)
+    heavy_pen = _network_cells(walls_h, join, cell) >= cfg.heavy_walls_share * _network_cells(
+        walls_r, join, cell
+    )
+    if heavy_pen:
+        walls_r = walls_h
     walls_r, more_text = _remove_small_components(walls_r, cfg.text_max_size_m * px)
     text_px = np.concatenate([text_px, more_text])
     walls_r = _bridge_symbols(
@@ -405,4 +475,7 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
     if cfg.legend_frame_min_m > 0:
         frames = _legend_frames(dark, cfg.legend_frame_min_m * px, cfg.legend_frame_cover)
         walls_r = _drop_framed(walls_r, frames)
-    return WallRaster(walls_r, lines_f, text_px, wall_layers, layer_evidence)
+    walls_r, region = plan_region(
+        walls_r, cfg.region_join_m * px, cfg.region_min_share, cfg.free_wall_min_m * px
+    )
+    return WallRaster(walls_r, lines_f, text_px, wall_layers, layer_evidence, region, heavy_pen)
