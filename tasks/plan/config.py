@@ -83,8 +83,8 @@ class PlanConfig:
     """Wall networks at least this share as long as the longest one are part of the plan (other wings);
     shorter ones outside their box (scale bars, legend and title frames) are not."""
     free_wall_min_m: float = 2.5
-    """A wall standing free in the plan (farther than region_join_m from the others) is at least this
-    long; shorter free pieces that are not columns are furniture."""
+    """In a drawing whose walls are drawn in a heavy pen, a piece of wall not joined to the largest one is
+    at least this long (or a column); shorter pieces are furniture drawn in double lines."""
     bridge_max_m: float = 2.0
     """Longest wall stretch hidden under a symbol that is bridged (only across symbol pixels)."""
     hough_min_length_m: float = 0.15
@@ -120,20 +120,26 @@ class PlanConfig:
     """Smallest plausible plan extent; a smaller one means the scale is wrong."""
     max_extent_m: float = 400.0
     """Largest plausible plan extent; a larger one means the scale is wrong."""
+    max_dark_share: float = 0.35
+    """An image more than this share dark is a photo or a dark surface, not a line drawing."""
+    sheet_aspect: float = 1.41421356
+    """Side ratio (long / short) of the paper sheet: when no scale is given and a photo shows the sheet's
+    border, the sheet is rectified to it (ISO 216: A4, A3, ...). 0 disables."""
+    sheet_min_area_share: float = 0.2
+    """The sheet found in a photo covers at least this share of it."""
     min_walls: int = 3
     """Fewer walls than this means the image holds no floor plan."""
     min_wall_length_diagonals: float = 0.5
     """The walls must add up to at least this many image diagonals, else it is no plan."""
-    min_wall_coverage: float = 0.8
-    """Share of the cleaned wall raster that the vector walls must explain, else it is no plan."""
     coverage_wall_length_ratio: float = 1.2
-    """Only walls at least this many times their thickness long explain the raster in that test: texture
-    and noise also yield short straight pieces."""
+    """Only walls at least this many times their thickness long count in the wall coverage figure:
+    texture and noise also yield short straight pieces."""
 
 
 @dataclass(frozen=True)
 class PlanScale:
-    """How pixels become metres: exactly one of `m_per_px`, `known_distance`, `outline_length_m`."""
+    """How pixels become metres: at most one of `m_per_px`, `known_distance`, `outline_length_m`,
+    `outline_size_m`; with none, the printed scale bar is read."""
 
     m_per_px: float | None = None
     """Metres per pixel of the (rectified) image."""
@@ -153,9 +159,9 @@ class PlanScale:
             v is not None
             for v in (self.m_per_px, self.known_distance, self.outline_length_m, self.outline_size_m)
         ]
-        if sum(given) != 1:
+        if sum(given) > 1:
             raise ValueError(
-                "PlanScale needs exactly one of m_per_px, known_distance, outline_length_m, outline_size_m"
+                "PlanScale takes at most one of m_per_px, known_distance, outline_length_m, outline_size_m"
             )
         if self.outline_size_m is not None and (self.corners_px is None or min(self.outline_size_m) <= 0):
             raise ValueError("outline_size_m needs corners_px and two positive lengths")

@@ -279,38 +279,53 @@ def _bridge_symbols(
     return out
 
 
-def _networks(mask: NDArray[np.bool_], join_px: float) -> tuple[int, NDArray[np.int32], NDArray]:
-    """Label the stroke networks of a mask: strokes closer than join_px (across a door) are one network.
-    Returns (count, (h, w) labels of the mask's pixels, (count,) skeleton length of each, pixels)."""
-    r = max(1, round(join_px / 2))
-    grown = cv2.dilate(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
+def _networks(
+    mask: NDArray[np.bool_], join_px: float, cell_px: int
+) -> tuple[int, NDArray[np.int32], NDArray]:
+    """Label the stroke networks of a mask on a grid of cell_px cells: strokes closer than join_px (across
+    a door) are one network. Returns (count, (h, w) network of every mask pixel (0 off the mask), (count,)
+    how many grid cells each network touches: its span)."""
+    c = max(1, int(cell_px))
+    h, w = mask.shape
+    coarse = cv2.dilate(mask.astype(np.uint8), np.ones((c, c), np.uint8), anchor=(0, 0))[::c, ::c]
+    r = max(1, round(join_px / 2 / c))
+    grown = cv2.dilate(coarse, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
     n, lab = cv2.connectedComponents(grown, connectivity=8)
-    skel = skeletonize(mask)
-    length = np.bincount(lab[skel], minlength=n).astype(np.float64)
-    length[0] = 0.0
-    return n, np.where(mask, lab, 0), length
+    cells = np.bincount(lab[coarse > 0], minlength=n)
+    cells[0] = 0
+    full = np.repeat(np.repeat(lab, c, axis=0), c, axis=1)[:h, :w]
+    return n, np.where(mask, full, 0).astype(np.int32), cells
 
 
 def _network_cells(mask: NDArray[np.bool_], join_px: float, cell_px: int) -> int:
-    """How many cell_px grid cells the longest stroke network of the mask touches (its span)."""
+    """How many cell_px grid cells the largest stroke network of the mask touches (its span)."""
     if not mask.any():
         return 0
-    _n, lab, length = _networks(mask, join_px)
-    vs, us = np.nonzero(lab == int(np.argmax(length)))
-    return len(np.unique((vs // cell_px) * (mask.shape[1] // cell_px + 1) + us // cell_px))
+    return int(_networks(mask, join_px, cell_px)[2].max())
 
 
 def plan_region(
-    walls: NDArray[np.bool_], join_px: float, min_share: float, long_px: float
+    walls: NDArray[np.bool_], join_px: float, cell_px: int, min_share: float, long_px: float
 ) -> tuple[NDArray[np.bool_], tuple[int, int, int, int]]:
-    """The drawing's plan: the box of the longest network of wall strokes (strokes closer than join_px
-    joined, so across doors) and the networks at least min_share as long (other wings). Legend panels,
+    """The drawing's plan: the box of the largest network of wall strokes (strokes closer than join_px
+    joined, so across doors; size in cell_px cells) and the networks at least min_share as large that
+    span both directions (other wings, neighbouring flats; a scale bar is one bar). Legend panels,
     title blocks, scale bars and frames beside the plan go. Returns the walls kept and the box (u0, v0,
     u1, v1)."""
     if not walls.any():
         return walls, (0, 0, walls.shape[1], walls.shape[0])
-    _n, lab, length = _networks(walls, join_px)
-    big = np.flatnonzero(length >= min_share * length.max())
+    n, lab, cells = _networks(walls, join_px, cell_px)
+    # the largest network, and those at least min_share as large that are not a single bar (a scale bar)
+    ys, xs = np.nonzero(lab)
+    lo_u, lo_v = np.full(n, walls.shape[1]), np.full(n, walls.shape[0])
+    hi_u, hi_v = np.zeros(n, int), np.zeros(n, int)
+    np.minimum.at(lo_u, lab[ys, xs], xs)
+    np.minimum.at(lo_v, lab[ys, xs], ys)
+    np.maximum.at(hi_u, lab[ys, xs], xs)
+    np.maximum.at(hi_v, lab[ys, xs], ys)
+    two_d = np.minimum(hi_u - lo_u, hi_v - lo_v) >= join_px
+    big = np.flatnonzero((cells >= min_share * cells.max()) & two_d)
+    big = np.union1d(big, [int(np.argmax(cells))])
     ys, xs = np.nonzero(np.isin(lab, big))
     u0, v0, u1, v1 = int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
     # in that box: the pieces of wall at least long_px across (the largest among them), and columns
@@ -475,7 +490,9 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
     if cfg.legend_frame_min_m > 0:
         frames = _legend_frames(dark, cfg.legend_frame_min_m * px, cfg.legend_frame_cover)
         walls_r = _drop_framed(walls_r, frames)
+    # with the walls in a heavy pen, short pieces off the wall network are furniture drawn in double lines;
+    # in an outline drawing they are walls between openings
     walls_r, region = plan_region(
-        walls_r, cfg.region_join_m * px, cfg.region_min_share, cfg.free_wall_min_m * px
+        walls_r, cfg.region_join_m * px, cell, cfg.region_min_share, cfg.free_wall_min_m * px * heavy_pen
     )
     return WallRaster(walls_r, lines_f, text_px, wall_layers, layer_evidence, region, heavy_pen)

@@ -23,10 +23,10 @@ def to_metres(seg_px: NDArray, f: int, s: float) -> NDArray[np.float64]:
 
 def rectify(
     image: NDArray[np.uint8], corners: NDArray, size_m: tuple[float, float] | None
-) -> tuple[NDArray[np.uint8], float | None]:
+) -> tuple[NDArray[np.uint8], float | None, NDArray[np.float64]]:
     """Perspective rectification: the corners go to an axis-parallel rectangle with a 5 % margin. Its
     sides are the photo's mean side lengths, or, with `size_m`, the true aspect ratio at the photo's
-    mean resolution (then also returns that scale, metres per pixel)."""
+    mean resolution (then also returns that scale, metres per pixel); and the (3, 3) homography."""
     c = np.asarray(corners, dtype=np.float32)
     w = 0.5 * (np.hypot(*(c[1] - c[0])) + np.hypot(*(c[2] - c[3])))
     h = 0.5 * (np.hypot(*(c[3] - c[0])) + np.hypot(*(c[2] - c[1])))
@@ -38,7 +38,8 @@ def rectify(
     dst = np.float32([[margin, margin], [margin + w, margin], [margin + w, margin + h], [margin, margin + h]])
     H = cv2.getPerspectiveTransform(c, dst)
     size = (round(w + 2 * margin), round(h + 2 * margin))
-    return cv2.warpPerspective(image, H, size, flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255)), s
+    out = cv2.warpPerspective(image, H, size, flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255))
+    return out, s, H.astype(np.float64)
 
 
 def outline_scale(image: NDArray[np.uint8], length_m: float, cfg: PlanConfig) -> float:
