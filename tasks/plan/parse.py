@@ -29,7 +29,6 @@ from tasks import lines
 from tasks.plan.config import PlanConfig, PlanScale
 from tasks.plan.doors import doors_and_windows
 from tasks.plan.raster import clean_ink, enhance, min_pool, wall_raster
-from tasks.plan.sheet import find_sheet, read_scale_bar, sheet_homography
 from tasks.plan.rooms import (
     free_space_rooms,
     outline_scale,
@@ -38,6 +37,7 @@ from tasks.plan.rooms import (
     rooms_in_metres,
     to_metres,
 )
+from tasks.plan.sheet import find_sheet, read_scale_bar, sheet_homography
 from tasks.plan.vectorize import hough_lines, vector_walls
 
 
@@ -89,8 +89,8 @@ def parse_plan(
     dark_share = float(found.dark.mean())
     if dark_share > cfg.max_dark_share:
         raise ValueError(
-            f"{name}: {dark_share:.0%} of the image is dark: a photo or a dark surface, not a line drawing "
-            "of a floor plan"
+            f"{name}: {dark_share:.0%} of the image is dark (a photo or a dark surface, not a line "
+            "drawing), no floor plan in it"
         )
 
     t = time.perf_counter()
@@ -119,7 +119,7 @@ def parse_plan(
     if not rooms_m:
         raise ValueError(f"{name}: the straight walls enclose no room, no floor plan in it")
 
-    preview = plan_preview(walls_r, segs, thick, rooms_px, doors)
+    preview = plan_preview(walls_r, segs, thick_faces, rooms_px, doors, sp, raster.region)
     timings["total_s"] = time.perf_counter() - t_start
     u0, v0, u1, v1 = raster.region
     metrics = {

@@ -12,7 +12,6 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
-from skimage.morphology import skeletonize
 
 from tasks.plan.config import PlanConfig
 
@@ -493,6 +492,10 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
     # with the walls in a heavy pen, short pieces off the wall network are furniture drawn in double lines;
     # in an outline drawing they are walls between openings
     walls_r, region = plan_region(
-        walls_r, cfg.region_join_m * px, cell, cfg.region_min_share, cfg.free_wall_min_m * px * heavy_pen
+        walls_r,
+        cfg.region_join_m * px,
+        cell,
+        cfg.region_min_share_heavy if heavy_pen else cfg.region_min_share,
+        cfg.free_wall_min_m * px * heavy_pen,
     )
     return WallRaster(walls_r, lines_f, text_px, wall_layers, layer_evidence, region, heavy_pen)

@@ -174,7 +174,7 @@ def _door_swings(img: NDArray, building: Building, s: float, off: NDArray) -> No
         n = np.array([-u[1], u[0]]) * (1 if round(op.x0 * 10 + op.y0 * 10) % 2 else -1)
         hinge = a + n * op.thickness_m / 2
         leaf = hinge + n * w
-        _line(img, hinge, leaf, s, off, _INK, 2)
+        _line(img, hinge, leaf, s, off, _INK, 1)
         ts = np.linspace(0, math.pi / 2, 24)
         arc = hinge + np.outer(np.cos(ts), u * w) + np.outer(np.sin(ts), n * w)
         cv2.polylines(img, [_pts(arc, s, off)], False, _INK, 1, cv2.LINE_AA, _SHIFT)
