@@ -150,7 +150,8 @@ DRAWING_STYLES = ("hatched", "filled", "double")
 def run_drawing_seed(seed: int, degrade: str, cfg: PlanConfig) -> dict:
     """The generator's architect's drawing of building `seed` (wall style by seed), degraded as a scan or
     a photo, against the as-planned walls and rooms carried into the parse's frame. A scan is parsed at
-    its known resolution; a photo at no given scale (the sheet's border and the printed scale bar)."""
+    its known resolution; a photo at no given scale (the sheet's border and the printed scale bar), or,
+    when the bar is not read, with the bar's ends and length given as known_distance."""
     from tasks.synth.building import generate_building
     from tasks.synth.drawings import DrawingConfig, map_polygon, map_walls, render_drawing
     from tasks.synth.survey import planned_truth
@@ -161,10 +162,22 @@ def run_drawing_seed(seed: int, degrade: str, cfg: PlanConfig) -> dict:
     truth, _, rooms = planned_truth(building)
     scale = PlanScale(m_per_px=drawing.image_m_per_px) if degrade != "photo" else PlanScale()
     t0 = time.perf_counter()
+    scale_bar_read = None
     try:
         res = parse_plan(drawing.image, scale, cfg, name=f"seed {seed} {degrade}")
+        scale_bar_read = True if degrade == "photo" else None
     except ValueError as exc:
-        return {"seed": seed, "degrade": degrade, "style": style, "error": str(exc)}
+        if degrade != "photo" or "no printed scale bar read" not in str(exc):
+            return {"seed": seed, "degrade": degrade, "style": style, "error": str(exc)}
+        # the scale bar was not read: the user gives its two ends and length (known_distance)
+        scale_bar_read = False
+        known = (*drawing.scale_bar_px, drawing.scale_bar_m)
+        try:
+            res = parse_plan(
+                drawing.image, PlanScale(known_distance=known), cfg, name=f"seed {seed} {degrade}"
+            )
+        except ValueError as exc2:
+            return {"seed": seed, "degrade": degrade, "style": style, "error": str(exc2)}
     parse_s = time.perf_counter() - t0
     frame = np.asarray(res.metrics["rectification"], np.float64)
     truth_f = map_walls(truth, drawing, frame)
@@ -186,6 +199,7 @@ def run_drawing_seed(seed: int, degrade: str, cfg: PlanConfig) -> dict:
         "rooms_found": int(sum(v >= 0.8 for v in ious)),
         "room_iou_min": min(ious, default=0.0),
         "scale_source": res.metrics.get("scale_source"),
+        "scale_bar_read": scale_bar_read,
         "scale_err": res.m_per_px / (drawing.image_m_per_px if degrade != "photo" else 1.0) - 1.0
         if degrade != "photo"
         else None,

@@ -20,9 +20,11 @@ def find_sheet(image: NDArray[np.uint8], min_area_share: float) -> NDArray[np.fl
     or a photo cropped inside the sheet)."""
     grey = cv2.GaussianBlur(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), (0, 0), 2)
     h, w = grey.shape
-    edges = cv2.Canny(grey, 20, 60)
+    edges = cv2.Canny(grey, 8, 24)
     min_len = 0.3 * min(h, w)
-    found = cv2.HoughLinesP(edges, 1, np.pi / 720, int(min_len / 2), minLineLength=min_len, maxLineGap=12)
+    found = cv2.HoughLinesP(
+        edges, 1, np.pi / 720, int(min_len / 2), minLineLength=min_len, maxLineGap=round(0.02 * max(h, w))
+    )
     if found is None:
         return None
     segs = found.reshape(-1, 4).astype(np.float64)
@@ -107,22 +109,35 @@ def read_scale_bar(image: NDArray[np.uint8], dark: NDArray[np.bool_]) -> tuple[f
         log.warning("pytesseract is not installed: no scale bar is read")
         return None
     grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-    try:
-        data = pytesseract.image_to_data(
-            grey,
-            config="--psm 11 -c tessedit_char_whitelist=0123456789.,m",
-            output_type=pytesseract.Output.DICT,
-        )
-    except pytesseract.TesseractNotFoundError:
-        log.warning("tesseract is not installed: no scale bar is read")
-        return None
-    words = [
-        (str(t).strip(), int(x), int(y), int(w), int(h))
-        for t, x, y, w, h in zip(
-            data["text"], data["left"], data["top"], data["width"], data["height"], strict=True
-        )
-        if str(t).strip()
-    ]
+    words: list[tuple[str, int, int, int, int]] = []
+    for zoom in (1, 2):  # printed labels are small: read again at twice the size when none was found
+        g = grey if zoom == 1 else cv2.resize(grey, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_CUBIC)
+        try:
+            data = pytesseract.image_to_data(
+                g,
+                config="--psm 11 -c tessedit_char_whitelist=0123456789.,m",
+                output_type=pytesseract.Output.DICT,
+            )
+        except pytesseract.TesseractNotFoundError:
+            log.warning("tesseract is not installed: no scale bar is read")
+            return None
+        words = [
+            (str(t).strip(), int(x) // zoom, int(y) // zoom, int(w) // zoom, int(h) // zoom)
+            for t, x, y, w, h in zip(
+                data["text"], data["left"], data["top"], data["width"], data["height"], strict=True
+            )
+            if str(t).strip()
+        ]
+        found = _scale_bar(words, dark)
+        if found is not None:
+            return found
+    return None
+
+
+def _scale_bar(
+    words: list[tuple[str, int, int, int, int]], dark: NDArray[np.bool_]
+) -> tuple[float, tuple] | None:
+    """The scale bar labelled by one of the words read (text, x, y, w, h), as `read_scale_bar` returns it."""
     labels = []
     for k, (t, x, y, w, h) in enumerate(words):
         m = _NUMBER.match(t.lower().replace(" ", ""))
