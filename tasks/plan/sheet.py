@@ -13,11 +13,13 @@ from numpy.typing import NDArray
 log = logging.getLogger(__name__)
 
 
-def find_sheet(image: NDArray[np.uint8], min_area_share: float) -> NDArray[np.float64] | None:
+def find_sheet(
+    image: NDArray[np.uint8], min_area_share: float, min_contrast: float = 25.0
+) -> NDArray[np.float64] | None:
     """The four corners (4, 2) of the paper sheet in a photo (clockwise from top-left), when its edges
     show: the outermost long straight edges, two roughly horizontal and two roughly vertical, enclosing
-    at least min_area_share of the image and not running along the image frame. None otherwise (a scan,
-    or a photo cropped inside the sheet)."""
+    at least min_area_share of the image, with the outside darker by min_contrast grey levels on average.
+    None otherwise (a scan, a drawing on a white page, a photo cropped inside the sheet)."""
     grey = cv2.GaussianBlur(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), (0, 0), 2)
     h, w = grey.shape
     edges = cv2.Canny(grey, 8, 24)
@@ -55,7 +57,13 @@ def find_sheet(image: NDArray[np.uint8], min_area_share: float) -> NDArray[np.fl
     quad_a = np.array(quad, np.float64)
     if cv2.contourArea(quad_a.astype(np.float32)) < min_area_share * h * w:
         return None
-    return _clockwise(quad_a)
+    quad_a = _clockwise(quad_a)
+    # paper is brighter than what is around it; a building outline on a white page is not a sheet
+    inside = np.zeros((h, w), np.uint8)
+    cv2.fillPoly(inside, [np.round(quad_a).astype(np.int32)], 1)
+    if inside.all() or float(grey[inside == 0].mean()) > float(grey[inside > 0].mean()) - min_contrast:
+        return None
+    return quad_a
 
 
 def _meet(p: NDArray, q: NDArray) -> NDArray[np.float64] | None:
