@@ -130,6 +130,11 @@ class PlanConfig:
     border, the sheet is rectified to it (ISO 216: A4, A3, ...). 0 disables."""
     sheet_min_area_share: float = 0.2
     """The sheet found in a photo covers at least this share of it."""
+    flat_field_share: float = 0.04
+    """A photographed sheet's light is evened out over windows this share of its short side (glare)."""
+    sheet_edge_share: float = 0.02
+    """A band this share of the rectified sheet's short side is blanked along its edges (the sheet's edge,
+    what shows around it, the drawing's frame)."""
     min_walls: int = 3
     """Fewer walls than this means the image holds no floor plan."""
     min_wall_length_diagonals: float = 0.5

@@ -185,6 +185,10 @@ def _scaled_image(
         if corners is not None:  # a photo of the sheet: rectified to the sheet's side ratio
             H, size = sheet_homography(corners, cfg.sheet_aspect)
             img = cv2.warpPerspective(img, H, size, flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255))
+            img = flat_field(img, cfg.flat_field_share)
+            # the sheet's edge, a sliver of what is around it and the drawing's frame are no plan
+            b = max(1, round(cfg.sheet_edge_share * min(img.shape[:2])))
+            img[:b], img[-b:], img[:, :b], img[:, -b:] = 255, 255, 255, 255
     if s_rect is not None:
         s, source = s_rect, "outline_size_m"
     elif scale.m_per_px is not None:
@@ -214,6 +218,15 @@ def _scaled_image(
             f"{cfg.min_extent_m:g}-{cfg.max_extent_m:g} m (wrong units?)"
         )
     return img, s, H, source
+
+
+def flat_field(img: NDArray[np.uint8], share: float) -> NDArray[np.uint8]:
+    """A photo's uneven light (shade, glare) divided out: every channel over its paper level, the
+    brightest value within a window `share` of the image's short side (wider than any stroke), smoothed."""
+    k = max(3, round(share * min(img.shape[:2])) | 1)
+    paper = cv2.dilate(img, np.ones((k, k), np.uint8))
+    paper = cv2.GaussianBlur(paper, (0, 0), k / 2).astype(np.float32)
+    return np.clip(img.astype(np.float32) / np.maximum(paper, 1.0) * 255.0, 0, 255).astype(np.uint8)
 
 
 def _check_wall_raster(walls_r: NDArray[np.bool_], s: float, sp: float, cfg: PlanConfig, name: str) -> int:
