@@ -79,12 +79,11 @@ class PlanConfig:
     """Line weight (metres of plan) from which a line is drawn in a heavy pen (cut walls, 0.5 mm at 1:100)."""
     region_join_m: float = 1.2
     """Wall strokes closer than this (across a door) belong to one network when the plan is looked for."""
-    region_min_share: float = 0.05
-    """Wall networks at least this share as long as the longest one are part of the plan (other wings);
-    shorter ones outside their box (scale bars, legend and title frames) are not."""
-    region_min_share_heavy: float = 0.3
-    """region_min_share in a drawing whose walls are drawn in a heavy pen: there a legend panel's
-    pictograms and frame are heavy too."""
+    region_min_share: float = 0.3
+    """In a drawing whose walls are drawn in a heavy pen, wall networks at least this share as large as
+    the largest one and spanning both directions are part of the plan (other wings); smaller ones
+    outside their box (legend panels, scale bars, title blocks) are not. In other drawings every network
+    is."""
     free_wall_min_m: float = 2.5
     """In a drawing whose walls are drawn in a heavy pen, a piece of wall not joined to the largest one is
     at least this long (or a column); shorter pieces are furniture drawn in double lines."""

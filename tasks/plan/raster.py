@@ -308,7 +308,7 @@ def plan_region(
 ) -> tuple[NDArray[np.bool_], tuple[int, int, int, int]]:
     """The drawing's plan: the box of the largest network of wall strokes (strokes closer than join_px
     joined, so across doors; size in cell_px cells) and the networks at least min_share as large that
-    span both directions (other wings, neighbouring flats; a scale bar is one bar). Legend panels,
+    span both directions (other wings, neighbouring flats; a scale bar is one bar); min_share 0 keeps every network. Legend panels,
     title blocks, scale bars and frames beside the plan go. Returns the walls kept and the box (u0, v0,
     u1, v1)."""
     if not walls.any():
@@ -323,7 +323,7 @@ def plan_region(
     np.maximum.at(hi_u, lab[ys, xs], xs)
     np.maximum.at(hi_v, lab[ys, xs], ys)
     two_d = np.minimum(hi_u - lo_u, hi_v - lo_v) >= join_px
-    big = np.flatnonzero((cells >= min_share * cells.max()) & two_d)
+    big = np.flatnonzero((cells >= min_share * cells.max()) & (two_d | (min_share <= 0)))
     big = np.union1d(big, [int(np.argmax(cells))])
     ys, xs = np.nonzero(np.isin(lab, big))
     u0, v0, u1, v1 = int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
@@ -489,13 +489,14 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
     if cfg.legend_frame_min_m > 0:
         frames = _legend_frames(dark, cfg.legend_frame_min_m * px, cfg.legend_frame_cover)
         walls_r = _drop_framed(walls_r, frames)
-    # with the walls in a heavy pen, short pieces off the wall network are furniture drawn in double lines;
-    # in an outline drawing they are walls between openings
+    # with the walls in a heavy pen, short pieces off the wall network are furniture drawn in double lines
+    # and small or one-bar networks are legends and scale bars; in an outline drawing (CAD) they are walls
+    # between openings and wings apart, and every network is plan
     walls_r, region = plan_region(
         walls_r,
         cfg.region_join_m * px,
         cell,
-        cfg.region_min_share_heavy if heavy_pen else cfg.region_min_share,
+        cfg.region_min_share if heavy_pen else 0.0,
         cfg.free_wall_min_m * px * heavy_pen,
     )
     return WallRaster(walls_r, lines_f, text_px, wall_layers, layer_evidence, region, heavy_pen)
