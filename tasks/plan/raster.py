@@ -303,6 +303,30 @@ def _network_cells(mask: NDArray[np.bool_], join_px: float, cell_px: int) -> int
     return int(_networks(mask, join_px, cell_px)[2].max())
 
 
+def _thin_line_openings(
+    walls: NDArray[np.bool_], thin: NDArray[np.bool_], span_px: int, grow_px: int
+) -> NDArray:
+    """Wall openings drawn in thin lines (a window's frame and glass lines across a heavy-pen wall's gap)
+    are wall: a gap between two wall pieces along a row or column, up to span_px long, that the thin ink
+    (grown by grow_px) covers for the most part. A door's gap holds only the ends of its swing."""
+    if span_px < 3:
+        return walls
+    w8 = walls.astype(np.uint8)
+    cover = cv2.dilate(thin.astype(np.uint8), np.ones((2 * grow_px + 1,) * 2, np.uint8)).astype(bool)
+    out = walls.copy()
+    for kernel in (np.ones((1, span_px | 1), np.uint8), np.ones((span_px | 1, 1), np.uint8)):
+        gaps = closing(w8, kernel).astype(bool) & ~walls
+        n, lab = cv2.connectedComponents(gaps.astype(np.uint8), connectivity=4)
+        if n <= 1:
+            continue
+        size = np.bincount(lab.ravel(), minlength=n)
+        covered = np.bincount(lab.ravel(), weights=cover.ravel().astype(np.float64), minlength=n)
+        fill = covered >= 0.7 * np.maximum(size, 1)
+        fill[0] = False
+        out |= fill[lab]
+    return out
+
+
 def plan_region(
     walls: NDArray[np.bool_], join_px: float, cell_px: int, min_share: float, long_px: float
 ) -> tuple[NDArray[np.bool_], tuple[int, int, int, int]]:
@@ -478,7 +502,7 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
         walls_r, join, cell
     )
     if heavy_pen:
-        walls_r = walls_h
+        walls_r = _thin_line_openings(walls_h, ink, round(cfg.door_max_m * px), max(1, round(0.04 * px)))
     walls_r, more_text = _remove_small_components(walls_r, cfg.text_max_size_m * px)
     text_px = np.concatenate([text_px, more_text])
     walls_r = _bridge_symbols(
