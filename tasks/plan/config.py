@@ -75,6 +75,9 @@ class PlanConfig:
     """When the strokes drawn in a heavy pen (heavy_pen_m) span this share of the grid cells the whole
     drawing's walls span, only they are walls (filled between faces): furniture, stairs and fixtures are
     drawn in thin lines."""
+    thin_ink_min_share: float = 0.08
+    """Walls are read from the heavy pen only when at least this share of the ink is thin line work
+    (furniture, fixtures, dimensions): an evacuation plan's few thin lines are windows and text."""
     heavy_pen_m: float = 0.06
     """Line weight (metres of plan) from which a line is drawn in a heavy pen (cut walls, 0.5 mm at 1:100)."""
     region_join_m: float = 1.2

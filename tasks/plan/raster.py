@@ -498,9 +498,11 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
     walls_h = cv2.morphologyEx(
         _fill_outline_walls(heavy, cfg.max_outline_width_m * px).astype(np.uint8), cv2.MORPH_OPEN, box
     ).astype(bool)
-    heavy_pen = _network_cells(walls_h, join, cell) >= cfg.heavy_walls_share * _network_cells(
-        walls_r, join, cell
-    )
+    # only a drawing with thin line work (furniture, fixtures, dimensions) needs it
+    thin_share = float((ink & ~heavy).sum()) / max(int(ink.sum()), 1)
+    heavy_pen = thin_share >= cfg.thin_ink_min_share and _network_cells(
+        walls_h, join, cell
+    ) >= cfg.heavy_walls_share * _network_cells(walls_r, join, cell)
     if heavy_pen:
         walls_r = _thin_line_openings(walls_h, ink, round(cfg.door_max_m * px), max(1, round(0.04 * px)))
     walls_r, more_text = _remove_small_components(walls_r, cfg.text_max_size_m * px)
