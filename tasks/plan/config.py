@@ -75,7 +75,7 @@ class PlanConfig:
     """When the strokes drawn in a heavy pen (heavy_pen_m) span this share of the grid cells the whole
     drawing's walls span, only they are walls (filled between faces): furniture, stairs and fixtures are
     drawn in thin lines."""
-    thin_ink_min_share: float = 0.08
+    thin_ink_min_share: float = 0.05
     """Walls are read from the heavy pen only when at least this share of the ink is thin line work
     (furniture, fixtures, dimensions): an evacuation plan's few thin lines are windows and text."""
     heavy_pen_m: float = 0.06
