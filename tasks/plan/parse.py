@@ -9,6 +9,15 @@ vectors in `tasks.plan.vectorize` (straight walls from the line code shared with
 `tasks.lines`, never from a copy of it), doors in `tasks.plan.doors`, scale and rooms in
 `tasks.plan.rooms`.
 
+Plans drawn for people are never only walls. A photo of a posted sheet is rectified from the sheet's
+border and its light evened out; without a given scale, the printed scale bar is read
+(`tasks.plan.sheet`). Architects' drawings draw the cut walls in a heavier pen than furniture, fixtures,
+stairs and dimensions: when thin line work is present and the heavy strokes span the plan, only they are
+walls (windows drawn thinly across their openings included). The plan region (the largest wall network)
+is kept and recorded; legend panels, title blocks and scale bars beside it go. An image is refused only
+when it is no plan: blank, mostly dark (a photo of a wall), without wall lines (a page of text), or
+without a room enclosed.
+
 Frames: the plan frame maps pixel (u, v) of the input image (after rectification, when four corners are
 given) to metres (u * s, -v * s): x to the right, y up.
 """
