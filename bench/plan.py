@@ -4,6 +4,11 @@ error and run time per plan; with --generator-seeds, on the survey generator's e
 
     .venv/bin/python -m bench.plan [--data ../shared/realdata/floorplans_mlstruct] [--floors 302,748]
     .venv/bin/python -m bench.plan --generator-seeds 0-20
+    .venv/bin/python -m bench.plan --drawing-seeds 100-109 --degrade scan,photo
+
+The drawing split (`--drawing-seeds`): the generator's architect's drawings (furniture, fixtures, stairs,
+door swings, hatched / filled / double-line walls, dimensions, turned text, legend and title block) as
+paper scans and phone photos. Seeds 0-99 were used while developing; report on seeds from 100 up.
 """
 
 from __future__ import annotations
@@ -139,6 +144,70 @@ def run_generator_seed(seed: int, cfg: PlanConfig) -> dict:
     }
 
 
+DRAWING_STYLES = ("hatched", "filled", "double")
+
+
+def run_drawing_seed(seed: int, degrade: str, cfg: PlanConfig) -> dict:
+    """The generator's architect's drawing of building `seed` (wall style by seed), degraded as a scan or
+    a photo, against the as-planned walls and rooms carried into the parse's frame. A scan is parsed at
+    its known resolution; a photo at no given scale (the sheet's border and the printed scale bar), or,
+    when the bar is not read, with the bar's ends and length given as known_distance."""
+    from tasks.synth.building import generate_building
+    from tasks.synth.drawings import DrawingConfig, map_polygon, map_walls, render_drawing
+    from tasks.synth.survey import planned_truth
+
+    building = generate_building(seed)
+    style = DRAWING_STYLES[seed % len(DRAWING_STYLES)]
+    drawing = render_drawing(building, DrawingConfig(wall_style=style, degrade=degrade), seed)
+    truth, _, rooms = planned_truth(building)
+    scale = PlanScale(m_per_px=drawing.image_m_per_px) if degrade != "photo" else PlanScale()
+    t0 = time.perf_counter()
+    scale_bar_read = None
+    try:
+        res = parse_plan(drawing.image, scale, cfg, name=f"seed {seed} {degrade}")
+        scale_bar_read = True if degrade == "photo" else None
+    except ValueError as exc:
+        if degrade != "photo" or "no printed scale bar read" not in str(exc):
+            return {"seed": seed, "degrade": degrade, "style": style, "error": str(exc)}
+        # the scale bar was not read: the user gives its two ends and length (known_distance)
+        scale_bar_read = False
+        known = (*drawing.scale_bar_px, drawing.scale_bar_m)
+        try:
+            res = parse_plan(
+                drawing.image, PlanScale(known_distance=known), cfg, name=f"seed {seed} {degrade}"
+            )
+        except ValueError as exc2:
+            return {"seed": seed, "degrade": degrade, "style": style, "error": str(exc2)}
+    parse_s = time.perf_counter() - t0
+    frame = np.asarray(res.metrics["rectification"], np.float64)
+    truth_f = map_walls(truth, drawing, frame)
+    ev = evaluate_walls(res.walls, truth_f, tol_m=0.10)
+    pred = [p for p, _ in res.rooms]
+    ious = []
+    for f in rooms:
+        tp = map_polygon(shapely.geometry.shape(f["geometry"]), drawing, frame)
+        best = max(pred, key=lambda p: p.intersection(tp).area, default=None)
+        ious.append(0.0 if best is None else best.intersection(tp).area / best.union(tp).area)
+    return {
+        "seed": seed,
+        "degrade": degrade,
+        "style": style,
+        "completeness": ev["completeness"],
+        "correctness": ev["correctness"],
+        "rooms_pred": len(pred),
+        "rooms_truth": len(rooms),
+        "rooms_found": int(sum(v >= 0.8 for v in ious)),
+        "room_iou_min": min(ious, default=0.0),
+        "scale_source": res.metrics.get("scale_source"),
+        "scale_bar_read": scale_bar_read,
+        "scale_err": res.m_per_px / (drawing.image_m_per_px if degrade != "photo" else 1.0) - 1.0
+        if degrade != "photo"
+        else None,
+        "plan_region_px": res.metrics.get("plan_region_px"),
+        "parse_s": parse_s,
+    }
+
+
 def _seeds(text: str) -> list[int]:
     out: list[int] = []
     for part in text.split(","):
@@ -152,7 +221,16 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
     ap.add_argument("--floors", default="")
     ap.add_argument("--generator-seeds", default="", help="e.g. 0-20 or 3,12: generator plans instead")
+    ap.add_argument(
+        "--drawing-seeds", default="", help="e.g. 100-105: the degraded architect's drawings (scan, photo)"
+    )
+    ap.add_argument("--degrade", default="scan,photo", help="which renderings of --drawing-seeds")
     args = ap.parse_args()
+    if args.drawing_seeds:
+        for seed in _seeds(args.drawing_seeds):
+            for degrade in args.degrade.split(","):
+                print(json.dumps(run_drawing_seed(seed, degrade, PlanConfig())), flush=True)
+        return
     if args.generator_seeds:
         for seed in _seeds(args.generator_seeds):
             print(json.dumps(run_generator_seed(seed, PlanConfig())), flush=True)

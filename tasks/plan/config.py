@@ -71,6 +71,25 @@ class PlanConfig:
     frames: the walls inside them (scale bars, legend symbols) are dropped. 0 disables."""
     legend_frame_cover: float = 0.9
     """Share of each side of a thin component's bounding box that its ink must cover to be a frame."""
+    heavy_walls_share: float = 0.6
+    """When the strokes drawn in a heavy pen (heavy_pen_m) span this share of the grid cells the whole
+    drawing's walls span, only they are walls (filled between faces): furniture, stairs and fixtures are
+    drawn in thin lines."""
+    thin_ink_min_share: float = 0.05
+    """Walls are read from the heavy pen only when at least this share of the ink is thin line work
+    (furniture, fixtures, dimensions): an evacuation plan's few thin lines are windows and text."""
+    heavy_pen_m: float = 0.06
+    """Line weight (metres of plan) from which a line is drawn in a heavy pen (cut walls, 0.5 mm at 1:100)."""
+    region_join_m: float = 1.2
+    """Wall strokes closer than this (across a door) belong to one network when the plan is looked for."""
+    region_min_share: float = 0.3
+    """In a drawing whose walls are drawn in a heavy pen, wall networks at least this share as large as
+    the largest one and spanning both directions are part of the plan (other wings); smaller ones
+    outside their box (legend panels, scale bars, title blocks) are not. In other drawings every network
+    is."""
+    free_wall_min_m: float = 2.5
+    """In a drawing whose walls are drawn in a heavy pen, a piece of wall not joined to the largest one is
+    at least this long (or a column); shorter pieces are furniture drawn in double lines."""
     bridge_max_m: float = 2.0
     """Longest wall stretch hidden under a symbol that is bridged (only across symbol pixels)."""
     hough_min_length_m: float = 0.15
@@ -106,20 +125,31 @@ class PlanConfig:
     """Smallest plausible plan extent; a smaller one means the scale is wrong."""
     max_extent_m: float = 400.0
     """Largest plausible plan extent; a larger one means the scale is wrong."""
+    max_dark_share: float = 0.35
+    """An image more than this share dark is a photo or a dark surface, not a line drawing."""
+    sheet_aspect: float = 1.41421356
+    """Side ratio (long / short) of the paper sheet: when no scale is given and a photo shows the sheet's
+    border, the sheet is rectified to it (ISO 216: A4, A3, ...). 0 disables."""
+    sheet_min_area_share: float = 0.2
+    """The sheet found in a photo covers at least this share of it."""
+    flat_field_share: float = 0.04
+    """A photographed sheet's light is evened out over windows this share of its short side (glare)."""
+    sheet_edge_share: float = 0.02
+    """A band this share of the rectified sheet's short side is blanked along its edges (the sheet's edge,
+    what shows around it, the drawing's frame)."""
     min_walls: int = 3
     """Fewer walls than this means the image holds no floor plan."""
     min_wall_length_diagonals: float = 0.5
     """The walls must add up to at least this many image diagonals, else it is no plan."""
-    min_wall_coverage: float = 0.8
-    """Share of the cleaned wall raster that the vector walls must explain, else it is no plan."""
     coverage_wall_length_ratio: float = 1.2
-    """Only walls at least this many times their thickness long explain the raster in that test: texture
-    and noise also yield short straight pieces."""
+    """Only walls at least this many times their thickness long count in the wall coverage figure:
+    texture and noise also yield short straight pieces."""
 
 
 @dataclass(frozen=True)
 class PlanScale:
-    """How pixels become metres: exactly one of `m_per_px`, `known_distance`, `outline_length_m`."""
+    """How pixels become metres: at most one of `m_per_px`, `known_distance`, `outline_length_m`,
+    `outline_size_m`; with none, the printed scale bar is read."""
 
     m_per_px: float | None = None
     """Metres per pixel of the (rectified) image."""
@@ -139,9 +169,9 @@ class PlanScale:
             v is not None
             for v in (self.m_per_px, self.known_distance, self.outline_length_m, self.outline_size_m)
         ]
-        if sum(given) != 1:
+        if sum(given) > 1:
             raise ValueError(
-                "PlanScale needs exactly one of m_per_px, known_distance, outline_length_m, outline_size_m"
+                "PlanScale takes at most one of m_per_px, known_distance, outline_length_m, outline_size_m"
             )
         if self.outline_size_m is not None and (self.corners_px is None or min(self.outline_size_m) <= 0):
             raise ValueError("outline_size_m needs corners_px and two positive lengths")

@@ -9,6 +9,15 @@ vectors in `tasks.plan.vectorize` (straight walls from the line code shared with
 `tasks.lines`, never from a copy of it), doors in `tasks.plan.doors`, scale and rooms in
 `tasks.plan.rooms`.
 
+Plans drawn for people are never only walls. A photo of a posted sheet is rectified from the sheet's
+border and its light evened out; without a given scale, the printed scale bar is read
+(`tasks.plan.sheet`). Architects' drawings draw the cut walls in a heavier pen than furniture, fixtures,
+stairs and dimensions: when thin line work is present and the heavy strokes span the plan, only they are
+walls (windows drawn thinly across their openings included). The plan region (the largest wall network)
+is kept and recorded; legend panels, title blocks and scale bars beside it go. An image is refused only
+when it is no plan: blank, mostly dark (a photo of a wall), without wall lines (a page of text), or
+without a room enclosed.
+
 Frames: the plan frame maps pixel (u, v) of the input image (after rectification, when four corners are
 given) to metres (u * s, -v * s): x to the right, y up.
 """
@@ -28,7 +37,7 @@ from shapely.geometry import Polygon
 from tasks import lines
 from tasks.plan.config import PlanConfig, PlanScale
 from tasks.plan.doors import doors_and_windows
-from tasks.plan.raster import clean_ink, min_pool, wall_raster
+from tasks.plan.raster import clean_ink, enhance, min_pool, wall_raster
 from tasks.plan.rooms import (
     free_space_rooms,
     outline_scale,
@@ -37,6 +46,7 @@ from tasks.plan.rooms import (
     rooms_in_metres,
     to_metres,
 )
+from tasks.plan.sheet import find_sheet, read_scale_bar, sheet_homography
 from tasks.plan.vectorize import hough_lines, vector_walls
 
 
@@ -75,7 +85,7 @@ def parse_plan(
     and images without a floor plan."""
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
-    img, s = _scaled_image(_checked_image(image, name), scale, cfg, name)
+    img, s, H_rect, scale_source = _scaled_image(_checked_image(image, name), scale, cfg, name)
     f = max(1, math.ceil(max(img.shape[:2]) / cfg.max_side_px))
     img = min_pool(img, f)
     sp = s * f  # metres per working pixel
@@ -85,6 +95,12 @@ def parse_plan(
     t = time.perf_counter()
     found = clean_ink(img, px, cfg)
     timings["clean_s"] = time.perf_counter() - t
+    dark_share = float(found.dark.mean())
+    if dark_share > cfg.max_dark_share:
+        raise ValueError(
+            f"{name}: {dark_share:.0%} of the image is dark (a photo or a dark surface, not a line "
+            "drawing), no floor plan in it"
+        )
 
     t = time.perf_counter()
     raster = wall_raster(found, px, cfg)
@@ -109,11 +125,19 @@ def parse_plan(
     rooms_px = free_space_rooms(walls_r, segs, thick, doors, sp, cfg)
     rooms_m = rooms_in_metres(rooms_px, f, s, labels)
     timings["rooms_s"] = time.perf_counter() - t
+    if not rooms_m:
+        raise ValueError(f"{name}: the straight walls enclose no room, no floor plan in it")
 
-    preview = plan_preview(walls_r, segs, thick, rooms_px, doors)
+    preview = plan_preview(walls_r, segs, thick_faces, rooms_px, doors, sp, raster.region)
     timings["total_s"] = time.perf_counter() - t_start
+    u0, v0, u1, v1 = raster.region
     metrics = {
         "m_per_px": s,
+        "scale_source": scale_source,
+        "rectification": H_rect.tolist(),
+        "plan_region_px": [u0 * f, v0 * f, u1 * f, v1 * f],
+        "walls_heavy_pen": raster.heavy_pen,
+        "dark_share": dark_share,
         "working_m_per_px": sp,
         "downsample_factor": f,
         "ink_threshold": found.threshold,
@@ -157,28 +181,61 @@ def _checked_image(image: NDArray[np.uint8], name: str) -> NDArray[np.uint8]:
 
 def _scaled_image(
     img: NDArray[np.uint8], scale: PlanScale, cfg: PlanConfig, name: str
-) -> tuple[NDArray[np.uint8], float]:
-    """The image (rectified when four outline corners are given) and its metres per pixel, checked to
-    make the image a plausible size."""
+) -> tuple[NDArray[np.uint8], float, NDArray[np.float64], str]:
+    """The image (rectified when four outline corners are given, or when no scale is given and a
+    photographed sheet's border shows), its metres per pixel, the (3, 3) homography from input to
+    rectified pixels and where the scale came from, checked to make the image a plausible size."""
     s_rect = None
+    H = np.eye(3)
     if scale.corners_px is not None:
-        img, s_rect = rectify(img, np.asarray(scale.corners_px), scale.outline_size_m)
+        img, s_rect, H = rectify(img, np.asarray(scale.corners_px), scale.outline_size_m)
+    elif scale.m_per_px is None and cfg.sheet_aspect > 0:
+        corners = find_sheet(img, cfg.sheet_min_area_share)
+        if corners is not None:  # a photo of the sheet: rectified to the sheet's side ratio
+            H, size = sheet_homography(corners, cfg.sheet_aspect)
+            img = cv2.warpPerspective(img, H, size, flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255))
+            img = flat_field(img, cfg.flat_field_share)
+            # the sheet's edge, a sliver of what is around it and the drawing's frame are no plan
+            b = max(1, round(cfg.sheet_edge_share * min(img.shape[:2])))
+            img[:b], img[-b:], img[:, :b], img[:, -b:] = 255, 255, 255, 255
     if s_rect is not None:
-        s = s_rect
+        s, source = s_rect, "outline_size_m"
     elif scale.m_per_px is not None:
-        s = float(scale.m_per_px)
+        s, source = float(scale.m_per_px), "m_per_px"
     elif scale.known_distance is not None:
         x0, y0, x1, y1, d = scale.known_distance
-        s = float(d) / math.hypot(x1 - x0, y1 - y0)
+        p = np.array([[x0, y0, 1.0], [x1, y1, 1.0]]) @ H.T
+        p = p[:, :2] / p[:, 2:]
+        s, source = float(d) / float(np.hypot(*(p[1] - p[0]))), "known_distance"
+    elif scale.outline_length_m is not None:
+        s, source = outline_scale(img, float(scale.outline_length_m), cfg), "outline_length_m"
     else:
-        s = outline_scale(img, float(scale.outline_length_m), cfg)
+        enhanced = enhance(img, max(img.shape[:2]) // 4, cfg)
+        darkness = (255 - enhanced.min(axis=2)).astype(np.uint8)
+        _thr, dark = cv2.threshold(darkness, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+        bar = read_scale_bar(enhanced, dark > 0)
+        if bar is None:
+            raise ValueError(
+                f"{name}: no scale given (m_per_px, known_distance or outline_length_m) and no printed "
+                "scale bar read in the image"
+            )
+        s, source = bar[0], "scale bar"
     extent_m = max(img.shape[:2]) * s
     if not cfg.min_extent_m <= extent_m <= cfg.max_extent_m * 1.5:
         raise ValueError(
             f"{name}: scale {s:.4g} m/px makes the image {extent_m:.3g} m across, outside the plausible "
             f"{cfg.min_extent_m:g}-{cfg.max_extent_m:g} m (wrong units?)"
         )
-    return img, s
+    return img, s, H, source
+
+
+def flat_field(img: NDArray[np.uint8], share: float) -> NDArray[np.uint8]:
+    """A photo's uneven light (shade, glare) divided out: every channel over its paper level, the
+    brightest value within a window `share` of the image's short side (wider than any stroke), smoothed."""
+    k = max(3, round(share * min(img.shape[:2])) | 1)
+    paper = cv2.dilate(img, np.ones((k, k), np.uint8))
+    paper = cv2.GaussianBlur(paper, (0, 0), k / 2).astype(np.float32)
+    return np.clip(img.astype(np.float32) / np.maximum(paper, 1.0) * 255.0, 0, 255).astype(np.uint8)
 
 
 def _check_wall_raster(walls_r: NDArray[np.bool_], s: float, sp: float, cfg: PlanConfig, name: str) -> int:
@@ -205,8 +262,9 @@ def _check_walls(
     cfg: PlanConfig,
     name: str,
 ) -> float:
-    """The share of the wall raster (h, w) that the straight walls (M, 4) explain, when they are enough
-    walls, long enough and explain enough of it to be a floor plan."""
+    """The share of the wall raster (h, w) that the straight walls (M, 4) explain (a figure, not a test:
+    a plan drawn for people is never only walls), when they are enough walls, long enough to be a floor
+    plan."""
     if len(segs) < cfg.min_walls:
         raise ValueError(f"{name}: only {len(segs)} straight walls found, no floor plan in it")
     total_px = float(lines.lengths(segs).sum())
@@ -221,8 +279,4 @@ def _check_walls(
         p0, p1 = np.round(sg[:2]).astype(int), np.round(sg[2:]).astype(int)
         cv2.line(rendered, tuple(int(v) for v in p0), tuple(int(v) for v in p1), 1, max(1, round(th) + 2))
     coverage = float((rendered.astype(bool) & walls_r).sum() / ink_area)
-    if coverage < cfg.min_wall_coverage:
-        raise ValueError(
-            f"{name}: straight walls explain only {coverage:.0%} of the dark strokes, no floor plan in it"
-        )
     return coverage

@@ -278,6 +278,92 @@ def _bridge_symbols(
     return out
 
 
+def _networks(
+    mask: NDArray[np.bool_], join_px: float, cell_px: int
+) -> tuple[int, NDArray[np.int32], NDArray]:
+    """Label the stroke networks of a mask on a grid of cell_px cells: strokes closer than join_px (across
+    a door) are one network. Returns (count, (h, w) network of every mask pixel (0 off the mask), (count,)
+    how many grid cells each network touches: its span)."""
+    c = max(1, int(cell_px))
+    h, w = mask.shape
+    coarse = cv2.dilate(mask.astype(np.uint8), np.ones((c, c), np.uint8), anchor=(0, 0))[::c, ::c]
+    r = max(1, round(join_px / 2 / c))
+    grown = cv2.dilate(coarse, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
+    n, lab = cv2.connectedComponents(grown, connectivity=8)
+    cells = np.bincount(lab[coarse > 0], minlength=n)
+    cells[0] = 0
+    full = np.repeat(np.repeat(lab, c, axis=0), c, axis=1)[:h, :w]
+    return n, np.where(mask, full, 0).astype(np.int32), cells
+
+
+def _network_cells(mask: NDArray[np.bool_], join_px: float, cell_px: int) -> int:
+    """How many cell_px grid cells the largest stroke network of the mask touches (its span)."""
+    if not mask.any():
+        return 0
+    return int(_networks(mask, join_px, cell_px)[2].max())
+
+
+def _thin_line_openings(
+    walls: NDArray[np.bool_], thin: NDArray[np.bool_], span_px: int, grow_px: int
+) -> NDArray:
+    """Wall openings drawn in thin lines (a window's frame and glass lines across a heavy-pen wall's gap)
+    are wall: a gap between two wall pieces along a row or column, up to span_px long, that the thin ink
+    (grown by grow_px) covers for the most part. A door's gap holds only the ends of its swing."""
+    if span_px < 3:
+        return walls
+    w8 = walls.astype(np.uint8)
+    cover = cv2.dilate(thin.astype(np.uint8), np.ones((2 * grow_px + 1,) * 2, np.uint8)).astype(bool)
+    out = walls.copy()
+    for kernel in (np.ones((1, span_px | 1), np.uint8), np.ones((span_px | 1, 1), np.uint8)):
+        gaps = closing(w8, kernel).astype(bool) & ~walls
+        n, lab = cv2.connectedComponents(gaps.astype(np.uint8), connectivity=4)
+        if n <= 1:
+            continue
+        size = np.bincount(lab.ravel(), minlength=n)
+        covered = np.bincount(lab.ravel(), weights=cover.ravel().astype(np.float64), minlength=n)
+        fill = covered >= 0.7 * np.maximum(size, 1)
+        fill[0] = False
+        out |= fill[lab]
+    return out
+
+
+def plan_region(
+    walls: NDArray[np.bool_], join_px: float, cell_px: int, min_share: float, long_px: float
+) -> tuple[NDArray[np.bool_], tuple[int, int, int, int]]:
+    """The drawing's plan: the box of the largest network of wall strokes (strokes closer than join_px
+    joined, so across doors; size in cell_px cells) and the networks at least min_share as large that
+    span both directions (other wings, neighbouring flats; a scale bar is one bar); min_share 0 keeps every network. Legend panels,
+    title blocks, scale bars and frames beside the plan go. Returns the walls kept and the box (u0, v0,
+    u1, v1)."""
+    if not walls.any():
+        return walls, (0, 0, walls.shape[1], walls.shape[0])
+    n, lab, cells = _networks(walls, join_px, cell_px)
+    # the largest network, and those at least min_share as large that are not a single bar (a scale bar)
+    ys, xs = np.nonzero(lab)
+    lo_u, lo_v = np.full(n, walls.shape[1]), np.full(n, walls.shape[0])
+    hi_u, hi_v = np.zeros(n, int), np.zeros(n, int)
+    np.minimum.at(lo_u, lab[ys, xs], xs)
+    np.minimum.at(lo_v, lab[ys, xs], ys)
+    np.maximum.at(hi_u, lab[ys, xs], xs)
+    np.maximum.at(hi_v, lab[ys, xs], ys)
+    two_d = np.minimum(hi_u - lo_u, hi_v - lo_v) >= join_px
+    big = np.flatnonzero((cells >= min_share * cells.max()) & (two_d | (min_share <= 0)))
+    big = np.union1d(big, [int(np.argmax(cells))])
+    ys, xs = np.nonzero(np.isin(lab, big))
+    u0, v0, u1, v1 = int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
+    # in that box: the pieces of wall at least long_px across (the largest among them), and columns
+    # (compact and solid); a table's heavy double outline, a stair's or a counter's are neither
+    _m, comp, stats, _c = cv2.connectedComponentsWithStats(walls.astype(np.uint8), connectivity=8)
+    x, y, w, h, area = (stats[:, k] for k in range(5))
+    cx, cy = x + w / 2, y + h / 2
+    column = (area >= 0.7 * w * h) & (np.maximum(w, h) <= 2 * np.minimum(w, h))
+    inside = (cx >= u0) & (cx <= u1) & (cy >= v0) & (cy <= v1)
+    ok = inside & (column | (np.hypot(w, h) >= long_px))
+    ok[1 + int(np.argmax(area[1:]))] = True
+    ok[0] = False
+    return ok[comp], (u0, v0, u1, v1)
+
+
 @dataclass(frozen=True)
 class InkMasks:
     """The enhanced working image and what its colours say: which pixels are ink, which are symbols."""
@@ -364,6 +450,10 @@ class WallRaster:
     """Colour layers that draw walls (`_wall_layers`)."""
     layer_evidence: dict[int, float]
     """Every colour layer's wall evidence (metres of wall face); empty for a one-colour drawing."""
+    region: tuple[int, int, int, int]
+    """(u0, v0, u1, v1) working pixels: the box of the plan's wall network (`plan_region`)."""
+    heavy_pen: bool
+    """Whether the walls are the strokes drawn in a heavy pen (`wall_raster`)."""
 
 
 def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
@@ -392,9 +482,29 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
             w8 |= closing(along, np.ones(ker_span, np.uint8))
         faces = w8.astype(bool) & ink
     lines_f = ink.astype(np.float32)  # the drawn lines: outline walls measure between their faces
-    ink = _fill_outline_walls(ink, cfg.max_outline_width_m * px, faces, cfg.min_wall_thickness_m * px)
     k = max(1, round(cfg.min_wall_thickness_m * px)) | 1  # odd: an even kernel shifts by a pixel
-    walls_r = cv2.morphologyEx(ink.astype(np.uint8), cv2.MORPH_OPEN, np.ones((k, k), np.uint8)).astype(bool)
+    box = np.ones((k, k), np.uint8)
+    filled = _fill_outline_walls(ink, cfg.max_outline_width_m * px, faces, cfg.min_wall_thickness_m * px)
+    walls_r = cv2.morphologyEx(filled.astype(np.uint8), cv2.MORPH_OPEN, box).astype(bool)
+    # Filling every outline would turn the thin outlines of furniture, stairs and fixtures into solid
+    # blobs. Architects draw the cut walls in a heavier pen than everything else (solid, hatched inside a
+    # heavy outline, or two heavy faces): when the strokes at least heavy_pen_m wide span nearly as much
+    # of the plan as the whole drawing does, only they are walls, filled between faces.
+    join, cell = cfg.region_join_m * px, max(1, round(cfg.wall_face_min_m * px / 2))
+    hp = max(2, round(cfg.heavy_pen_m * px))
+    heavy = cv2.morphologyEx(ink.astype(np.uint8), cv2.MORPH_OPEN, np.ones((hp, hp), np.uint8))
+    heavy = cv2.dilate(heavy, np.ones((3, 3), np.uint8)).astype(bool) & ink
+    heavy = _remove_small_components(heavy, cfg.text_max_size_m * px)[0]  # where thin lines cross
+    walls_h = cv2.morphologyEx(
+        _fill_outline_walls(heavy, cfg.max_outline_width_m * px).astype(np.uint8), cv2.MORPH_OPEN, box
+    ).astype(bool)
+    # only a drawing with thin line work (furniture, fixtures, dimensions) needs it
+    thin_share = float((ink & ~heavy).sum()) / max(int(ink.sum()), 1)
+    heavy_pen = thin_share >= cfg.thin_ink_min_share and _network_cells(
+        walls_h, join, cell
+    ) >= cfg.heavy_walls_share * _network_cells(walls_r, join, cell)
+    if heavy_pen:
+        walls_r = _thin_line_openings(walls_h, ink, round(cfg.door_max_m * px), max(1, round(0.04 * px)))
     walls_r, more_text = _remove_small_components(walls_r, cfg.text_max_size_m * px)
     text_px = np.concatenate([text_px, more_text])
     walls_r = _bridge_symbols(
@@ -405,4 +515,14 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
     if cfg.legend_frame_min_m > 0:
         frames = _legend_frames(dark, cfg.legend_frame_min_m * px, cfg.legend_frame_cover)
         walls_r = _drop_framed(walls_r, frames)
-    return WallRaster(walls_r, lines_f, text_px, wall_layers, layer_evidence)
+    # with the walls in a heavy pen, short pieces off the wall network are furniture drawn in double lines
+    # and small or one-bar networks are legends and scale bars; in an outline drawing (CAD) they are walls
+    # between openings and wings apart, and every network is plan
+    walls_r, region = plan_region(
+        walls_r,
+        cfg.region_join_m * px,
+        cell,
+        cfg.region_min_share if heavy_pen else 0.0,
+        cfg.free_wall_min_m * px * heavy_pen,
+    )
+    return WallRaster(walls_r, lines_f, text_px, wall_layers, layer_evidence, region, heavy_pen)

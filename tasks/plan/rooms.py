@@ -23,10 +23,10 @@ def to_metres(seg_px: NDArray, f: int, s: float) -> NDArray[np.float64]:
 
 def rectify(
     image: NDArray[np.uint8], corners: NDArray, size_m: tuple[float, float] | None
-) -> tuple[NDArray[np.uint8], float | None]:
+) -> tuple[NDArray[np.uint8], float | None, NDArray[np.float64]]:
     """Perspective rectification: the corners go to an axis-parallel rectangle with a 5 % margin. Its
     sides are the photo's mean side lengths, or, with `size_m`, the true aspect ratio at the photo's
-    mean resolution (then also returns that scale, metres per pixel)."""
+    mean resolution (then also returns that scale, metres per pixel); and the (3, 3) homography."""
     c = np.asarray(corners, dtype=np.float32)
     w = 0.5 * (np.hypot(*(c[1] - c[0])) + np.hypot(*(c[2] - c[3])))
     h = 0.5 * (np.hypot(*(c[3] - c[0])) + np.hypot(*(c[2] - c[1])))
@@ -38,7 +38,8 @@ def rectify(
     dst = np.float32([[margin, margin], [margin + w, margin], [margin + w, margin + h], [margin, margin + h]])
     H = cv2.getPerspectiveTransform(c, dst)
     size = (round(w + 2 * margin), round(h + 2 * margin))
-    return cv2.warpPerspective(image, H, size, flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255)), s
+    out = cv2.warpPerspective(image, H, size, flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255))
+    return out, s, H.astype(np.float64)
 
 
 def outline_scale(image: NDArray[np.uint8], length_m: float, cfg: PlanConfig) -> float:
@@ -121,9 +122,27 @@ def rooms_in_metres(
     return rooms_m
 
 
+def _thickness_colour(t_m: float) -> tuple[int, int, int]:
+    """RGB of a wall thickness: blue (thin, 0.05 m) through green to red (thick, 0.45 m and more)."""
+    x = float(np.clip((t_m - 0.05) / 0.4, 0.0, 1.0))
+    hue = int(120 * (1.0 - x))  # OpenCV hue 0-180: 120 blue, 60 green, 0 red
+    rgb = cv2.cvtColor(np.uint8([[[hue, 230, 210]]]), cv2.COLOR_HSV2RGB)[0, 0]
+    return int(rgb[0]), int(rgb[1]), int(rgb[2])
+
+
 def plan_preview(
-    walls_r: NDArray, segs: NDArray, thick: NDArray, rooms_px: list[Polygon], doors: NDArray
+    walls_r: NDArray,
+    segs: NDArray,
+    thick: NDArray,
+    rooms_px: list[Polygon],
+    doors: NDArray,
+    sp: float = 0.0,
+    region: tuple[int, int, int, int] | None = None,
 ) -> NDArray[np.uint8]:
+    """A picture a person can read, at working resolution (h, w, 3) RGB: the rooms tinted and named
+    (R1, R2, ... with their area), the wall raster in grey under the walls coloured by their thickness,
+    doors in magenta, the plan region as a dashed box, and a legend. `sp`: metres per pixel (0: no
+    areas and no thickness scale), `thick`: (M,) wall thickness in pixels."""
     out = np.full((*walls_r.shape, 3), 255, np.uint8)
     palette = np.array(
         [
@@ -139,22 +158,70 @@ def plan_preview(
     for n, poly in enumerate(rooms_px):
         pts = np.round(np.asarray(poly.exterior.coords)).astype(np.int32)
         cv2.fillPoly(out, [pts], tuple(int(v) for v in palette[n % len(palette)]))
-    out[walls_r] = (120, 120, 120)
+    out[walls_r] = (200, 200, 200)
     lw = max(1, round(min(walls_r.shape) / 800))
-    for sg in segs:
+    for sg, th in zip(segs, thick, strict=True):
+        colour = _thickness_colour(float(th) * sp) if sp > 0 else (220, 0, 0)
         cv2.line(
             out,
             tuple(int(v) for v in np.round(sg[:2])),
             tuple(int(v) for v in np.round(sg[2:])),
-            (220, 0, 0),
-            lw,
+            colour,
+            max(lw, round(float(th) * 0.6)),
         )
     for dr in doors:
         cv2.line(
             out,
             tuple(int(v) for v in np.round(dr[:2])),
             tuple(int(v) for v in np.round(dr[2:])),
-            (0, 160, 0),
-            lw + 1,
+            (200, 0, 200),
+            lw + 2,
         )
+    font, fs = cv2.FONT_HERSHEY_SIMPLEX, max(0.35, min(walls_r.shape) / 2000)
+    for n, poly in enumerate(rooms_px):
+        p = poly.representative_point()
+        text = f"R{n + 1}" + (f" {poly.area * sp * sp:.1f} m2" if sp > 0 else "")
+        (tw, th_), _ = cv2.getTextSize(text, font, fs, 1)
+        org = (round(p.x - tw / 2), round(p.y + th_ / 2))
+        cv2.putText(out, text, org, font, fs, (40, 40, 40), 1, cv2.LINE_AA)
+    if region is not None:
+        u0, v0, u1, v1 = (int(v) for v in region)
+        dash = max(6, 4 * lw)
+        for a, b in (((u0, v0), (u1, v0)), ((u1, v0), (u1, v1)), ((u1, v1), (u0, v1)), ((u0, v1), (u0, v0))):
+            L = max(abs(b[0] - a[0]), abs(b[1] - a[1]))
+            for k in range(0, L, 2 * dash):
+                e = min(k + dash, L)
+                p0 = (a[0] + (b[0] - a[0]) * k // max(L, 1), a[1] + (b[1] - a[1]) * k // max(L, 1))
+                p1 = (a[0] + (b[0] - a[0]) * e // max(L, 1), a[1] + (b[1] - a[1]) * e // max(L, 1))
+                cv2.line(out, p0, p1, (255, 120, 0), lw)
+    _legend(out, lw, fs, sp)
     return out
+
+
+def _legend(out: NDArray[np.uint8], lw: int, fs: float, sp: float) -> None:
+    """The preview's key in its top-left corner."""
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    (_w, row), _ = cv2.getTextSize("Ag", font, fs, 1)
+    row = int(row * 2.2)
+    items = [("plan region", (255, 120, 0)), ("door", (200, 0, 200)), ("wall raster", (200, 200, 200))]
+    width, height = int(row * 9), row * (len(items) + (3 if sp > 0 else 1))
+    h, w = out.shape[:2]
+    if width > w or height > h:
+        return
+    cv2.rectangle(out, (0, 0), (width, height), (255, 255, 255), -1)
+    cv2.rectangle(out, (0, 0), (width, height), (0, 0, 0), 1)
+    y = row
+    for text, colour in items:
+        cv2.line(out, (row // 3, y - row // 4), (row * 2, y - row // 4), colour, lw + 2)
+        cv2.putText(out, text, (row * 2 + row // 3, y), font, fs, (0, 0, 0), 1, cv2.LINE_AA)
+        y += row
+    if sp > 0:
+        cv2.putText(out, "wall thickness", (row // 3, y), font, fs, (0, 0, 0), 1, cv2.LINE_AA)
+        y += row // 2
+        x0, x1 = row // 3, width - row // 3
+        for x in range(x0, x1):
+            t_m = 0.05 + 0.4 * (x - x0) / max(x1 - x0 - 1, 1)
+            cv2.line(out, (x, y), (x, y + row // 3), _thickness_colour(t_m), 1)
+        cv2.putText(out, "0.05 m", (x0, y + row), font, fs * 0.8, (0, 0, 0), 1, cv2.LINE_AA)
+        (tw, _t), _ = cv2.getTextSize("0.45 m", font, fs * 0.8, 1)
+        cv2.putText(out, "0.45 m", (x1 - tw, y + row), font, fs * 0.8, (0, 0, 0), 1, cv2.LINE_AA)
