@@ -397,15 +397,16 @@ def load_survey(folder: Path) -> Survey:
 def _plan_spec(data: Any, folder: Path, path: Path) -> PlanSpec:
     if not isinstance(data, dict) or "image" not in data:
         raise ConfigError(
-            f"{path}: 'plan' needs 'image' and one scale (m_per_px, known_distance, outline_length_m)"
+            f"{path}: 'plan' needs 'image' (and at most one scale: m_per_px, known_distance, outline_length_m)"
         )
     extra = sorted(set(data) - {"image", "m_per_px", "known_distance", "outline_length_m"})
     if extra:
         raise ConfigError(f"{path}: plan has unknown key {extra[0]!r}")
     scales = [k for k in ("m_per_px", "known_distance", "outline_length_m") if data.get(k) is not None]
-    if len(scales) != 1:
+    if len(scales) > 1:  # none: the stage reads the scale bar printed on the plan
         raise ConfigError(
-            f"{path}: plan needs exactly one scale: m_per_px, known_distance or outline_length_m"
+            f"{path}: plan takes at most one scale (m_per_px, known_distance or outline_length_m), "
+            f"got {', '.join(scales)}"
         )
     m_per_px = data.get("m_per_px")
     if m_per_px is not None and (not _is_number(m_per_px) or not 1e-4 <= m_per_px <= 1.0):

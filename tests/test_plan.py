@@ -414,7 +414,6 @@ def test_real_cad_plans(realdata, floor):
     assert ev["completeness"] >= 0.90, ev
     assert ev["correctness"] >= 0.90, ev
     assert np.median(thickness_errors(res.walls, res.thickness_m, truth, truth_t, tol_m=0.10)) <= 0.02
-    assert res.metrics["timings"]["total_s"] < 30
 
 
 @pytest.mark.parametrize("seed", [8, 12])
