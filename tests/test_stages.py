@@ -153,7 +153,14 @@ def test_loading_the_config_loads_no_stage_computation():
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
     loaded = set(out.stdout.strip().split(","))
-    allowed = {"tasks", "tasks.config", "tasks.stages", "tasks.artefacts", "tasks.cloud", "tasks.lines_config"}
+    allowed = {
+        "tasks",
+        "tasks.config",
+        "tasks.stages",
+        "tasks.artefacts",
+        "tasks.cloud",
+        "tasks.lines_config",
+    }
     allowed |= {f"tasks.{name}" for name in STAGES} | {f"tasks.{name}.config" for name in STAGES}
     assert loaded <= allowed, sorted(loaded - allowed)
 
