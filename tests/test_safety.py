@@ -49,7 +49,7 @@ def temporaries(work: Path) -> list[Path]:
 
 def snapshot(work: Path) -> dict[str, str]:
     """Every final artefact by content hash: each committed stage folder's files (cache) and every
-    deliverable in outputs/ (but manifest.json, which names the run)."""
+    deliverable in outputs/ (but manifest.json and report.html, which name the run)."""
     files: dict[str, str] = {}
     for manifest in sorted(work.glob("cache/*/*/*/manifest.json")):
         folder = manifest.parent
@@ -59,7 +59,7 @@ def snapshot(work: Path) -> dict[str, str]:
             assert sha256_file(folder / name) == digest, folder / name
             files[str((folder / name).relative_to(work))] = digest
     for path in sorted((work / "outputs").rglob("*")):
-        if path.is_file() and path.name != "manifest.json":
+        if path.is_file() and path.name not in ("manifest.json", "report.html"):
             files[str(path.relative_to(work))] = sha256_file(path)
     return files
 
