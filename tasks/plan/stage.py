@@ -6,7 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import shapely.geometry
+from numpy.typing import NDArray
 
 from tasks import artefacts
 from tasks.context import StageContext
@@ -14,6 +16,7 @@ from tasks.plan.config import PlanConfig, PlanScale
 from tasks.plan.labels import read_room_labels
 from tasks.plan.parse import parse_plan
 from tasks.plan.raster import load_plan_image
+from tasks.preview import Key, View, frame_picture
 
 
 def run(ctx: StageContext, cfg: PlanConfig, out: Path) -> dict[str, Any]:
@@ -59,5 +62,21 @@ def write_parsed_plan(image_path: Path, out_dir: Path, scale: PlanScale, cfg: Pl
         for d in res.doors
     ]
     artefacts.write_geojson(out_dir / "rooms.geojson", features, crs_note="plan frame, metres")
-    artefacts.write_png(out_dir / "plan_preview.png", res.preview)
+    artefacts.write_png(
+        out_dir / "plan_preview.png", framed_preview(res.preview, res.metrics, image_path.name)
+    )
     return {**res.metrics, "labels_read": sum(t is not None for t in printed)}
+
+
+def framed_preview(preview: NDArray[np.uint8], metrics: dict[str, Any], name: str) -> NDArray[np.uint8]:
+    """The parse's picture in the plan frame's metres, with a title, axes, a 1 m bar, a north arrow (plan
+    up) and the keys of its marks (the wall thickness scale is drawn inside it). A working pixel c spans
+    x = (c f - 1/2 .. c f + f - 1/2) s for the downsampling f and the plan's scale s."""
+    s, sp = float(metrics["m_per_px"]), float(metrics["working_m_per_px"])
+    view = View(x0_m=-s / 2, y_top_m=s / 2, m_per_px=sp)
+    keys = [
+        Key("wall raster", (200, 200, 200), "box"),
+        Key("door", (200, 0, 200)),
+        Key("plan region", (255, 120, 0), "dash"),
+    ]
+    return frame_picture(preview, view, f"plan {name}: walls by thickness, rooms, doors", keys)
