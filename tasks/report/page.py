@@ -54,6 +54,18 @@ img{max-width:100%;height:auto;border:1px solid #e3e3e3}
 code{font-size:13px}
 """
 
+TRUTH_FIGURES = (
+    "completeness",
+    "correctness",
+    "accuracy_median_m",
+    "accuracy_mean_m",
+    "corner_f1",
+    "angle_error_deg",
+    "ate_2d_rmse_m",
+    "scale_error_pct",
+)
+"""The figures against truth shown per room (metrics.json), in this order."""
+
 
 def data_uri(path: Path) -> str:
     """A PNG file as a data: URI (the report carries its pictures)."""
@@ -228,16 +240,7 @@ def _room_section(
     if walls.get("warnings"):
         out.append('<p class="note">walls: ' + escape("; ".join(map(str, walls["warnings"]))) + "</p>")
     if truth:
-        keep = (
-            "completeness",
-            "correctness",
-            "accuracy_median_m",
-            "accuracy_mean_m",
-            "corner_f1",
-            "angle_error_deg",
-            "ate_2d_rmse_m",
-            "scale_error_pct",
-        )
+        keep = TRUTH_FIGURES
         rows = [(k, truth[k]) for k in keep if k in truth]
         if rows:
             out.append("<h3>against truth</h3>" + _table(rows, ("figure", "value")))
@@ -303,16 +306,7 @@ def _accuracy_section(data: ReportData) -> str:
     summary = m.get("summary") or {}
     parts.append(_table(sorted(summary.items()), ("figure (mean over rooms)", "value")))
     rooms = [r for r in m.get("rooms", []) if isinstance(r, dict)]
-    keys = (
-        "completeness",
-        "correctness",
-        "accuracy_median_m",
-        "accuracy_mean_m",
-        "corner_f1",
-        "angle_error_deg",
-        "ate_2d_rmse_m",
-        "scale_error_pct",
-    )
+    keys = TRUTH_FIGURES
     rows = [
         (r.get("room", "?") + (" (earlier run)" if r.get("earlier_run") else ""), *(r.get(k) for k in keys))
         for r in rooms
