@@ -83,3 +83,11 @@ def test_floor_index_fans_in_every_room_and_follows_a_targeted_rerun(mini_run, c
     assert len([p for p in (work / "cache" / "r1" / "walls").iterdir() if not p.name.startswith(".")]) == 1
     rerun = pq.read_table(work / "outputs" / "rooms.parquet").to_pylist()
     assert [r["room_id"] for r in rerun] == [r["room_id"] for r in rooms]
+    # the partial run's report and metrics still hold every room, each from the run that last computed it
+    page = (work / "outputs" / "report.html").read_text()
+    assert all(f'id="room-{r["room_id"]}"' in page for r in rooms)
+    metrics = json.loads((work / "outputs" / "metrics.json").read_text())
+    assert sorted(r["room"] for r in metrics["rooms"]) == sorted(r["room_id"] for r in rooms)
+    manifest = json.loads((work / "outputs" / "manifest.json").read_text())
+    assert set(manifest["rooms"]) == {r["room_id"] for r in rooms}
+    assert all(entry["run_id"] and entry["state"] == "done" for entry in manifest["rooms"].values())
