@@ -83,8 +83,13 @@ def connect_detailed(
     cfg: LinesConfig,
     support_fn: SupportFn | None = None,
     interior_xy: NDArray | None = None,
+    min_step: float | None = None,
 ) -> Connected:
     """`connect` with the parent of every wall and the removed pieces.
+
+    `min_step`: the smallest offset between two parallel walls that a perpendicular join may bridge
+    (default `cfg.offset_tol_m`: closer parallel pieces are one line). A caller whose merge keeps a step of
+    a few cm as two walls (`merge_segments` with `quantum`) passes that grid, so the step is joined.
 
     Perpendicular joins: where two parallel walls end facing each other (an alcove, a recess, a chimney
     breast) and the wall between them was not seen, the join goes at the end of the wall nearer the room's
@@ -112,7 +117,8 @@ def connect_detailed(
     sin_tol = math.sin(math.radians(max(cfg.angle_tol_deg, 1e-3)))
 
     _extend_and_trim(walls, T, T if cfg.trim_m is None else min(T, float(cfg.trim_m)), sin_tol)
-    _join_free_ends(walls, T, eps, sin_tol, max(cfg.offset_tol_m, eps), interior_xy, support_fn)
+    step = cfg.offset_tol_m if min_step is None else min_step
+    _join_free_ends(walls, T, eps, sin_tol, max(step, eps), interior_xy, support_fn)
     pieces, piece_parent, piece_wall, extended = _node_pieces(walls, eps)
 
     removed = np.zeros(len(pieces), dtype=bool)

@@ -141,7 +141,7 @@ def _topology(
 ) -> _Topology:
     """Steps 5-7 on the Hough segments: merge, the top-reach test, regularize, refine (when `xy` is
     given), connect, then keep the room's walls."""
-    merged = merge_segments(hough, lcfg)
+    merged = merge_segments(hough, lcfg, quantum=grid.size)
     lines = merged.segments
     noise = line_noise(hough, merged.labels, lines, grid.size)
     below_top = 0
@@ -176,7 +176,7 @@ def _topology(
     # the room's interior, for the joins across unseen walls: the walls' length-weighted centre
     weight = lengths(refined)
     interior = (centres * weight[:, None]).sum(axis=0) / weight.sum() if weight.sum() > 0 else None
-    conn = connect_detailed(refined, lcfg, support_fn, interior)
+    conn = connect_detailed(refined, lcfg, support_fn, interior, min_step=grid.size)
     walls, origin = _drop_short_stubs(conn.segments, conn.origin, cfg.min_wall_length_m)
     polygon, walls, origin, outside = _room_polygon(walls, origin, grid.size)
     hung = _hung_from_ceiling(walls, polygon, low_share)
