@@ -296,6 +296,19 @@ def _join_free_ends(
         elif tv > v.t1 - eps:
             v.t1 = max(v.t1, tv)
             done.add((j, 1))
+        else:
+            # the foot lies inside the other wall: where two parallel walls a step apart overlap past the
+            # step (each one's data ran on a little into the step's corner), the other wall's free end
+            # behind the foot is cut back to it, else it would be joined a second time, making two steps
+            out = w.u if e == 1 else -w.u
+            k = 0 if float(out @ v.u) > 0 else 1
+            back = abs(tv - (v.t0 if k == 0 else v.t1))
+            if (j, k) not in done and back <= min(T, 0.5 * (v.t1 - v.t0)) and _is_free(walls, j, k, eps):
+                if k == 0:
+                    v.t0 = tv
+                else:
+                    v.t1 = tv
+                done.add((j, k))
         d = x - p
         L = float(np.hypot(*d))
         walls.append(_Wall(p.copy(), d / L, 0.0, L, 0.0, 0.0, -1, perpendicular=True))

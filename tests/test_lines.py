@@ -99,6 +99,15 @@ def test_a_jog_of_a_few_cm_between_pieces_that_do_not_overlap_is_two_walls_and_a
     assert len(walls) == 3 and is_closed(wall_graph(walls)) is False  # a chain: two walls and the step
 
 
+def test_parallel_walls_overlapping_past_their_step_get_one_step():
+    # two walls 3.5 cm apart whose data each ran 7.5 cm on into the step's corner (15 cm overlap)
+    walls = np.array([[0.0, 0.0, 5.075, 0.0], [4.925, 0.035, 10.0, 0.035]])
+    out = connect_detailed(walls, CFG, min_step=0.01).segments
+    steps = out[lengths(out) < 0.5]
+    assert len(steps) == 1 and lengths(steps)[0] == pytest.approx(0.035)
+    assert len(out) == 3 and lengths(out).sum() == pytest.approx(10.0 + 0.035)  # no overlap left
+
+
 def test_noisy_collinear_pieces_without_a_step_stay_one_wall(rng):
     for _ in range(20):
         merged = merge_segments(jog_pieces(0.0, rng, noise=0.004), CFG, quantum=0.01)
