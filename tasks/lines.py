@@ -379,12 +379,19 @@ def _scatter(segments: Segments, w: NDArray) -> tuple[float, NDArray, NDArray]:
     return W, c, S
 
 
-def _step_cut(segments: Segments, w: NDArray, t0: NDArray, t1: NDArray, quantum: float) -> int | None:
+def _main_axis(scatter: NDArray) -> NDArray:
+    return np.linalg.eigh(scatter)[1][:, 1]
+
+
+def _step_cut(
+    segments: Segments, w: NDArray, t0: NDArray, t1: NDArray, quantum: float, sin_tol: float
+) -> int | None:
     """Where a chain of parallel pieces is two walls with a step between them: the cut (members sorted by
     start `t0` along the line, the first `cut` on one side) such that the two sides do not overlap along
     the line (beyond the step itself: a skeleton rounds a step's corners) and two parallel lines, one per
     side (common direction, own offsets, fitted by total least squares), lie further apart than
-    SPLIT_SEPARATION standard deviations of the data about them; the deviation is at least the rounding
+    SPLIT_SEPARATION standard deviations of the data about them, each side's own direction within the
+    parallel tolerance (sine `sin_tol`) of the common one; the deviation is at least the rounding
     noise of a position on a grid of `quantum`, quantum / sqrt(12). Returns the cut with the least
     scatter about the two lines, or None. The data's noise decides, not a threshold on the step."""
     n = len(segments)
@@ -401,22 +408,26 @@ def _step_cut(segments: Segments, w: NDArray, t0: NDArray, t1: NDArray, quantum:
         step = abs(float((cb - ca) @ nrm))
         if reach[k - 1] - t0[k] > step:
             continue  # the sides overlap along the line: parallel pieces of one wall
+        if max(abs(float(_main_axis(sa) @ nrm)), abs(float(_main_axis(sb) @ nrm))) > sin_tol:
+            continue  # a side is not parallel to the other (clutter of the cluster): no step to speak of
         sd = max(math.sqrt(max(ssw, 0.0) / (wa + wb)), floor)
         if step > SPLIT_SEPARATION * sd and ssw < best_ssw:
             best, best_ssw = k, ssw
     return best
 
 
-def _split_steps(segments: Segments, w: NDArray, t0: NDArray, t1: NDArray, quantum: float) -> list[NDArray]:
+def _split_steps(
+    segments: Segments, w: NDArray, t0: NDArray, t1: NDArray, quantum: float, sin_tol: float
+) -> list[NDArray]:
     """Positions into `segments` of each wall of a chain of parallel pieces split, recursively, at every
     step (`_step_cut`)."""
     order = np.argsort(t0, kind="stable")
-    cut = _step_cut(segments[order], w[order], t0[order], t1[order], quantum)
+    cut = _step_cut(segments[order], w[order], t0[order], t1[order], quantum, sin_tol)
     if cut is None:
         return [np.arange(len(segments))]
     out = []
     for side in (order[:cut], order[cut:]):
-        out += [side[p] for p in _split_steps(segments[side], w[side], t0[side], t1[side], quantum)]
+        out += [side[p] for p in _split_steps(segments[side], w[side], t0[side], t1[side], quantum, sin_tol)]
     return out
 
 
@@ -458,8 +469,11 @@ def merge_segments(
             parts = [np.flatnonzero(chains == ch) for ch in np.unique(chains)]
             if quantum is not None:
                 t0, t1 = np.minimum(ta, tb), np.maximum(ta, tb)
+                sin_tol = math.sin(math.radians(cfg.angle_tol_deg))
                 parts = [
-                    p[q] for p in parts for q in _split_steps(seg[om[p]], wk[om[p]], t0[p], t1[p], quantum)
+                    p[q]
+                    for p in parts
+                    for q in _split_steps(seg[om[p]], wk[om[p]], t0[p], t1[p], quantum, sin_tol)
                 ]
             for cm in (om[p] for p in parts):
                 line = fit_line(seg[cm], wk[cm] / np.maximum(lengths(seg[cm]), 1e-300))
