@@ -83,8 +83,13 @@ def connect_detailed(
     cfg: LinesConfig,
     support_fn: SupportFn | None = None,
     interior_xy: NDArray | None = None,
+    min_step: float | None = None,
 ) -> Connected:
     """`connect` with the parent of every wall and the removed pieces.
+
+    `min_step`: the smallest offset between two parallel walls that a perpendicular join may bridge
+    (default `cfg.offset_tol_m`: closer parallel pieces are one line). A caller whose merge keeps a step of
+    a few cm as two walls (`merge_segments` with `quantum`) passes that grid, so the step is joined.
 
     Perpendicular joins: where two parallel walls end facing each other (an alcove, a recess, a chimney
     breast) and the wall between them was not seen, the join goes at the end of the wall nearer the room's
@@ -112,7 +117,8 @@ def connect_detailed(
     sin_tol = math.sin(math.radians(max(cfg.angle_tol_deg, 1e-3)))
 
     _extend_and_trim(walls, T, T if cfg.trim_m is None else min(T, float(cfg.trim_m)), sin_tol)
-    _join_free_ends(walls, T, eps, sin_tol, max(cfg.offset_tol_m, eps), interior_xy, support_fn)
+    step = cfg.offset_tol_m if min_step is None else min_step
+    _join_free_ends(walls, T, eps, sin_tol, max(step, eps), interior_xy, support_fn)
     pieces, piece_parent, piece_wall, extended = _node_pieces(walls, eps)
 
     removed = np.zeros(len(pieces), dtype=bool)
@@ -290,6 +296,19 @@ def _join_free_ends(
         elif tv > v.t1 - eps:
             v.t1 = max(v.t1, tv)
             done.add((j, 1))
+        else:
+            # the foot lies inside the other wall: where two parallel walls a step apart overlap past the
+            # step (each one's data ran on a little into the step's corner), the other wall's free end
+            # behind the foot is cut back to it, else it would be joined a second time, making two steps
+            out = w.u if e == 1 else -w.u
+            k = 0 if float(out @ v.u) > 0 else 1
+            back = abs(tv - (v.t0 if k == 0 else v.t1))
+            if (j, k) not in done and back <= min(T, 0.5 * (v.t1 - v.t0)) and _is_free(walls, j, k, eps):
+                if k == 0:
+                    v.t0 = tv
+                else:
+                    v.t1 = tv
+                done.add((j, k))
         d = x - p
         L = float(np.hypot(*d))
         walls.append(_Wall(p.copy(), d / L, 0.0, L, 0.0, 0.0, -1, perpendicular=True))

@@ -368,10 +368,79 @@ def fit_line(segments: Segments, weights: NDArray | None = None) -> Segments:
     return np.array([[a[0], a[1], b[0], b[1]]])
 
 
-def merge_segments(segments: Segments, cfg: LinesConfig, weights: NDArray | None = None) -> MergedLines:
+def _scatter(segments: Segments, w: NDArray) -> tuple[float, NDArray, NDArray]:
+    """(weight, centroid (2,), scatter (2, 2) about it) of points spread uniformly along the segments, each
+    segment weighing `w` (as in `fit_line`)."""
+    m = midpoints(segments)
+    W = float(w.sum())
+    c = (w[:, None] * m).sum(0) / W
+    d, dm = segments[:, 2:] - segments[:, :2], m - c
+    S = (w[:, None, None] * (dm[:, :, None] * dm[:, None, :] + d[:, :, None] * d[:, None, :] / 12.0)).sum(0)
+    return W, c, S
+
+
+def _main_axis(scatter: NDArray) -> NDArray:
+    return np.linalg.eigh(scatter)[1][:, 1]
+
+
+def _step_cut(
+    segments: Segments, w: NDArray, t0: NDArray, t1: NDArray, quantum: float, sin_tol: float
+) -> int | None:
+    """Where a chain of parallel pieces is two walls with a step between them: the cut (members sorted by
+    start `t0` along the line, the first `cut` on one side) such that the two sides do not overlap along
+    the line (beyond the step itself: a skeleton rounds a step's corners) and two parallel lines, one per
+    side (common direction, own offsets, fitted by total least squares), lie further apart than
+    SPLIT_SEPARATION standard deviations of the data about them, each side's own direction within the
+    parallel tolerance (sine `sin_tol`) of the common one; the deviation is at least the rounding
+    noise of a position on a grid of `quantum`, quantum / sqrt(12). Returns the cut with the least
+    scatter about the two lines, or None. The data's noise decides, not a threshold on the step."""
+    n = len(segments)
+    floor = quantum / math.sqrt(12.0)
+    reach = np.maximum.accumulate(t1)
+    best, best_ssw = None, np.inf
+    for k in range(1, n):
+        wa, ca, sa = _scatter(segments[:k], w[:k])
+        wb, cb, sb = _scatter(segments[k:], w[k:])
+        if wa <= 0 or wb <= 0:
+            continue
+        evals, evecs = np.linalg.eigh(sa + sb)
+        ssw, nrm = float(evals[0]), evecs[:, 0]  # the common normal: least scatter about two parallels
+        step = abs(float((cb - ca) @ nrm))
+        if reach[k - 1] - t0[k] > step:
+            continue  # the sides overlap along the line: parallel pieces of one wall
+        if max(abs(float(_main_axis(sa) @ nrm)), abs(float(_main_axis(sb) @ nrm))) > sin_tol:
+            continue  # a side is not parallel to the other (clutter of the cluster): no step to speak of
+        sd = max(math.sqrt(max(ssw, 0.0) / (wa + wb)), floor)
+        if step > SPLIT_SEPARATION * sd and ssw < best_ssw:
+            best, best_ssw = k, ssw
+    return best
+
+
+def _split_steps(
+    segments: Segments, w: NDArray, t0: NDArray, t1: NDArray, quantum: float, sin_tol: float
+) -> list[NDArray]:
+    """Positions into `segments` of each wall of a chain of parallel pieces split, recursively, at every
+    step (`_step_cut`)."""
+    order = np.argsort(t0, kind="stable")
+    cut = _step_cut(segments[order], w[order], t0[order], t1[order], quantum, sin_tol)
+    if cut is None:
+        return [np.arange(len(segments))]
+    out = []
+    for side in (order[:cut], order[cut:]):
+        out += [side[p] for p in _split_steps(segments[side], w[side], t0[side], t1[side], quantum, sin_tol)]
+    return out
+
+
+def merge_segments(
+    segments: Segments, cfg: LinesConfig, weights: NDArray | None = None, quantum: float | None = None
+) -> MergedLines:
     """Group segments into walls (orientation -> offset -> connectivity) and average every group.
 
-    `weights` (N,) multiply the segment lengths in all weighted steps (e.g. Hough votes); default 1."""
+    `weights` (N,) multiply the segment lengths in all weighted steps (e.g. Hough votes); default 1.
+    With `quantum` (the grid the segments were found on, in their unit), offset clustering is aware of
+    overlap: a chain of parallel pieces within `offset_tol_m` of each other whose pieces on either side of
+    some point do not overlap along the line, and whose offsets there differ by more than their noise
+    (`_step_cut`), is two walls with a step (a jog of a few cm where two rooms' walls meet), not one."""
     segments = as_segments(segments)
     n = len(segments)
     L = lengths(segments)
@@ -397,8 +466,16 @@ def merge_segments(segments: Segments, cfg: LinesConfig, weights: NDArray | None
             om = members[off_groups == og]
             ta, tb = seg[om, :2] @ u, seg[om, 2:] @ u
             chains = _intervals_chains(np.minimum(ta, tb), np.maximum(ta, tb), cfg.max_gap_m)
-            for ch in np.unique(chains):
-                cm = om[chains == ch]
+            parts = [np.flatnonzero(chains == ch) for ch in np.unique(chains)]
+            if quantum is not None:
+                t0, t1 = np.minimum(ta, tb), np.maximum(ta, tb)
+                sin_tol = math.sin(math.radians(cfg.angle_tol_deg))
+                parts = [
+                    p[q]
+                    for p in parts
+                    for q in _split_steps(seg[om[p]], wk[om[p]], t0[p], t1[p], quantum, sin_tol)
+                ]
+            for cm in (om[p] for p in parts):
                 line = fit_line(seg[cm], wk[cm] / np.maximum(lengths(seg[cm]), 1e-300))
                 if lengths(line)[0] < cfg.min_length_m:
                     continue

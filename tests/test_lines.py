@@ -75,6 +75,51 @@ def test_two_collinear_pieces_with_a_03_m_gap_give_one_wall():
     assert len(merge_segments(far, CFG).segments) == 2
 
 
+def jog_pieces(step, rng, noise=0.003):
+    """A 10 m wall of Hough-like pieces on a 1 cm grid whose second half lies `step` m further out (a jog
+    where two rooms' walls meet), the two halves 0.5 m apart along the line (a door at the jog)."""
+    left = pieces_along((0.0, 0.0), (4.75, 0.0), 5, rng, noise)
+    right = pieces_along((5.25, step), (10.0, step), 5, rng, noise)
+    return np.round(np.array(left + right), 2)  # pixel-rounded ends, as a Hough transform gives them
+
+
+@pytest.mark.parametrize("step", [0.03, 0.045, 0.075])
+def test_a_jog_of_a_few_cm_between_pieces_that_do_not_overlap_is_two_walls_and_a_step(rng, step):
+    hough = jog_pieces(step, rng)
+    if step < CFG.offset_tol_m:
+        assert len(merge_segments(hough, CFG).segments) == 1  # plain offset clustering: one slanted wall
+    merged = merge_segments(hough, CFG, quantum=0.01)
+    assert len(merged.segments) == 2
+    offs = sorted(float(s[1] + s[3]) / 2 for s in merged.segments)
+    assert offs[0] == pytest.approx(0.0, abs=0.004) and offs[1] == pytest.approx(step, abs=0.004)
+    walls = connect_detailed(regularize(merged.segments, CFG)[0], CFG, min_step=0.01).segments
+    steps = walls[lengths(walls) < 0.5]  # the connecting wall, across the line
+    assert len(steps) == 1 and lengths(steps)[0] == pytest.approx(step, abs=0.004)
+    assert abs(angles(steps)[0] - math.pi / 2) < math.radians(1.0)
+    assert len(walls) == 3 and is_closed(wall_graph(walls)) is False  # a chain: two walls and the step
+
+
+def test_parallel_walls_overlapping_past_their_step_get_one_step():
+    # two walls 3.5 cm apart whose data each ran 7.5 cm on into the step's corner (15 cm overlap)
+    walls = np.array([[0.0, 0.0, 5.075, 0.0], [4.925, 0.035, 10.0, 0.035]])
+    out = connect_detailed(walls, CFG, min_step=0.01).segments
+    steps = out[lengths(out) < 0.5]
+    assert len(steps) == 1 and lengths(steps)[0] == pytest.approx(0.035)
+    assert len(out) == 3 and lengths(out).sum() == pytest.approx(10.0 + 0.035)  # no overlap left
+
+
+def test_noisy_collinear_pieces_without_a_step_stay_one_wall(rng):
+    for _ in range(20):
+        merged = merge_segments(jog_pieces(0.0, rng, noise=0.004), CFG, quantum=0.01)
+        assert len(merged.segments) == 1
+
+
+def test_overlapping_parallel_pieces_a_few_cm_apart_stay_one_wall():
+    # two skeleton branches of one thick wall, 3 cm apart, overlapping along the line
+    hough = np.array([[0.0, 0.0, 6.0, 0.0], [4.0, 0.03, 10.0, 0.03]])
+    assert len(merge_segments(hough, CFG, quantum=0.01).segments) == 1
+
+
 def test_885_degrees_becomes_90():
     a = math.radians(88.5)
     segs = np.array([[0, 0, 4, 0], [0, 0, 3 * math.cos(a), 3 * math.sin(a)]], dtype=float)

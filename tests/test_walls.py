@@ -690,3 +690,17 @@ def test_a_degraded_handheld_room_is_modelled_with_parameters_from_the_data(kind
     assert ev["completeness"] >= 0.85, ev
     assert ev["accuracy_mean_m"] <= 0.020, ev
     assert ev["correctness"] >= 0.75, ev
+
+
+def test_a_corridor_wall_with_a_4_cm_jog_is_two_walls_and_a_step(rng):
+    # where two rooms' walls meet, the corridor's wall steps 4 cm (less than offset_tol_m): two walls
+    # whose pieces do not overlap along the line, offset far beyond their noise, and the step between them
+    c = [(0, 0), (8, 0), (8, 2.04), (4, 2.04), (4, 2.0), (0, 2.0)]
+    truth = np.array([[*c[i], *c[(i + 1) % 6]] for i in range(6)], float)
+    pts = np.concatenate([wall_points(t[:2], t[2:], 1.5, 2.5, rng, noise=0.005) for t in truth])
+    model = model_walls(pts, 0.0, 2.7, CFG)
+    ev = evaluate_walls(model.walls, truth)
+    assert len(model.walls) == 6 and model.closed and ev["corner_f1"] == 1.0, (ev, model.walls)
+    step = model.walls[np.hypot(*(model.walls[:, 2:] - model.walls[:, :2]).T) < 0.5]
+    assert len(step) == 1 and abs(step[0, 3] - step[0, 1]) == pytest.approx(0.04, abs=0.005)
+    assert abs(step[0, 0] - 4.0) < 0.05 and ev["accuracy_mean_m"] < 0.003

@@ -141,7 +141,7 @@ def _topology(
 ) -> _Topology:
     """Steps 5-7 on the Hough segments: merge, the top-reach test, regularize, refine (when `xy` is
     given), connect, then keep the room's walls."""
-    merged = merge_segments(hough, lcfg)
+    merged = merge_segments(hough, lcfg, quantum=grid.size)
     lines = merged.segments
     noise = line_noise(hough, merged.labels, lines, grid.size)
     below_top = 0
@@ -176,9 +176,22 @@ def _topology(
     # the room's interior, for the joins across unseen walls: the walls' length-weighted centre
     weight = lengths(refined)
     interior = (centres * weight[:, None]).sum(axis=0) / weight.sum() if weight.sum() > 0 else None
-    conn = connect_detailed(refined, lcfg, support_fn, interior)
+    conn = connect_detailed(refined, lcfg, support_fn, interior, min_step=grid.size)
     walls, origin = _drop_short_stubs(conn.segments, conn.origin, cfg.min_wall_length_m)
     polygon, walls, origin, outside = _room_polygon(walls, origin, grid.size)
+    away = _lines_away_from(refined, polygon, grid.size)
+    if away.any() and not away.all():
+        # a line wholly outside the room (a wall seen through a door) is no wall of it, and must not shape
+        # its corners either (its extension trims the room's wall it meets): connect again without it
+        def support_kept(pieces: NDArray, parent: NDArray) -> NDArray:
+            return support_fn(pieces, np.where(parent >= 0, kept[np.maximum(parent, 0)], -1))
+
+        kept = np.flatnonzero(~away)
+        again = connect_detailed(refined[kept], lcfg, support_kept, interior, min_step=grid.size)
+        w2, o2 = _drop_short_stubs(again.segments, again.origin, cfg.min_wall_length_m)
+        p2, w2, o2, out2 = _room_polygon(w2, o2, grid.size)
+        if p2 is not None:
+            conn, polygon, walls, origin, outside = again, p2, w2, o2, out2 + int(away.sum())
     hung = _hung_from_ceiling(walls, polygon, low_share)
     if hung.any():
         walls, origin = walls[~hung], origin[~hung]
@@ -209,6 +222,15 @@ def line_noise(hough: NDArray, labels: NDArray, lines: NDArray, floor_m: float) 
     n = np.bincount(j, minlength=len(lines)) * 2
     rms = np.sqrt(sq / np.maximum(n, 1))
     return np.maximum(out, rms)
+
+
+def _lines_away_from(lines: NDArray, polygon: Any, tol_m: float) -> NDArray[np.bool_]:
+    """(M,) lines farther than `tol_m` from the room (None: none is)."""
+    if polygon is None or len(lines) == 0:
+        return np.zeros(len(lines), dtype=bool)
+    import shapely
+
+    return shapely.distance(polygon, shapely.linestrings(lines.reshape(-1, 2, 2))) > tol_m
 
 
 def _hung_from_ceiling(walls: NDArray, polygon: Any, low_share) -> NDArray[np.bool_]:
