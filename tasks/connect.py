@@ -83,13 +83,16 @@ def connect_detailed(
     cfg: LinesConfig,
     support_fn: SupportFn | None = None,
     interior_xy: NDArray | None = None,
-    min_step: float | None = None,
+    step_chain: NDArray | None = None,
 ) -> Connected:
     """`connect` with the parent of every wall and the removed pieces.
 
-    `min_step`: the smallest offset between two parallel walls that a perpendicular join may bridge
-    (default `cfg.offset_tol_m`: closer parallel pieces are one line). A caller whose merge keeps a step of
-    a few cm as two walls (`merge_segments` with `quantum`) passes that grid, so the step is joined.
+    Two parallel walls closer than `cfg.offset_tol_m` are pieces of one line (`merge_segments` joins them
+    when their gap allows) and are not joined by a perpendicular wall, unless `step_chain` (N,), each
+    segment's chain of collinear pieces (`MergedLines.chain`), says that merging split them at a step (the
+    same chain, which its data showed to be two walls a few cm apart): that step is joined. Two pieces of
+    different chains a little apart (the two sides of a door, offset by registration noise) stay unjoined:
+    nothing showed a step between them.
 
     Perpendicular joins: where two parallel walls end facing each other (an alcove, a recess, a chimney
     breast) and the wall between them was not seen, the join goes at the end of the wall nearer the room's
@@ -117,8 +120,8 @@ def connect_detailed(
     sin_tol = math.sin(math.radians(max(cfg.angle_tol_deg, 1e-3)))
 
     _extend_and_trim(walls, T, T if cfg.trim_m is None else min(T, float(cfg.trim_m)), sin_tol)
-    step = cfg.offset_tol_m if min_step is None else min_step
-    _join_free_ends(walls, T, eps, sin_tol, max(step, eps), interior_xy, support_fn)
+    chain = None if step_chain is None else np.asarray(step_chain, dtype=np.intp).reshape(len(segments))
+    _join_free_ends(walls, T, eps, sin_tol, max(cfg.offset_tol_m, eps), interior_xy, support_fn, chain)
     pieces, piece_parent, piece_wall, extended = _node_pieces(walls, eps)
 
     removed = np.zeros(len(pieces), dtype=bool)
@@ -221,10 +224,12 @@ def _join_free_ends(
     offset_tol: float,
     interior_xy: NDArray | None = None,
     support_fn: SupportFn | None = None,
+    chain: NDArray | None = None,
 ) -> None:
     """Join each free end perpendicularly to the nearest parallel line within T whose segment (lengthened by
     T at a free end) it meets; that end of the other wall is moved to the foot when needed (fig 5.14 d-e,
-    a step between parallel walls). With `interior_xy`, the ends of walls whose lines pass nearer that point
+    a step between parallel walls). A line closer than `offset_tol` is the same line, unless `chain` (by
+    input index) puts both walls in one chain split at a step. With `interior_xy`, the ends of walls whose lines pass nearer that point
     go first; with `support_fn`, a join that could go anywhere between the two walls' ends goes where its
     data is (at least 0.1 more support than at the first end)."""
     n_orig = len(walls)
@@ -254,7 +259,8 @@ def _join_free_ends(
             if hit is None:
                 continue
             x, s, _ = hit
-            if abs(s) > T or abs(s) < offset_tol:
+            step = chain is not None and chain[w.parent] >= 0 and chain[w.parent] == chain[v.parent]
+            if abs(s) > T or abs(s) < (eps if step else offset_tol):
                 continue  # too far, or the same line (collinear pieces are joined by merge_segments)
             tv = float((x - v.a) @ v.u)
             lo, hi = v.t0, v.t1

@@ -47,6 +47,12 @@ class MergedLines:
     """Eq 5.8 for k = 1, 2, ... as tried; the chosen k is `len(orientation_deg)`."""
     orientation_criterion: str = "eq 5.8"
     """What decided the orientation clusters (`cluster_orientations`)."""
+    chain: NDArray[np.intp] | None = None
+    """(M,) the chain of collinear pieces (orientation, offset and connectivity cluster) each line comes
+    from. Lines sharing a chain are the walls either side of a step `merge_segments` found in it
+    (`_step_cut`); lines of different chains were never one wall's pieces (e.g. a gap wider than
+    `max_gap_m`, a door, lies between them). `tasks.connect` joins two lines closer than `offset_tol_m`
+    by a step only when they share a chain."""
 
 
 # ---------------------------------------------------------------- basic geometry
@@ -449,14 +455,19 @@ def merge_segments(
     labels_out = np.full(n, -1, dtype=np.intp)
     orient_out = np.full(n, -1, dtype=np.intp)
     if not keep.any():
-        return MergedLines(np.zeros((0, 4)), labels_out, orient_out, np.zeros(0), ())
+        return MergedLines(
+            np.zeros((0, 4)), labels_out, orient_out, np.zeros(0), (), chain=np.zeros(0, dtype=np.intp)
+        )
     idx = np.flatnonzero(keep)
     seg, wk = segments[idx], w[idx]
     theta = angles(seg)
     o_labels, o_means, evs, criterion = cluster_orientations(theta, wk, cfg)
     orient_out[idx] = o_labels
 
+    sin_tol = math.sin(math.radians(cfg.angle_tol_deg))
     merged: list[NDArray] = []
+    chain_of: list[int] = []
+    n_chains = 0
     for c, phi in enumerate(o_means):
         members = np.flatnonzero(o_labels == c)
         u = np.array([math.cos(phi), math.sin(phi)])
@@ -465,24 +476,27 @@ def merge_segments(
         for og in np.unique(off_groups := _chains_1d(offsets, cfg.offset_tol_m)):
             om = members[off_groups == og]
             ta, tb = seg[om, :2] @ u, seg[om, 2:] @ u
-            chains = _intervals_chains(np.minimum(ta, tb), np.maximum(ta, tb), cfg.max_gap_m)
-            parts = [np.flatnonzero(chains == ch) for ch in np.unique(chains)]
-            if quantum is not None:
-                t0, t1 = np.minimum(ta, tb), np.maximum(ta, tb)
-                sin_tol = math.sin(math.radians(cfg.angle_tol_deg))
-                parts = [
-                    p[q]
-                    for p in parts
-                    for q in _split_steps(seg[om[p]], wk[om[p]], t0[p], t1[p], quantum, sin_tol)
-                ]
-            for cm in (om[p] for p in parts):
-                line = fit_line(seg[cm], wk[cm] / np.maximum(lengths(seg[cm]), 1e-300))
-                if lengths(line)[0] < cfg.min_length_m:
-                    continue
-                labels_out[idx[cm]] = len(merged)
-                merged.append(line[0])
+            t0, t1 = np.minimum(ta, tb), np.maximum(ta, tb)
+            chains = _intervals_chains(t0, t1, cfg.max_gap_m)
+            for ch in np.unique(chains):
+                # the walls of one chain, split at its steps (one wall where there is no step)
+                p = np.flatnonzero(chains == ch)
+                walls = [p]
+                if quantum is not None:
+                    walls = [
+                        p[q] for q in _split_steps(seg[om[p]], wk[om[p]], t0[p], t1[p], quantum, sin_tol)
+                    ]
+                for cm in (om[q] for q in walls):
+                    line = fit_line(seg[cm], wk[cm] / np.maximum(lengths(seg[cm]), 1e-300))
+                    if lengths(line)[0] < cfg.min_length_m:
+                        continue
+                    labels_out[idx[cm]] = len(merged)
+                    merged.append(line[0])
+                    chain_of.append(n_chains)
+                n_chains += 1
     out = np.array(merged).reshape(-1, 4)
-    return MergedLines(out, labels_out, orient_out, np.degrees(o_means), evs, criterion)
+    chain = np.array(chain_of, dtype=np.intp)
+    return MergedLines(out, labels_out, orient_out, np.degrees(o_means), evs, criterion, chain)
 
 
 # ---------------------------------------------------------------- regularization (5.2.5.1, eq 5.9)

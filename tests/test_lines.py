@@ -92,7 +92,9 @@ def test_a_jog_of_a_few_cm_between_pieces_that_do_not_overlap_is_two_walls_and_a
     assert len(merged.segments) == 2
     offs = sorted(float(s[1] + s[3]) / 2 for s in merged.segments)
     assert offs[0] == pytest.approx(0.0, abs=0.004) and offs[1] == pytest.approx(step, abs=0.004)
-    walls = connect_detailed(regularize(merged.segments, CFG)[0], CFG, min_step=0.01).segments
+    if step < CFG.offset_tol_m:
+        assert merged.chain[0] == merged.chain[1]  # one chain of pieces, split at its step
+    walls = connect_detailed(regularize(merged.segments, CFG)[0], CFG, step_chain=merged.chain).segments
     steps = walls[lengths(walls) < 0.5]  # the connecting wall, across the line
     assert len(steps) == 1 and lengths(steps)[0] == pytest.approx(step, abs=0.004)
     assert abs(angles(steps)[0] - math.pi / 2) < math.radians(1.0)
@@ -102,10 +104,26 @@ def test_a_jog_of_a_few_cm_between_pieces_that_do_not_overlap_is_two_walls_and_a
 def test_parallel_walls_overlapping_past_their_step_get_one_step():
     # two walls 3.5 cm apart whose data each ran 7.5 cm on into the step's corner (15 cm overlap)
     walls = np.array([[0.0, 0.0, 5.075, 0.0], [4.925, 0.035, 10.0, 0.035]])
-    out = connect_detailed(walls, CFG, min_step=0.01).segments
+    out = connect_detailed(walls, CFG, step_chain=np.array([0, 0])).segments
     steps = out[lengths(out) < 0.5]
     assert len(steps) == 1 and lengths(steps)[0] == pytest.approx(0.035)
     assert len(out) == 3 and lengths(out).sum() == pytest.approx(10.0 + 0.035)  # no overlap left
+
+
+def test_collinear_pieces_either_side_of_a_door_a_little_apart_get_no_step(rng):
+    # one straight wall seen either side of a 0.9 m door (wider than max_gap_m), its two pieces 1.2 cm apart
+    # (registration noise): two chains, as nothing joined them into one
+    left = pieces_along((0.0, 0.0), (3.0, 0.0), 4, rng, 0.002)
+    right = pieces_along((3.9, 0.012), (8.0, 0.012), 5, rng, 0.002)
+    merged = merge_segments(np.round(np.array(left + right), 2), CFG, quantum=0.01)
+    assert len(merged.segments) == 2 and merged.chain[0] != merged.chain[1]
+    # later the data carried their ends 0.3 m nearer: connect must not invent a 1.2 cm step between them,
+    # nothing showed one; the same two walls found as the two sides of one chain's step are joined by it
+    walls = np.array([[0.0, 0.0, 3.15, 0.0], [3.75, 0.012, 8.0, 0.012]])
+    out = connect_detailed(walls, CFG, step_chain=np.array([0, 1])).segments
+    assert len(out) == 2 and np.allclose(out, walls)
+    out = connect_detailed(walls, CFG, step_chain=np.array([3, 3])).segments
+    assert len(out) == 3 and lengths(out).min() == pytest.approx(0.012)
 
 
 def test_noisy_collinear_pieces_without_a_step_stay_one_wall(rng):

@@ -142,7 +142,7 @@ def _topology(
     """Steps 5-7 on the Hough segments: merge, the top-reach test, regularize, refine (when `xy` is
     given), connect, then keep the room's walls."""
     merged = merge_segments(hough, lcfg, quantum=grid.size)
-    lines = merged.segments
+    lines, chain = merged.segments, merged.chain
     noise = line_noise(hough, merged.labels, lines, grid.size)
     below_top = 0
     if cfg.top_reach_m is not None and len(lines):
@@ -151,7 +151,7 @@ def _topology(
         keep = keep | thin_wall_faces(lines, keep, top, cfg, lcfg.angle_tol_deg)
         keep |= unshadowed_lines(lines, keep, top, cfg)
         below_top = int((~keep).sum())
-        lines, noise = lines[keep], noise[keep]
+        lines, noise, chain = lines[keep], noise[keep], chain[keep]
     wall_data = _wall_data(binary, proj.top, lines, grid, cfg.support_tol_m)
     share = support_sampler(wall_data, grid, cfg.support_tol_m)
     reg, rotation = regularize(lines, lcfg)
@@ -176,7 +176,7 @@ def _topology(
     # the room's interior, for the joins across unseen walls: the walls' length-weighted centre
     weight = lengths(refined)
     interior = (centres * weight[:, None]).sum(axis=0) / weight.sum() if weight.sum() > 0 else None
-    conn = connect_detailed(refined, lcfg, support_fn, interior, min_step=grid.size)
+    conn = connect_detailed(refined, lcfg, support_fn, interior, step_chain=chain)
     walls, origin = _drop_short_stubs(conn.segments, conn.origin, cfg.min_wall_length_m)
     polygon, walls, origin, outside = _room_polygon(walls, origin, grid.size)
     away = _lines_away_from(refined, polygon, grid.size)
@@ -187,7 +187,7 @@ def _topology(
             return support_fn(pieces, np.where(parent >= 0, kept[np.maximum(parent, 0)], -1))
 
         kept = np.flatnonzero(~away)
-        again = connect_detailed(refined[kept], lcfg, support_kept, interior, min_step=grid.size)
+        again = connect_detailed(refined[kept], lcfg, support_kept, interior, step_chain=chain[kept])
         w2, o2 = _drop_short_stubs(again.segments, again.origin, cfg.min_wall_length_m)
         p2, w2, o2, out2 = _room_polygon(w2, o2, grid.size)
         if p2 is not None:
