@@ -704,3 +704,19 @@ def test_a_corridor_wall_with_a_4_cm_jog_is_two_walls_and_a_step(rng):
     step = model.walls[np.hypot(*(model.walls[:, 2:] - model.walls[:, :2]).T) < 0.5]
     assert len(step) == 1 and abs(step[0, 3] - step[0, 1]) == pytest.approx(0.04, abs=0.005)
     assert abs(step[0, 0] - 4.0) < 0.05 and ev["accuracy_mean_m"] < 0.003
+
+
+def test_a_step_goes_where_the_data_changes_wall_not_where_a_sparse_wall_is_first_found(rng):
+    # the corridor's wall steps 4 cm at x = 4; the nearer wall's first 0.7 m was seen so sparsely (2 % of
+    # its points) that no Hough line starts there: connect joins the step at the line's end (x = 4.7), the
+    # data (every point of the sparse stretch on the nearer wall's line) say x = 4
+    c = [(0, 0), (8, 0), (8, 2.0), (4, 2.0), (4, 2.04), (0, 2.04)]
+    truth = np.array([[*c[i], *c[(i + 1) % 6]] for i in range(6)], float)
+    faces = [wall_points(t[:2], t[2:], 1.5, 2.5, rng, noise=0.004) for i, t in enumerate(truth) if i != 2]
+    near = wall_points((8, 2.0), (4, 2.0), 1.5, 2.5, rng, noise=0.004)
+    near = near[(near[:, 0] >= 4.7) | (rng.random(len(near)) < 0.02)]
+    model = model_walls(np.concatenate([*faces, near]), 0.0, 2.7, CFG)
+    ev = evaluate_walls(model.walls, truth)
+    step = model.walls[np.hypot(*(model.walls[:, 2:] - model.walls[:, :2]).T) < 0.5]
+    assert len(model.walls) == 6 and model.closed and ev["corner_f1"] == 1.0, (ev, model.walls)
+    assert len(step) == 1 and abs(step[0, 0] - 4.0) < 0.03 and abs(step[0, 2] - 4.0) < 0.03, step

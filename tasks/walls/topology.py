@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from tasks.connect import OBSERVED, connect_detailed
+from tasks.connect import OBSERVED, Connected, connect_detailed
 from tasks.lines import (
     LinesConfig,
     lengths,
@@ -177,6 +177,7 @@ def _topology(
     weight = lengths(refined)
     interior = (centres * weight[:, None]).sum(axis=0) / weight.sum() if weight.sum() > 0 else None
     conn = connect_detailed(refined, lcfg, support_fn, interior, step_chain=chain)
+    conn = place_steps(conn, refined, proj.counts, grid, lcfg.offset_tol_m)
     walls, origin = _drop_short_stubs(conn.segments, conn.origin, cfg.min_wall_length_m)
     polygon, walls, origin, outside = _room_polygon(walls, origin, grid.size)
     away = _lines_away_from(refined, polygon, grid.size)
@@ -188,6 +189,7 @@ def _topology(
 
         kept = np.flatnonzero(~away)
         again = connect_detailed(refined[kept], lcfg, support_kept, interior, step_chain=chain[kept])
+        again = place_steps(again, refined[kept], proj.counts, grid, lcfg.offset_tol_m)
         w2, o2 = _drop_short_stubs(again.segments, again.origin, cfg.min_wall_length_m)
         p2, w2, o2, out2 = _room_polygon(w2, o2, grid.size)
         if p2 is not None:
@@ -199,6 +201,101 @@ def _topology(
     return _Topology(
         merged, conn, walls, origin, polygon, outside, hung, below_top, wall_data, share, int(refused.sum())
     )
+
+
+def place_steps(
+    conn: Connected,
+    lines: NDArray,
+    counts: NDArray,
+    grid: Grid,
+    offset_tol_m: float,
+) -> Connected:
+    """Each step of the connected walls (a perpendicular join shorter than `offset_tol_m` between the ends of
+    two parallel walls, a jog of a few cm) moved along them to where the data changes from one wall to
+    the other. Connect places a join at a wall's end, and where neither wall was found across an unseen
+    or sparsely seen stretch (a Hough line needs dense cells) that end can lie a metre from the step.
+
+    Between the two walls' observed ends (`lines`, connect's input, by `conn.parent`), widened by the
+    step, every grid column along the walls counts the occupied voxels (`counts`) nearer each wall's line
+    than half the step; the step goes to the cut that leaves most of the first wall's data on its side
+    and most of the second's on the other (the greatest sum of count differences). Where several cuts
+    tie (a stretch with data on neither line), the step goes to the middle of them: a step of a few cm
+    hides almost nothing of either wall (unlike an alcove's, `connect`), so the unseen stretch says
+    nothing of which wall runs on into it, and its middle is the least wrong. Returns `conn` with the
+    walls moved."""
+    walls, parent = conn.segments.copy(), conn.parent
+    L = lengths(walls)
+    cand = np.flatnonzero((parent < 0) & (L > 0) & (L < offset_tol_m))
+    if len(cand) == 0:
+        return conn
+    g = grid.size
+    moved = False
+    for s in cand:
+        ends = []
+        for p in (walls[s, :2], walls[s, 2:]):
+            d = point_segment_distances(p[None], walls)[0]
+            d[s] = np.inf
+            touching = np.flatnonzero(d <= 1e-9)
+            if len(touching) != 1 or parent[touching[0]] < 0:
+                break
+            w = int(touching[0])
+            at = [float(np.hypot(*(walls[w, 2 * k : 2 * k + 2] - p))) for k in (0, 1)]
+            if min(at) > 1e-9:
+                break  # the step stands on the wall's middle (a T), not at its end
+            ends.append((w, int(np.argmin(at))))
+        if len(ends) != 2:
+            continue
+        (a, ea), (b, eb) = ends
+        qa, qb = walls[s, :2].copy(), walls[s, 2:].copy()
+        far_a = walls[a, 2:] if ea == 0 else walls[a, :2]
+        u = qa - far_a
+        if np.hypot(*u) <= 0:
+            continue
+        u = u / np.hypot(*u)  # along the walls, from the first wall towards the second
+        step = qb - qa
+        h = float(np.hypot(*step))
+        if abs(float(step @ u)) > 1e-6 * max(h, 1e-12) + 1e-9 or h <= 0:
+            continue  # not perpendicular to the walls
+        nrm = step / h
+        far_b = walls[b, 2:] if eb == 0 else walls[b, :2]
+        t_far_a, t_far_b = float((far_a - qa) @ u), float((far_b - qb) @ u)
+        obs_a = float(max((lines[parent[a], :2] - qa) @ u, (lines[parent[a], 2:] - qa) @ u))
+        obs_b = float(min((lines[parent[b], :2] - qb) @ u, (lines[parent[b], 2:] - qb) @ u))
+        lo = max(min(obs_a, obs_b) - h, t_far_a + g)
+        hi = min(max(obs_a, obs_b) + h, t_far_b - g)
+        if hi - lo < 2 * g:
+            continue
+        # the grid cells around the window, their weights (voxels) and place (t along, o across from qa)
+        corners = np.array([qa + t * u + o * nrm for t in (lo, hi) for o in (-h, 2 * h)])
+        px = grid.to_pixels(corners)
+        c0, r0 = np.floor(px.min(axis=0)).astype(int) - 1
+        c1, r1 = np.ceil(px.max(axis=0)).astype(int) + 2
+        c0, r0 = max(c0, 0), max(r0, 0)
+        c1, r1 = min(c1, counts.shape[1]), min(r1, counts.shape[0])
+        if c1 <= c0 or r1 <= r0:
+            continue
+        rows, cols = np.mgrid[r0:r1, c0:c1]
+        wgt = counts[r0:r1, c0:c1].ravel()
+        xy = grid.to_metres(np.column_stack([cols.ravel(), rows.ravel()]))[wgt > 0]
+        wgt = wgt[wgt > 0]
+        t, o = (xy - qa) @ u, (xy - qa) @ nrm
+        inside = (t >= lo) & (t < hi)
+        bins = np.floor((t[inside] - lo) / g).astype(int)
+        n_bins = math.ceil((hi - lo) / g)
+        diff = np.bincount(bins, wgt[inside] * (np.abs(o[inside]) < 0.5 * h), n_bins) - np.bincount(
+            bins, wgt[inside] * (np.abs(o[inside] - h) < 0.5 * h), n_bins
+        )
+        gain = np.concatenate([[0.0], np.cumsum(diff)])  # the first wall's data left of each cut, net
+        best = np.flatnonzero(gain >= gain.max() - 1e-9)
+        cut = 0.5 * (best.min() + best.max())
+        t_step = lo + cut * g
+        if abs(t_step) <= 1e-9:
+            continue
+        na, nb = qa + t_step * u, qb + t_step * u
+        walls[a, 2 * ea : 2 * ea + 2], walls[b, 2 * eb : 2 * eb + 2] = na, nb
+        walls[s] = [*na, *nb]
+        moved = True
+    return replace(conn, segments=walls) if moved else conn
 
 
 REFUSE_NOISE_SIGMAS = 3.0
