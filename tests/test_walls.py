@@ -720,3 +720,25 @@ def test_a_step_goes_where_the_data_changes_wall_not_where_a_sparse_wall_is_firs
     step = model.walls[np.hypot(*(model.walls[:, 2:] - model.walls[:, :2]).T) < 0.5]
     assert len(model.walls) == 6 and model.closed and ev["corner_f1"] == 1.0, (ev, model.walls)
     assert len(step) == 1 and abs(step[0, 0] - 4.0) < 0.03 and abs(step[0, 2] - 4.0) < 0.03, step
+
+
+def test_a_wall_no_orientation_cluster_supports_and_its_data_do_not_back_goes():
+    from tasks.walls.topology import stray_walls
+
+    # a 1.5 m wide corridor: long walls at 0 deg, its west end at 70 deg; the east end unseen, closed by a
+    # 90 deg join that no cluster (0 and 70 deg) supports
+    c70 = (1.5 / math.tan(math.radians(70)), 1.5)
+    walls = np.array([[0, 0, 8, 0], [8, 0, 8, 1.5], [8, 1.5, c70[0], 1.5], [c70[0], 1.5, 0, 0]], float)
+    seen = {0, 2, 3}
+
+    def share(segs):
+        return np.array([1.0 if any(np.allclose(s, walls[k]) for k in seen) else 0.0 for s in segs])
+
+    stray = stray_walls(walls, np.array([0.0, 70.0]), share, CFG.lines)
+    assert stray.tolist() == [False, True, False, False]
+    seen.add(1)  # the same join with data along it stays
+    assert not stray_walls(walls, np.array([0.0, 70.0]), share, CFG.lines).any()
+    seen.discard(1)  # a cluster at its angle supports it: it stays too
+    assert not stray_walls(walls, np.array([0.0, 70.0, 90.0]), share, CFG.lines).any()
+    step = np.array([[8, 0, 8, 0.03]])  # a step of a few cm carries no direction: never stray
+    assert not stray_walls(step, np.array([0.0, 70.0]), share, CFG.lines).any()

@@ -15,6 +15,8 @@ from numpy.typing import NDArray
 from tasks.connect import OBSERVED, Connected, connect_detailed
 from tasks.lines import (
     LinesConfig,
+    angle_difference,
+    angles,
     lengths,
     merge_segments,
     point_segment_distances,
@@ -91,6 +93,7 @@ def model_for(
         "removed_extensions": len(found.conn.removed),
         "walls_outside_room": found.outside,
         "walls_hung_from_ceiling": int(found.hung.sum()),
+        "walls_stray": found.stray,
         "bridged_gap_m": bridged,
         "walls": len(found.walls),
     }
@@ -114,6 +117,8 @@ class _Topology:
     """share(segments) -> (P,) support of segments by `binary`."""
     refused: int = 0
     """Lines whose regularization was refused (it would move them beyond their data's noise)."""
+    stray: int = 0
+    """Walls dropped because no orientation cluster and too little data supported them (`stray_walls`)."""
 
 
 def _wall_data(binary: NDArray, top: NDArray, lines: NDArray, grid: Grid, tol_m: float) -> NDArray:
@@ -198,9 +203,41 @@ def _topology(
     if hung.any():
         walls, origin = walls[~hung], origin[~hung]
         polygon, walls, origin, _ = _room_polygon(walls, origin, grid.size)
+    stray = stray_walls(walls, merged.orientation_deg, share, lcfg)
+    if stray.any():
+        walls, origin = walls[~stray], origin[~stray]
+        polygon, walls, origin, _ = _room_polygon(walls, origin, grid.size)
     return _Topology(
-        merged, conn, walls, origin, polygon, outside, hung, below_top, wall_data, share, int(refused.sum())
+        merged,
+        conn,
+        walls,
+        origin,
+        polygon,
+        outside,
+        hung,
+        below_top,
+        wall_data,
+        share,
+        int(refused.sum()),
+        int(stray.sum()),
     )
+
+
+def stray_walls(walls: NDArray, orientation_deg: NDArray, share, lcfg: LinesConfig) -> NDArray[np.bool_]:
+    """(M,) walls that no orientation cluster supports (their direction lies further than `angle_tol_deg`
+    from every cluster's mean, `orientation_deg`) and whose data back less than `min_overlap` of their
+    length (`share`): a wall that only the joins made (a perpendicular join across an unseen stretch
+    between walls of other directions), which neither the data's directions nor its own points show.
+    A step (shorter than `offset_tol_m`) is exempt: its few cm carry no direction to measure."""
+    out = np.zeros(len(walls), dtype=bool)
+    if len(walls) == 0 or len(orientation_deg) == 0:
+        return out
+    long = lengths(walls) >= lcfg.offset_tol_m
+    off = np.abs(angle_difference(angles(walls)[:, None], np.radians(orientation_deg)[None, :])).min(axis=1)
+    out = long & (off > math.radians(lcfg.angle_tol_deg))
+    if out.any():
+        out[out] = share(walls[out]) < lcfg.min_overlap
+    return out
 
 
 def place_steps(
