@@ -19,7 +19,16 @@ from tasks.register.config import RegisterConfig, SfmConfig
 from tasks.register.fusion import VoxelAccumulator, estimate_radial_depth_error, frame_points, fuse_frames
 from tasks.register.plan_icp import icp_to_plan, plan_faces
 from tasks.register.room import calibration_from_camera_info, register_room
-from tasks.register.track_fallback import level_frame, place_by_track, track_drift, track_heading, track_pose
+from tasks.register.track_fallback import (
+    level_by_ceiling,
+    level_by_walls,
+    level_frame,
+    place_by_track,
+    track_drift,
+    track_heading,
+    track_pose,
+    wall_directions,
+)
 from tasks.synth.box_views import BOX, box_hits, look_pose, write_rendered_frames
 from tests.scenes import ate_after_similarity, rendered_views, small_camera
 
@@ -125,6 +134,42 @@ def test_level_frame_recovers_tilt_and_height():
     assert np.degrees(np.arccos(np.clip(up @ true_up, -1, 1))) < 0.3
     assert height == pytest.approx(1.35, abs=0.01)
     assert n >= 300
+
+
+def _tilt_deg(up: np.ndarray, T: np.ndarray) -> float:
+    true_up = T[:3, :3].T @ [0, 0, 1.0]
+    return float(np.degrees(np.arccos(np.clip(up @ true_up, -1, 1))))
+
+
+def test_a_frame_pitched_up_without_floor_is_levelled_by_its_ceiling():
+    cam = small_camera()
+    T = look_pose(np.array([-1.5, 0.25, 1.35]), 0.0, pitch_rad=0.3)  # the floor lies beyond the far wall
+    z, _ = box_hits(cam, T)
+    assert level_frame(z, cam, RegisterConfig()) is None
+    assert _tilt_deg(level_by_ceiling(z, cam, RegisterConfig()), T) < 0.3
+    # looking down, the ceiling is out of view
+    T_down = look_pose(np.array([-1.5, 0.25, 1.35]), 0.0, pitch_rad=-0.3)
+    assert level_by_ceiling(box_hits(cam, T_down)[0], cam, RegisterConfig()) is None
+
+
+def test_a_frame_close_to_walls_is_levelled_by_them():
+    cam = small_camera()
+    cfg = RegisterConfig()
+    prior = look_pose(np.zeros(3), 0.0, pitch_rad=-0.2)[:3, :3].T @ [0, 0, 1.0]  # the capture's usual pitch
+    # into a corner from 0.6 m, pitched up and rolled by nothing: two walls fix the up direction
+    corner = look_pose(np.array([2.5 - 0.42, 2.0 - 0.42, 1.35]), np.radians(45), pitch_rad=0.12)
+    z, _ = box_hits(cam, corner)
+    assert level_frame(z, cam, cfg) is None and level_by_ceiling(z, cam, cfg) is None
+    walls = wall_directions(z, cam, cfg)
+    assert len(walls) == 2
+    assert _tilt_deg(level_by_walls(walls, prior), corner) < 0.5
+    # facing one wall from 0.7 m: the wall fixes the pitch, the prior's (zero) roll is kept
+    facing = look_pose(np.array([1.8, 0.25, 1.35]), 0.0, pitch_rad=0.2)
+    z, _ = box_hits(cam, facing)
+    walls = wall_directions(z, cam, cfg)
+    assert len(walls) == 1
+    assert _tilt_deg(prior, facing) > 20
+    assert _tilt_deg(level_by_walls(walls, prior), facing) < 0.5
 
 
 def test_track_heading_and_pose_follow_eq_3_17_3_18():

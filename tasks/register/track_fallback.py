@@ -7,6 +7,7 @@ over the capture is modelled and every frame fitted to the walls' faces once mor
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -42,45 +43,113 @@ def depth_normals(
     return c, n
 
 
-def level_frame(
-    depth_m: NDArray[np.floating], camera: CameraModel, cfg: RegisterConfig
-) -> tuple[NDArray[np.float64], float, int] | None:
-    """The floor of one frame (3.2.2.4): points whose normal is within the tolerance of the vertical are
-    floor candidates, the lowest layer of them is fitted with a plane, and the fit is refined with a
-    halved tolerance on each pass. Returns ((3,) up direction in the camera frame, camera height above the
-    floor (m), floor points) or None when too few floor points are seen."""
-    pts, nrm = depth_normals(depth_m, camera)
-    if len(pts) < cfg.floor_min_points:
-        return None
+def _horizontal_layer(
+    pts: NDArray[np.float64], nrm: NDArray[np.float64], cfg: RegisterConfig, ceiling: bool
+) -> tuple[NDArray[np.float64], NDArray[np.float64], int] | None:
+    """The floor (or, with `ceiling`, the ceiling) of one frame: points whose normal is within the tolerance
+    of the vertical, facing the camera from below (above), are candidates; the lowest (highest) layer of
+    them is fitted with a plane, and the fit is refined with a halved tolerance on each pass. Returns
+    ((3,) up direction in the camera frame, (3,) a point of the layer, layer points) or None when too few
+    layer points are seen."""
     up = np.array([0.0, -1.0, 0.0])  # a level camera's up is minus the image y
+    facing = -1.0 if ceiling else 1.0  # a normal that faces the camera points down from a ceiling
     tol = np.radians(cfg.floor_angle_tol_deg)
-    floor = None
+    layer, c = None, np.zeros(3)
     for _ in range(max(cfg.floor_passes, 1)):
-        cand = nrm @ up > np.cos(tol)
+        cand = facing * (nrm @ up) > np.cos(tol)
         if cand.sum() < cfg.floor_min_points:
             return None
         h = -(pts[cand] @ up)  # height below the camera
-        # the floor is the lowest horizontal layer: tables and seats lie above it
-        low = h > np.percentile(h, 90) - 0.15
-        floor = pts[cand][low]
-        if len(floor) < cfg.floor_min_points:
+        # the floor is the lowest horizontal layer (tables and seats lie above it); the ceiling the highest
+        if ceiling:
+            keep = h < np.percentile(h, 10) + 0.15
+        else:
+            keep = h > np.percentile(h, 90) - 0.15
+        layer = pts[cand][keep]
+        if len(layer) < cfg.floor_min_points:
             return None
-        c = floor.mean(axis=0)
-        _, _, vt = np.linalg.svd(floor - c, full_matrices=False)
-        n = vt[2]
-        if n @ up < 0:
-            n = -n
-        res = np.abs((floor - c) @ n)
-        inl = res < max(3.0 * np.median(res), 0.01)
-        c = floor[inl].mean(axis=0)
-        _, _, vt = np.linalg.svd(floor[inl] - c, full_matrices=False)
+        c = layer.mean(axis=0)
+        _, _, vt = np.linalg.svd(layer - c, full_matrices=False)
         n = vt[2] if vt[2] @ up > 0 else -vt[2]
-        up = n
+        res = np.abs((layer - c) @ n)
+        inl = res < max(3.0 * np.median(res), 0.01)
+        c = layer[inl].mean(axis=0)
+        _, _, vt = np.linalg.svd(layer[inl] - c, full_matrices=False)
+        up = vt[2] if vt[2] @ up > 0 else -vt[2]
         tol = tol / 2
+    return up, c, len(layer)
+
+
+def level_frame(
+    depth_m: NDArray[np.floating], camera: CameraModel, cfg: RegisterConfig
+) -> tuple[NDArray[np.float64], float, int] | None:
+    """The floor of one frame (3.2.2.4), see `_horizontal_layer`. Returns ((3,) up direction in the camera
+    frame, camera height above the floor (m), floor points) or None when too few floor points are seen."""
+    pts, nrm = depth_normals(depth_m, camera)
+    if len(pts) < cfg.floor_min_points:
+        return None
+    fit = _horizontal_layer(pts, nrm, cfg, ceiling=False)
+    if fit is None:
+        return None
+    up, c, n = fit
     height = float(-(c @ up))
     if height <= 0:
         return None
-    return up, height, len(floor)
+    return up, height, n
+
+
+def level_by_ceiling(
+    depth_m: NDArray[np.floating], camera: CameraModel, cfg: RegisterConfig
+) -> NDArray[np.float64] | None:
+    """Beyond the thesis: the up direction (camera frame) of a frame that sees no floor, from its ceiling.
+    A handheld camera pitched up sees the ceiling, not the floor; the capture's median up would tilt it by
+    twice its pitch. The height above the floor stays the capture's median. None without a ceiling."""
+    pts, nrm = depth_normals(depth_m, camera)
+    if len(pts) < cfg.floor_min_points:
+        return None
+    fit = _horizontal_layer(pts, nrm, cfg, ceiling=True)
+    if fit is None or -(fit[1] @ fit[0]) >= 0:  # the ceiling lies above the camera
+        return None
+    return fit[0]
+
+
+def wall_directions(
+    depth_m: NDArray[np.floating], camera: CameraModel, cfg: RegisterConfig
+) -> list[NDArray[np.float64]]:
+    """The normals (camera frame) of up to two walls a frame sees, for `level_by_walls`: among normals within
+    the levelling tolerance of a level camera's horizontal, the most common direction, then the most
+    common one of the normals well away from it. A direction counts when at least `floor_min_points` normals lie in a
+    cone around it as narrow as the floor fit's last pass; the second must lie beyond the tolerance from the
+    first, so that their cross product is well defined."""
+    _, nrm = depth_normals(depth_m, camera, step=max(1, round(depth_m.shape[1] / 80)))
+    tol = np.radians(cfg.floor_angle_tol_deg)
+    cone = tol / 2 ** max(cfg.floor_passes - 1, 0)
+    left = nrm[np.abs(nrm @ np.array([0.0, -1.0, 0.0])) < np.sin(tol)]
+    found: list[NDArray[np.float64]] = []
+    for _ in range(2):
+        if len(left) < cfg.floor_min_points:
+            break
+        # the mode: of up to 256 normals spread over the frame, the one with the most normals in its cone
+        seeds = left[:: max(1, len(left) // 256)]
+        support = (np.abs(seeds @ left.T) > np.cos(cone)).sum(axis=1)
+        near = np.abs(left @ seeds[np.argmax(support)]) > np.cos(cone)
+        if near.sum() < cfg.floor_min_points:
+            break
+        found.append(np.linalg.eigh(left[near].T @ left[near])[1][:, 2])
+        left = left[np.abs(left @ found[-1]) < np.cos(tol)]
+    return found
+
+
+def level_by_walls(walls: list[NDArray[np.float64]], prior_up: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Beyond the thesis: the up direction of a frame that sees neither floor nor ceiling (a camera close to
+    a wall), from its walls' normals (`wall_directions`): up is perpendicular to every wall. Two walls fix
+    it; one fixes the tilt across it, and the rest is taken from `prior_up` (the capture's median up)."""
+    if len(walls) >= 2:
+        up = np.cross(walls[0], walls[1])
+    else:
+        up = prior_up - (prior_up @ walls[0]) * walls[0]
+    up = up / np.linalg.norm(up)
+    return up if up @ prior_up > 0 else -up
 
 
 def _interp_track(track: NDArray[np.float64], t_ns: int) -> NDArray[np.float64]:
@@ -141,14 +210,17 @@ def place_by_track(
     track = track[np.argsort(track[:, 0])]
     use_plan = plan_walls is not None and len(plan_walls) > 0
     levels, times, cam_points = _level_frames(frames, calibration, cfg, use_plan)
-    fits = [v for v in levels.values() if v is not None]
+    fits = [v for v in levels.values() if v is not None and v.height is not None]
     if not fits:
         raise DegenerateInputError(
             f"no floor found in any of {len(levels)} frames: cannot level them for the fallback"
         )
-    default_up = np.median(np.array([f[0] for f in fits]), axis=0)
+    default_up = np.median(np.array([f.up for f in fits]), axis=0)
     default_up /= np.linalg.norm(default_up)
-    default_h = float(np.median([f[1] for f in fits]))
+    default_h = float(np.median([f.height for f in fits]))
+    for v in levels.values():
+        if v is not None and v.walls:
+            v.up = level_by_walls(v.walls, default_up)
     t_lo, t_hi = track[0, 0], track[-1, 0]
     inside = [f for f in times if t_lo <= times[f] <= t_hi]
     start = _TrackStart(track, times, levels, default_up, default_h, cfg)
@@ -168,6 +240,10 @@ def place_by_track(
         "track_frames": len(poses),
         "frames_outside_track": len(times) - len(inside),
         "frames_levelled_by_own_floor": len(fits),
+        "frames_levelled_by_own_ceiling": sum(
+            v is not None and v.source == "ceiling" for v in levels.values()
+        ),
+        "frames_levelled_by_own_walls": sum(v is not None and v.source == "walls" for v in levels.values()),
         "frames_restarted_from_neighbours": restarted,
         "frames_heading_searched": searched,
         "camera_height_m": default_h,
@@ -177,15 +253,26 @@ def place_by_track(
     return poses, metrics
 
 
+@dataclass
+class _Level:
+    """How one frame was levelled: by its floor (up and camera height), its ceiling (up; the height is the
+    capture's median) or its walls (their normals, turned into up once the capture's median up is known)."""
+
+    source: str
+    up: NDArray[np.float64] | None = None
+    height: float | None = None
+    walls: list[NDArray[np.float64]] | None = None
+
+
 def _level_frames(
     frames: Iterable[tuple[int, int, NDArray[np.floating]]],
     calibration: Calibration,
     cfg: RegisterConfig,
     use_plan: bool,
-) -> tuple[dict[int, tuple[NDArray, float] | None], dict[int, int], dict[int, NDArray[np.float64]]]:
-    """One pass over the frames: each one's levelling (up direction, camera height; None without a floor),
+) -> tuple[dict[int, _Level | None], dict[int, int], dict[int, NDArray[np.float64]]]:
+    """One pass over the frames: each one's levelling (None when it sees no floor, ceiling or walls),
     its time, and, when the plan is used, its thinned (N, 3) depth-camera points for the wall-line work."""
-    levels: dict[int, tuple[NDArray, float] | None] = {}
+    levels: dict[int, _Level | None] = {}
     times: dict[int, int] = {}
     # wall-line work needs each frame's points (thinned) once more after all frames are levelled
     line_cfg = RegisterConfig(**{**cfg.__dict__, "pixel_stride": max(cfg.pixel_stride, 3)})
@@ -193,7 +280,13 @@ def _level_frames(
     for frame_id, t_ns, depth in frames:
         fid = int(frame_id)
         lv = level_frame(depth, calibration.ir, cfg)
-        levels[fid] = None if lv is None else (lv[0], lv[1])
+        if lv is not None:
+            levels[fid] = _Level("floor", lv[0], lv[1])
+        elif (up := level_by_ceiling(depth, calibration.ir, cfg)) is not None:
+            levels[fid] = _Level("ceiling", up)
+        else:
+            walls = wall_directions(depth, calibration.ir, cfg)
+            levels[fid] = _Level("walls", walls=walls) if walls else None
         times[fid] = int(t_ns)
         if use_plan:
             cam_points[fid] = frame_points(depth, calibration, line_cfg).astype(np.float32)
@@ -207,7 +300,7 @@ class _TrackStart:
         self,
         track: NDArray[np.float64],
         times: dict[int, int],
-        levels: dict[int, tuple[NDArray, float] | None],
+        levels: dict[int, _Level | None],
         default_up: NDArray[np.float64],
         default_h: float,
         cfg: RegisterConfig,
@@ -221,7 +314,9 @@ class _TrackStart:
 
     def pose(self, fid: int, offset: NDArray[np.float64], dyaw: float = 0.0) -> NDArray[np.float64]:
         """(4, 4) depth camera → plan at the track position + `offset`, turned by `dyaw` from eq 3.17."""
-        up, h = self.levels[fid] or (self.default_up, self.default_h)
+        lv = self.levels[fid]
+        up = self.default_up if lv is None or lv.up is None else lv.up
+        h = self.default_h if lv is None or lv.height is None else lv.height
         yaw = track_heading(self.track, self.times[fid], self.cfg.track_min_step_m) + dyaw
         return track_pose(up, h, yaw, self.position(fid) + offset)
 
