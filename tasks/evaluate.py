@@ -8,8 +8,10 @@
 - **corners** are the points where two or more non-collinear walls meet (free wall ends are not corners);
   predicted and true corners are matched one-to-one within `corner_tol_m` (0.10 m) for precision, recall
   and F1;
-- **angle error**: every truth wall is matched to the predicted wall nearest to most of its samples
-  within `tol_m`; the mean absolute difference of their orientations (degrees);
+- **angle error**: every truth wall at least `tol_m` long is matched to the predicted wall nearest to most
+  of its samples within `tol_m`; the mean absolute difference of their orientations (degrees). A shorter
+  wall (a jog of a few cm) lies wholly within `tol_m` of its neighbours, so its nearest predicted wall
+  says nothing of its direction;
 - **room IoU**: rooms are the faces enclosed by the walls (shapely polygonize after noding; faces that
   fill a hole of another face, e.g. a free-standing column, are not rooms) unless given; each truth room
   takes its best intersection-over-union among the predicted rooms, and the mean is reported.
@@ -117,10 +119,11 @@ def evaluate_walls(
     rec = matched / len(ct) if len(ct) else 0.0
     out.update(corner_precision=prec, corner_recall=rec, corner_f1=_f1(prec, rec))
 
-    # angle error: each truth wall against the predicted wall nearest to most of its samples
+    # angle error: each truth wall (tol_m or longer) against the predicted wall nearest to most of its samples
     _, owner = sample_segments(truth, step_m)
+    long_enough = np.hypot(truth[:, 2] - truth[:, 0], truth[:, 3] - truth[:, 1]) >= tol_m
     errs = []
-    for k in range(len(truth)):
+    for k in np.flatnonzero(long_enough):
         m = (owner == k) & within
         if not m.any():
             continue

@@ -62,6 +62,17 @@ def test_angle_error_of_a_turned_wall():
     assert ev["angle_error_deg"] == pytest.approx(1.0 / 4, abs=1e-6)  # one wall of four
 
 
+def test_a_jog_shorter_than_the_tolerance_has_no_angle_error():
+    """A 3 cm jog lies wholly within 0.10 m of the long walls beside it: its nearest predicted wall is one
+    of them, at 90 degrees, which says nothing of the jog's direction."""
+    jogged = np.array(
+        [[0, 0, 2, 0], [2, 0, 2, 0.03], [2, 0.03, 4, 0.03], [4, 0.03, 4, 3], [4, 3, 0, 3], [0, 3, 0, 0.0]]
+    )
+    ev = evaluate_walls(jogged, jogged)
+    assert ev["angle_error_deg"] == pytest.approx(0.0, abs=1e-9)
+    assert ev["walls_matched"] == 5
+
+
 def test_corners_are_junctions_not_free_ends():
     assert len(wall_corners(np.array([[0, 0, 1, 0.0]]))) == 0
     assert len(wall_corners(np.array([[0, 0, 1, 0], [1, 0, 2, 0.0]]))) == 0  # collinear join
