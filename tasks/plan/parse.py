@@ -120,9 +120,10 @@ def parse_plan(
     t = time.perf_counter()
     mask_f = walls_r.astype(np.float32)
     segs, thick, thick_faces, doors, n_windows = doors_and_windows(
-        segs, thick, thick_faces, mask_f, found, px, cfg
+        segs, thick, thick_faces, mask_f, found, px, cfg, raster.heavy_pen
     )
-    rooms_px = free_space_rooms(walls_r, segs, thick, doors, sp, cfg)
+    seal = round(cfg.door_max_m * px) if raster.heavy_pen and cfg.seal_heavy_pen_outline else 0
+    rooms_px = free_space_rooms(walls_r, segs, thick, doors, sp, cfg, seal)
     rooms_m = rooms_in_metres(rooms_px, f, s, labels)
     timings["rooms_s"] = time.perf_counter() - t
     if not rooms_m:
