@@ -200,12 +200,18 @@ def run_drawing_seed(seed: int, degrade: str, cfg: PlanConfig) -> dict:
         "room_iou_min": min(ious, default=0.0),
         "scale_source": res.metrics.get("scale_source"),
         "scale_bar_read": scale_bar_read,
-        "scale_err": res.m_per_px / (drawing.image_m_per_px if degrade != "photo" else 1.0) - 1.0
-        if degrade != "photo"
-        else None,
+        # the true scale in the parse's frame: the plan's, over the plan-to-frame mapping's mean scale
+        "scale_err": res.m_per_px / _frame_m_per_px(drawing, frame) - 1.0,
         "plan_region_px": res.metrics.get("plan_region_px"),
         "parse_s": parse_s,
     }
+
+
+def _frame_m_per_px(drawing, frame: np.ndarray) -> float:
+    """Metres per pixel of the drawing in a parse's frame (`frame` (3, 3) maps image pixels to it): the
+    plan's scale over the plan-to-frame mapping's mean scale (as `map_walls` carries the truth)."""
+    full = frame @ drawing.to_image
+    return drawing.m_per_px / float(np.sqrt(abs(np.linalg.det(full[:2, :2] / full[2, 2]))))
 
 
 def _seeds(text: str) -> list[int]:
