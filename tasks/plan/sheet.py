@@ -173,7 +173,7 @@ def _bar_candidates(dark: NDArray[np.bool_]) -> list[tuple[int, int, int, int]]:
             if (
                 abs(b1[1] - last[1]) <= 2
                 and abs(b1[3] - last[3]) <= 2
-                and 0 < gap <= 1.5 * max(last[2], b1[2])
+                and -2 * max(last[3], b1[3]) <= gap <= 1.5 * max(last[2], b1[2])
             ):
                 chain.append(b1)
                 used.add(j)
