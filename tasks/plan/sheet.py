@@ -240,7 +240,7 @@ def _bar_first(grey: NDArray[np.uint8], dark: NDArray[np.bool_], tess) -> tuple[
                     continue
                 value = float(m.group(1).replace(",", "."))
                 if value > 0 and _round_step(value / blocks):
-                    return _bar_scale(box, dark, value)
+                    return _bar_scale(box, dark, value, grey)
     return None
 
 
@@ -269,7 +269,12 @@ def _bar_blocks(box: tuple[int, int, int, int], dark: NDArray[np.bool_]) -> int:
     return max(1, len(runs))
 
 
-def _bar_scale(box: tuple[int, int, int, int], dark: NDArray[np.bool_], value: float) -> tuple[float, tuple]:
+def _bar_scale(
+    box: tuple[int, int, int, int],
+    dark: NDArray[np.bool_],
+    value: float,
+    grey: NDArray[np.uint8] | None = None,
+) -> tuple[float, tuple]:
     """Metres per pixel of the bar in box (x, y, w, h) printed `value` metres long, and its two ends: the middles of
     the end strokes (the outer extent less one stroke width, the thinnest run of ink down from the bar's
     top edge)."""
@@ -285,8 +290,34 @@ def _bar_scale(box: tuple[int, int, int, int], dark: NDArray[np.bool_], value: f
     stroke = float(np.percentile(runs, 20)) if runs else 1.0
     if stroke >= bh / 2:  # no outline (filled blocks only, their faint outline lost): the ends are the extent
         stroke = 1.0
-    length = bw - stroke
-    return value / length, (bx + stroke / 2, end_v, end_u - stroke / 2, end_v)
+    x0, x1 = float(bx), float(end_u)
+    if grey is not None:  # the outer extent to a tenth of a pixel: where the ink is half-way to paper
+        x0, x1 = _half_way_ends(grey, box)
+        stroke = min(stroke, 1.0)
+    length = x1 - x0 - stroke
+    return value / length, (x0 + stroke / 2, end_v, x1 - stroke / 2, end_v)
+
+
+def _half_way_ends(grey: NDArray[np.uint8], box: tuple[int, int, int, int]) -> tuple[float, float]:
+    """The bar's outer ends (u, sub-pixel) along its middle rows: where the darkness crosses half-way from
+    the paper beyond each end to the ink just inside it."""
+    bx, by, bw, bh = box
+    W = grey.shape[1]
+    pad = 6
+    u0, u1 = max(0, bx - pad), min(W, bx + bw + pad)
+    rows = grey[by + bh // 4 : max(by + bh // 4 + 1, by + bh - bh // 4), u0:u1].astype(np.float64)
+    prof = 255.0 - rows.mean(axis=0)
+    out = []
+    for seq, start, sign in ((prof, u0, 1), (prof[::-1], u1 - 1, -1)):
+        lead = bx - u0 if sign > 0 else u1 - (bx + bw)
+        paper = float(seq[: max(1, lead - 2)].mean()) if lead > 2 else float(seq[0])
+        ink = float(seq[lead : lead + 4].max()) if lead + 4 <= len(seq) else float(seq.max())
+        half = (paper + ink) / 2
+        i = int(np.argmax(seq >= half))
+        frac = 0.0 if i == 0 else (half - seq[i - 1]) / max(seq[i] - seq[i - 1], 1e-9)
+        pos = i - 1 + frac + 0.5  # pixel centres -> edges: pixel i covers [i, i + 1)
+        out.append(start + sign * pos if sign > 0 else start + 1 - pos)
+    return out[0], out[1]
 
 
 def _scale_bar(
