@@ -80,6 +80,10 @@ class PlanConfig:
     (furniture, fixtures, dimensions): an evacuation plan's few thin lines are windows and text."""
     heavy_pen_m: float = 0.06
     """Line weight (metres of plan) from which a line is drawn in a heavy pen (cut walls, 0.5 mm at 1:100)."""
+    heavy_core_share: float = 0.6
+    """A heavy-pen stroke's core (its darkness after a grey erosion as wide as the heavy pen) is at least
+    this share of the way from the ink threshold to the darkest ink within two pen widths: two thin lines
+    blurred into one wide stroke (furniture drawn double) have a grey core. 0 takes every wide stroke."""
     region_join_m: float = 1.2
     """Wall strokes closer than this (across a door) belong to one network when the plan is looked for."""
     region_min_share: float = 0.3
@@ -119,6 +123,13 @@ class PlanConfig:
     window_ink_share: float = 0.9
     """A wall gap whose length is covered by thin ink at least this much is a window (a thin line in the
     wall) and becomes part of the wall; above 1 keeps every gap a door."""
+    door_swing_share: float = 0.7
+    """In a drawing whose walls are drawn in a heavy pen (architects draw every door's swing), a wall gap
+    is a door only when thin ink draws this share of its swing's quarter circle; 0 takes every gap."""
+    seal_heavy_pen_outline: bool = True
+    """In a drawing whose walls are drawn in a heavy pen, the outside is what stays joined to the image's
+    border when the walls are closed across door_max_m: a window or a bay left as a gap in an outer
+    wall does not open its room to the outside."""
     min_room_area_m2: float = 1.0
     """Free-space regions smaller than this are not rooms (shafts, wall interiors)."""
     min_extent_m: float = 2.0

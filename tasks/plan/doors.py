@@ -1,5 +1,9 @@
 """Doors in a parsed plan: gaps in a wall between a free wall end and the wall's continuation or a
-crossing wall, a door's width apart; gaps spanned by a thin line are windows and become walls."""
+crossing wall, a door's width apart; gaps spanned by a thin line are windows and become walls. In an
+architect's drawing (walls in a heavy pen, thin line work beside them) a door also shows its swing: a
+quarter circle of the gap's width about one jamb, drawn thin. A gap without one is no door there: a
+furniture piece or a stair touching a wall, or a wall's stub pointing across a corridor, leaves wall ends
+a door's width from another wall, and such a gap must neither close a room off nor split one."""
 
 from __future__ import annotations
 
@@ -33,11 +37,61 @@ def _on_other_wall(p: NDArray, q: NDArray, segs: NDArray, i: int, jamb: tuple[in
     return bool(len(others) and lines.point_segment_distances(probe, others).min() <= 1.0)
 
 
+def swing_share(
+    p: NDArray, q: NDArray, half_thick: float, thin_f: NDArray[np.float32], n_angles: int = 24
+) -> float:
+    """How much of a door swing the thin ink `thin_f` (h, w) draws over the gap p -> q (pixels): the
+    best, over the two jambs as hinge, the two sides of the wall and the radius (0.55 to 1.1 times the
+    gap, a pixel apart) and the hinge's place along the gap (a quarter of it inwards to a tenth outwards, two
+    pixels apart: a jamb's end may be found short or long), of the share of angles (0.2 rad to the quarter
+    turn less 0.1 rad) at which ink lies on the arc of that radius about the hinge (on the wall's face,
+    `half_thick` off the centreline), within a pixel and a half."""
+    w = float(np.hypot(*(q - p)))
+    if w <= 0:
+        return 0.0
+    u = (q - p) / w
+    n = np.array([-u[1], u[0]])
+    ts = np.linspace(0.2, math.pi / 2 - 0.1, n_angles)
+    radii = np.arange(0.55 * w, 1.1 * w + 1.0, 1.0)
+    band = np.array([-1.5, -0.75, 0.0, 0.75, 1.5])
+    best = 0.0
+    shifts = np.arange(-0.25 * w, 0.1 * w + 1.0, 2.0)  # the jamb's end found short or long
+    r = radii[:, None] + band[None, :]  # (R, B)
+    for hinge, along in ((p, u), (q, -u)):
+        for side in (n, -n):
+            dirs = np.outer(np.cos(ts), along) + np.outer(np.sin(ts), side)  # (A, 2)
+            for sh in shifts:
+                c = hinge + side * half_thick + along * sh
+                pts = c + r[:, :, None, None] * dirs[None, None, :, :]  # (R, B, A, 2)
+                ink = sample_mask(thin_f, pts.reshape(-1, 2)).reshape(len(radii), len(band), len(ts)) > 0.5
+                best = max(best, float(ink.any(axis=1).mean(axis=1).max()))
+    return best
+
+
+def _ink_cover(gap: NDArray, ink_f: NDArray[np.float32]) -> float:
+    """Share of the gap x0 y0 x1 y1 (pixels) that the ink raster (h, w) covers (a pixel a sample)."""
+    L = float(np.hypot(*(gap[2:] - gap[:2])))
+    pts = gap[:2] + np.linspace(0, 1, max(2, int(L) + 1))[:, None] * (gap[2:] - gap[:2])
+    return float((sample_mask(ink_f, pts) > 0.5).mean())
+
+
 def _find_doors(
-    segs: NDArray, thick: NDArray, cfg_px: dict[str, float], mask_f: NDArray[np.float32] | None = None
+    segs: NDArray,
+    thick: NDArray,
+    cfg_px: dict[str, float],
+    mask_f: NDArray[np.float32] | None = None,
+    swing: tuple | None = None,
 ) -> NDArray[np.float64]:
     """Door gaps: a free wall end whose prolongation meets another wall (its collinear continuation or a
-    crossing wall) after a gap between door_min and door_max."""
+    crossing wall) after a gap between door_min and door_max. With `swing` (the thin ink (h, w) off the
+    walls and the share of a swing's arc it must draw; optionally the thin ink (h, w) and the share of a
+    gap it covers in a window), a gap is taken only where its swing is drawn, or a window spans it."""
+
+    def swung(p: NDArray, q: NDArray, i: int) -> bool:
+        if swing is None or swing_share(p, q, thick[i] / 2, swing[0]) >= swing[1]:
+            return True
+        return len(swing) > 2 and _ink_cover(np.concatenate([p, q]), swing[2]) >= swing[3]
+
     doors: list[NDArray] = []
     used: set[tuple[int, int]] = set()
     ang = lines.angles(segs) if len(segs) else np.zeros(0)
@@ -72,7 +126,7 @@ def _find_doors(
                 if along > reach + thick[j] / 2 + 1.0:
                     continue
                 if cfg_px["door_min"] <= along <= cfg_px["door_max"] and lateral < max(thick[i], 2.0) / 2:
-                    if best is None or along < best[0]:
+                    if (best is None or along < best[0]) and swung(p, pt, i):
                         best = (along, pt.copy(), (j, ej))
             hit = lines.line_intersection(np.concatenate([p, p + u]), t)
             if hit is not None:
@@ -85,7 +139,7 @@ def _find_doors(
                     and s_ray <= reach + 1e-6
                 ):
                     foot = x - u * thick[j] / 2  # stop at the face of the crossing wall
-                    if best is None or s_ray < best[0]:
+                    if (best is None or s_ray < best[0]) and swung(p, foot, i):
                         best = (s_ray, foot, None)
         if best is not None and _on_other_wall(p, best[1], segs, i, best[2]):
             best = None  # the gap runs along another wall: the wall goes on, no opening
@@ -120,6 +174,8 @@ def _find_doors(
                 _jamb(p, u, segs, thick, i, mask_f) and _jamb(q, -u, segs, thick, j, mask_f)
             ):
                 continue  # the walls turn at both ends (an alcove's mouth), no wall runs on into the gap
+            if not swung(p, q, i):
+                continue
             doors.append(np.concatenate([p, q]))
             used.update({(i, ei), (j, ej)})
     return np.array(doors, dtype=np.float64).reshape(-1, 4)
@@ -133,23 +189,33 @@ def doors_and_windows(
     found: InkMasks,
     px: float,
     cfg: PlanConfig,
+    heavy_pen: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], int]:
     """The door gaps (D, 4) between the walls (M, 4), and the gaps spanned by a thin line turned into walls
-    (windows). Returns the walls, their two thicknesses and the doors (all in working pixels), and the
-    number of windows."""
+    (windows). In a drawing whose walls are in a heavy pen (`heavy_pen`), a gap is a door only where its
+    swing is drawn (`door_swing_share`). Returns the walls, their two thicknesses and the doors (all in
+    working pixels), and the number of windows."""
     dark, sym_any = found.dark, found.symbols_any
+    thin = cv2.dilate((dark & ~sym_any).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
+    swing = None
+    if heavy_pen and cfg.door_swing_share > 0:
+        # a swing is thin ink off the walls, read against the paper around it (a photo's glare pales it
+        # below the whole sheet's ink threshold)
+        grey = cv2.cvtColor(found.image, cv2.COLOR_RGB2GRAY)
+        block = max(3, round(0.5 * px) | 1)
+        faint = cv2.adaptiveThreshold(grey, 1, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, block, 12)
+        faint = cv2.dilate(faint & ~sym_any.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
+        off_walls = np.where(mask_f > 0.5, 0.0, np.maximum(thin, faint)).astype(np.float32)
+        swing = (off_walls, cfg.door_swing_share, thin, cfg.window_ink_share)
     doors = _find_doors(
-        segs, thick, {"door_min": cfg.door_min_m * px, "door_max": cfg.door_max_m * px}, mask_f
+        segs, thick, {"door_min": cfg.door_min_m * px, "door_max": cfg.door_max_m * px}, mask_f, swing
     )
     n_windows = 0
     if len(doors) and cfg.window_ink_share <= 1.0:
         # a gap spanned by a thin line is a window drawn in its wall: the wall goes on through it
-        thin = cv2.dilate((dark & ~sym_any).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
         window = np.zeros(len(doors), bool)
         for n, dr in enumerate(doors):
-            L = float(np.hypot(*(dr[2:] - dr[:2])))
-            pts = dr[:2] + np.linspace(0, 1, max(2, int(L) + 1))[:, None] * (dr[2:] - dr[:2])
-            window[n] = float((sample_mask(thin, pts) > 0.5).mean()) >= cfg.window_ink_share
+            window[n] = _ink_cover(dr, thin) >= cfg.window_ink_share
         if window.any():
             near = lines.point_segment_distances(doors[window][:, :2], segs).argmin(axis=1)
             segs = np.concatenate([segs, doors[window]])

@@ -13,7 +13,9 @@ Plans drawn for people are never only walls. A photo of a posted sheet is rectif
 border and its light evened out; without a given scale, the printed scale bar is read
 (`tasks.plan.sheet`). Architects' drawings draw the cut walls in a heavier pen than furniture, fixtures,
 stairs and dimensions: when thin line work is present and the heavy strokes span the plan, only they are
-walls (windows drawn thinly across their openings included). The plan region (the largest wall network)
+walls (windows drawn thinly across their openings included), a door is a gap whose swing is drawn (a table
+or a stub beside a wall leaves gaps too, and must not open or close a room), and a window or bay left as
+a gap in an outer wall does not open its room to the outside. The plan region (the largest wall network)
 is kept and recorded; legend panels, title blocks and scale bars beside it go. An image is refused only
 when it is no plan: blank, mostly dark (a photo of a wall), without wall lines (a page of text), or
 without a room enclosed.
@@ -120,9 +122,10 @@ def parse_plan(
     t = time.perf_counter()
     mask_f = walls_r.astype(np.float32)
     segs, thick, thick_faces, doors, n_windows = doors_and_windows(
-        segs, thick, thick_faces, mask_f, found, px, cfg
+        segs, thick, thick_faces, mask_f, found, px, cfg, raster.heavy_pen
     )
-    rooms_px = free_space_rooms(walls_r, segs, thick, doors, sp, cfg)
+    seal = round(cfg.door_max_m * px) if raster.heavy_pen and cfg.seal_heavy_pen_outline else 0
+    rooms_px = free_space_rooms(walls_r, segs, thick, doors, sp, cfg, seal)
     rooms_m = rooms_in_metres(rooms_px, f, s, labels)
     timings["rooms_s"] = time.perf_counter() - t
     if not rooms_m:

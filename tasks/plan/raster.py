@@ -435,6 +435,21 @@ def clean_ink(img: NDArray[np.uint8], px: float, cfg: PlanConfig) -> InkMasks:
     return InkMasks(img, syms, pen, thr, dark, sym_any, ink, rim_other)
 
 
+def _heavy_strokes(found: InkMasks, hp: int, core_share: float) -> NDArray[np.bool_]:
+    """The ink drawn in a heavy pen: strokes at least hp pixels wide whose core is as dark as solid ink
+    (the darkness left after a grey erosion by hp x hp reaches core_share of the way from the ink
+    threshold to the darkest ink within two pen widths, so glare that pales a whole wall does not matter).
+    Two thin lines drawn close together (a table's double outline, a stair's stringer) merge into one
+    wide stroke once blurred, but its core stays grey between them, where a cut wall's solid fill or
+    heavy face is dark throughout."""
+    darkness = (255 - found.image.min(axis=2)).astype(np.uint8)
+    core = cv2.erode(darkness, np.ones((hp, hp), np.uint8))
+    peak = cv2.dilate(darkness, np.ones((4 * hp + 1, 4 * hp + 1), np.uint8)).astype(np.float32)
+    seed = (core > found.threshold) & (core >= found.threshold + core_share * (peak - found.threshold))
+    heavy = cv2.dilate((seed & found.ink).astype(np.uint8), np.ones((hp, hp), np.uint8))
+    return cv2.dilate(heavy, np.ones((3, 3), np.uint8)).astype(bool) & found.ink
+
+
 @dataclass(frozen=True)
 class WallRaster:
     """The ink that draws walls, and what was taken out on the way."""
@@ -492,18 +507,26 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
     # of the plan as the whole drawing does, only they are walls, filled between faces.
     join, cell = cfg.region_join_m * px, max(1, round(cfg.wall_face_min_m * px / 2))
     hp = max(2, round(cfg.heavy_pen_m * px))
-    heavy = cv2.morphologyEx(ink.astype(np.uint8), cv2.MORPH_OPEN, np.ones((hp, hp), np.uint8))
-    heavy = cv2.dilate(heavy, np.ones((3, 3), np.uint8)).astype(bool) & ink
-    heavy = _remove_small_components(heavy, cfg.text_max_size_m * px)[0]  # where thin lines cross
-    walls_h = cv2.morphologyEx(
-        _fill_outline_walls(heavy, cfg.max_outline_width_m * px).astype(np.uint8), cv2.MORPH_OPEN, box
+    # whether the drawing is one: every stroke at least heavy_pen_m wide (an opening) spans the plan
+    wide = cv2.morphologyEx(ink.astype(np.uint8), cv2.MORPH_OPEN, np.ones((hp, hp), np.uint8))
+    wide = cv2.dilate(wide, np.ones((3, 3), np.uint8)).astype(bool) & ink
+    wide = _remove_small_components(wide, cfg.text_max_size_m * px)[0]  # where thin lines cross
+    walls_w = cv2.morphologyEx(
+        _fill_outline_walls(wide, cfg.max_outline_width_m * px).astype(np.uint8), cv2.MORPH_OPEN, box
     ).astype(bool)
     # only a drawing with thin line work (furniture, fixtures, dimensions) needs it
-    thin_share = float((ink & ~heavy).sum()) / max(int(ink.sum()), 1)
+    thin_share = float((ink & ~wide).sum()) / max(int(ink.sum()), 1)
     heavy_pen = thin_share >= cfg.thin_ink_min_share and _network_cells(
-        walls_h, join, cell
+        walls_w, join, cell
     ) >= cfg.heavy_walls_share * _network_cells(walls_r, join, cell)
     if heavy_pen:
+        # its walls: the wide strokes with a solid core (furniture drawn double blurs into wide grey ones)
+        heavy = _remove_small_components(
+            _heavy_strokes(found, hp, cfg.heavy_core_share), cfg.text_max_size_m * px
+        )[0]
+        walls_h = cv2.morphologyEx(
+            _fill_outline_walls(heavy, cfg.max_outline_width_m * px).astype(np.uint8), cv2.MORPH_OPEN, box
+        ).astype(bool)
         walls_r = _thin_line_openings(walls_h, ink, round(cfg.door_max_m * px), max(1, round(0.04 * px)))
     walls_r, more_text = _remove_small_components(walls_r, cfg.text_max_size_m * px)
     text_px = np.concatenate([text_px, more_text])

@@ -70,9 +70,13 @@ def free_space_rooms(
     doors: NDArray[np.float64],
     sp: float,
     cfg: PlanConfig,
+    seal_px: int = 0,
 ) -> list[Polygon]:
     """Room polygons (working pixels): the free space the walls (M, 4) and door lines (D, 4) enclose, in
-    components of at least `min_room_area_m2` at `sp` metres per working pixel."""
+    components of at least `min_room_area_m2` at `sp` metres per working pixel. With `seal_px`, the
+    outside is what stays joined to the image's border once the walls are closed by a seal_px square:
+    a room whose outer wall has an opening no door line closed (a window read as a gap, a bay whose short
+    walls were lost) keeps its free space instead of leaking out."""
     closed = walls_r.astype(np.uint8)
     for sg, th in zip(segs, thick, strict=True):
         cv2.line(
@@ -86,7 +90,13 @@ def free_space_rooms(
         cv2.line(
             closed, tuple(int(v) for v in np.round(dr[:2])), tuple(int(v) for v in np.round(dr[2:])), 1, 1
         )
-    n, lab, stats, _ = cv2.connectedComponentsWithStats((1 - closed).astype(np.uint8), connectivity=4)
+    free = (1 - closed).astype(np.uint8)
+    if seal_px >= 3:
+        sealed = closing(closed, np.ones((seal_px, seal_px), np.uint8))
+        _n2, lab2 = cv2.connectedComponents((1 - sealed).astype(np.uint8), connectivity=4)
+        edge = np.unique(np.concatenate([lab2[0], lab2[-1], lab2[:, 0], lab2[:, -1]]))
+        free[np.isin(lab2, edge[edge > 0]) & (sealed == 0)] = 0
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(free, connectivity=4)
     border = set(np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])).tolist())
     rooms_px: list[Polygon] = []
     for c in range(1, n):

@@ -4,6 +4,7 @@ scale bar (for the scale when none is given)."""
 from __future__ import annotations
 
 import logging
+import math
 import re
 
 import cv2
@@ -109,14 +110,24 @@ _NUMBER = re.compile(r"^(\d+(?:[.,]\d+)?)(m)?$")
 
 def read_scale_bar(image: NDArray[np.uint8], dark: NDArray[np.bool_]) -> tuple[float, tuple] | None:
     """Metres per pixel from a printed scale bar: a label "<n> m" (Tesseract) with a long thin dark bar
-    ending just left of it, `dark` (h, w) being the image's ink. Returns (m_per_px, (x0, y0, x1, y1) the
-    bar's ends) or None when no labelled bar is read."""
+    ending just left of it, `dark` (h, w) being the image's ink. The bars are found first and the label
+    is read in a small crop beside and under each bar's far end, enlarged four times, binarized and read
+    as one line of digits and "m" (a phone photo's small "5 m" is a few pixels high); failing that, the
+    whole image is read for labels. Returns (m_per_px, (x0, y0, x1, y1) the bar's ends) or None when no
+    labelled bar is read."""
     try:
         import pytesseract
     except ImportError:  # pragma: no cover - the project depends on it
         log.warning("pytesseract is not installed: no scale bar is read")
         return None
     grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+    try:
+        found = _bar_first(grey, dark, pytesseract)
+    except pytesseract.TesseractNotFoundError:
+        log.warning("tesseract is not installed: no scale bar is read")
+        return None
+    if found is not None:
+        return found
     words: list[tuple[str, int, int, int, int]] = []
     for zoom in (1, 2):  # printed labels are small: read again at twice the size when none was found
         g = grey if zoom == 1 else cv2.resize(grey, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_CUBIC)
@@ -142,6 +153,173 @@ def read_scale_bar(image: NDArray[np.uint8], dark: NDArray[np.bool_]) -> tuple[f
     return None
 
 
+def _bar_candidates(dark: NDArray[np.bool_]) -> list[tuple[int, int, int, int]]:
+    """Boxes (x, y, w, h) shaped like a scale bar (long and thin), longest first (at most 20): components
+    of the ink closed along bars (an outline broken by glare or noise), and chains of blocks in a row
+    (a bar whose empty blocks' thin outline faded leaves its filled blocks apart: equal height, in
+    line, at most one and a half blocks apart)."""
+    bars = cv2.morphologyEx(dark.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 9), np.uint8))
+    n, _lab, stats, _c = cv2.connectedComponentsWithStats(bars, connectivity=8)
+    boxes = [tuple(int(v) for v in stats[k, :4]) for k in range(1, n)]
+    blocks = sorted((b for b in boxes if b[2] >= 2 * b[3] and b[3] >= 3), key=lambda b: (b[0], b[1]))
+    used: set[int] = set()
+    for i, b0 in enumerate(blocks):
+        if i in used:
+            continue
+        chain = [b0]
+        for j in range(i + 1, len(blocks)):
+            last, b1 = chain[-1], blocks[j]
+            gap = b1[0] - (last[0] + last[2])
+            if (
+                abs(b1[1] - last[1]) <= 2
+                and abs(b1[3] - last[3]) <= 2
+                and -2 * max(last[3], b1[3]) <= gap <= 1.5 * max(last[2], b1[2])
+            ):
+                chain.append(b1)
+                used.add(j)
+        if len(chain) >= 2:
+            x0, y0 = chain[0][0], min(c[1] for c in chain)
+            x1, y1 = chain[-1][0] + chain[-1][2], max(c[1] + c[3] for c in chain)
+            boxes.append((x0, y0, x1 - x0, y1 - y0))
+    ok = [b for b in boxes if b[2] >= 8 * max(b[3], 1) and b[2] >= 20]
+    return sorted(set(ok), key=lambda b: -b[2])[:20]
+
+
+_CONFUSED = str.maketrans(
+    {
+        "S": "5",
+        "s": "5",
+        "O": "0",
+        "o": "0",
+        "D": "0",
+        "l": "1",
+        "I": "1",
+        "i": "1",
+        "|": "1",
+        "B": "8",
+        "Z": "2",
+        "z": "2",
+        "g": "9",
+        "q": "9",
+        "M": "m",
+    }
+)
+"""Letters Tesseract reads for a label's digits (a blurred 5 is an S), and M for the unit."""
+
+
+def _bar_first(grey: NDArray[np.uint8], dark: NDArray[np.bool_], tess) -> tuple[float, tuple] | None:
+    """`read_scale_bar`'s first way: the label read in a crop at each bar's far end, the crop's contrast
+    stretched, enlarged, binarized half-way between its paper and its ink and read as one line; a value
+    is taken only when it divides into the bar's blocks at a round step (1, 2, 2.5 or 5 times a power of
+    ten): a misread digit rarely does."""
+    H, W = grey.shape
+    for box in _bar_candidates(dark):
+        bx, by, bw, bh = box
+        end_u, cy = bx + bw, by + bh / 2
+        blocks = _bar_blocks(box, dark)
+        # beside the end, and under it (a label centred on the end)
+        for u0, u1, v0, v1 in (
+            (end_u + 1, end_u + 0.3 * bw, cy - 0.08 * bw, cy + 0.08 * bw),
+            (end_u - 0.12 * bw, end_u + 0.25 * bw, by + bh + 1, by + bh + 0.15 * bw),
+        ):
+            u0, u1 = max(0, round(u0)), min(W, round(u1))
+            v0, v1 = max(0, round(v0)), min(H, round(v1))
+            if u1 - u0 < 8 or v1 - v0 < 6:
+                continue
+            g = grey[v0:v1, u0:u1]
+            lo, hi = int(g.min()), int(g.max())
+            if hi - lo < 30:  # paper only
+                continue
+            for zoom in (3, 4, 2):
+                big = cv2.resize(g, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_CUBIC)
+                big = np.where(big < (lo + hi) // 2, 0, 255).astype(np.uint8)
+                big = cv2.copyMakeBorder(big, 20, 20, 20, 20, cv2.BORDER_CONSTANT, value=255)
+                text = tess.image_to_string(big, config="--psm 7").strip().translate(_CONFUSED)
+                m = _NUMBER.match(text.lower().replace(" ", ""))
+                if m is None or m.group(2) is None:
+                    continue
+                value = float(m.group(1).replace(",", "."))
+                if value > 0 and _round_step(value / blocks):
+                    return _bar_scale(box, dark, value, grey)
+    return None
+
+
+def _round_step(step: float) -> bool:
+    """Whether a scale bar's block is a round length: 1, 2, 2.5 or 5 times a power of ten."""
+    mant = step / 10.0 ** math.floor(math.log10(step))
+    return min(abs(mant - v) for v in (1.0, 2.0, 2.5, 5.0, 10.0)) < 0.02
+
+
+def _bar_blocks(box: tuple[int, int, int, int], dark: NDArray[np.bool_]) -> int:
+    """How many blocks the bar in box (x, y, w, h) is divided into: the runs of ink and of paper (at least two pixels
+    long) along its middle row inside its end strokes; 1 for a plain bar."""
+    bx, by, bw, bh = box
+    row = dark[by + bh // 2, bx : bx + bw]
+    runs: list[int] = []
+    start = 0
+    for x in range(1, len(row) + 1):
+        if x == len(row) or row[x] != row[start]:
+            if x - start >= 2:
+                runs.append(x - start)
+            start = x
+    if len(runs) >= 3 and row[0] and row[-1]:
+        # an outlined bar's end strokes are short ink runs, not blocks
+        inner = float(np.median(runs[1:-1]))
+        runs = runs[int(runs[0] < inner / 3) : len(runs) - int(runs[-1] < inner / 3)]
+    return max(1, len(runs))
+
+
+def _bar_scale(
+    box: tuple[int, int, int, int],
+    dark: NDArray[np.bool_],
+    value: float,
+    grey: NDArray[np.uint8] | None = None,
+) -> tuple[float, tuple]:
+    """Metres per pixel of the bar in box (x, y, w, h) printed `value` metres long, and its two ends: the middles of
+    the end strokes (the outer extent less one stroke width, the thinnest run of ink down from the bar's
+    top edge)."""
+    bx, by, bw, bh = box
+    end_u, end_v = bx + bw, by + bh / 2
+    comp = dark[by : by + bh, bx : bx + bw]
+    runs = []
+    for col in comp.T:
+        if col.any():
+            first = int(np.argmax(col))
+            rest = np.append(col[first:], False)
+            runs.append(int(np.argmin(rest)))
+    stroke = float(np.percentile(runs, 20)) if runs else 1.0
+    if stroke >= bh / 2:  # no outline (filled blocks only, their faint outline lost): the ends are the extent
+        stroke = 1.0
+    x0, x1 = float(bx), float(end_u)
+    if grey is not None:  # the outer extent to a tenth of a pixel: where the ink is half-way to paper
+        x0, x1 = _half_way_ends(grey, box)
+        stroke = min(stroke, 1.0)
+    length = x1 - x0 - stroke
+    return value / length, (x0 + stroke / 2, end_v, x1 - stroke / 2, end_v)
+
+
+def _half_way_ends(grey: NDArray[np.uint8], box: tuple[int, int, int, int]) -> tuple[float, float]:
+    """The bar's outer ends (u, sub-pixel) along its middle rows: where the darkness crosses half-way from
+    the paper beyond each end to the ink just inside it."""
+    bx, by, bw, bh = box
+    W = grey.shape[1]
+    pad = 6
+    u0, u1 = max(0, bx - pad), min(W, bx + bw + pad)
+    rows = grey[by + bh // 4 : max(by + bh // 4 + 1, by + bh - bh // 4), u0:u1].astype(np.float64)
+    prof = 255.0 - rows.mean(axis=0)
+    out = []
+    for seq, start, sign in ((prof, u0, 1), (prof[::-1], u1 - 1, -1)):
+        lead = bx - u0 if sign > 0 else u1 - (bx + bw)
+        paper = float(seq[: max(1, lead - 2)].mean()) if lead > 2 else float(seq[0])
+        ink = float(seq[lead : lead + 4].max()) if lead + 4 <= len(seq) else float(seq.max())
+        half = (paper + ink) / 2
+        i = int(np.argmax(seq >= half))
+        frac = 0.0 if i == 0 else (half - seq[i - 1]) / max(seq[i] - seq[i - 1], 1e-9)
+        pos = i - 1 + frac + 0.5  # pixel centres -> edges: pixel i covers [i, i + 1)
+        out.append(start + sign * pos if sign > 0 else start + 1 - pos)
+    return out[0], out[1]
+
+
 def _scale_bar(
     words: list[tuple[str, int, int, int, int]], dark: NDArray[np.bool_]
 ) -> tuple[float, tuple] | None:
@@ -160,15 +338,10 @@ def _scale_bar(
             labels.append((float(m.group(1).replace(",", ".")), x, y, w, h))
     if not labels:
         return None
-    # a bar's outline broken by glare or noise is closed along the bar
-    bars = cv2.morphologyEx(dark.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 9), np.uint8))
-    n, lab, stats, _c = cv2.connectedComponentsWithStats(bars, connectivity=8)
     best = None
     for value, x, y, lw, h in labels:
-        for k in range(1, n):
-            bx, by, bw, bh, _a = (int(v) for v in stats[k])
-            if bw < 8 * max(bh, 1) or bw < 20:
-                continue
+        for box in _bar_candidates(dark):
+            bx, by, bw, bh = box
             # the label stands at the bar's far end: beside it or under it
             end_u, end_v = bx + bw, by + bh / 2
             du = max(x - end_u, end_u - (x + lw), 0)
@@ -176,18 +349,7 @@ def _scale_bar(
             if du > 3 * h or dv > 3 * h:
                 continue
             if best is None or du + dv < best[0]:
-                # the ends are the middles of the end strokes: the outer extent less one stroke width
-                # (the thinnest run of ink down from the bar's top edge)
-                comp = (lab[by : by + bh, bx : bx + bw] == k) & dark[by : by + bh, bx : bx + bw]
-                runs = []
-                for col in comp.T:
-                    if col.any():
-                        first = int(np.argmax(col))
-                        rest = np.append(col[first:], False)
-                        runs.append(int(np.argmin(rest)))
-                stroke = float(np.percentile(runs, 20)) if runs else 1.0
-                length = bw - stroke
-                best = (du + dv, value / length, (bx + stroke / 2, end_v, end_u - stroke / 2, end_v))
+                best = (du + dv, *_bar_scale(box, dark, value))
     if best is None:
         return None
     return best[1], best[2]
