@@ -29,6 +29,7 @@ from flows.planning import (
     RunRequest,
     StageCall,
     StageOutcome,
+    SurveyPlan,
     cache_key,
     current_results,
     execute,
@@ -91,12 +92,19 @@ def _submit(item: PlannedStage, upstream: dict[str, Any], fan_in: FanIn | None =
 
 
 @flow(name="room", log_prints=False, validate_parameters=False, persist_result=False)
-def room_flow(chain: list[PlannedStage], building: dict[str, Executed]) -> list[StageOutcome]:
-    """Every stage of one room, given the building stages' results it may read. Never raises: a stage
-    that fails is reported, and the stages after it are skipped."""
+def room_flow(
+    chain: list[PlannedStage], building: dict[str, Executed], settled: dict[str, Executed] | None = None
+) -> list[StageOutcome]:
+    """Every stage of one room, given the building stages' results it may read and the room's stages
+    that are current already (`settled`: read from the store, no task run). Never raises: a stage that
+    fails is reported, and the stages after it are skipped."""
+    settled = settled or {}
     futures: dict[tuple[str, str], PrefectFuture] = {}
     rows: list[StageOutcome] = []
     for item in chain:
+        if item.call.stage in settled:
+            rows.append(_settled_row(item, settled[item.call.stage]))
+            continue
         upstream: dict[str, Any] = {}
         missing = []
         for name, ref in item.upstream.items():
@@ -105,6 +113,8 @@ def room_flow(chain: list[PlannedStage], building: dict[str, Executed]) -> list[
                     upstream[name] = building[name]
                 elif name not in item.optional:
                     missing.append(name)
+            elif ref[1] in settled:
+                upstream[name] = settled[ref[1]]
             elif ref not in futures:
                 missing.append(name)
             else:
@@ -115,13 +125,29 @@ def room_flow(chain: list[PlannedStage], building: dict[str, Executed]) -> list[
             continue
         futures[item.ref] = _submit(item, upstream)
     wait(list(futures.values()))
-    return outcomes(futures) + rows
+    order = {item.call.stage: i for i, item in enumerate(chain)}
+    return sorted(rows + outcomes(futures), key=lambda row: order[row.stage])
 
 
 @task(name="room", task_run_name="room[{chain[0].call.room}]", cache_policy=NO_CACHE, persist_result=False)
-def room_task(chain: list[PlannedStage], building: dict[str, Executed]) -> list[StageOutcome]:
+def room_task(
+    chain: list[PlannedStage], building: dict[str, Executed], settled: dict[str, Executed] | None = None
+) -> list[StageOutcome]:
     """A room's subflow as a task, so the task runner runs rooms concurrently (threads, or Dask)."""
-    return room_flow(chain, building)
+    return room_flow(chain, building, settled)
+
+
+def _settled_row(item: PlannedStage, done: Executed) -> StageOutcome:
+    return StageOutcome(item.call.room, item.call.stage, "cached", 0.0, "", done.result)
+
+
+def settled_stages(plan: SurveyPlan) -> dict[tuple[str, str], Executed]:
+    """The stage runs of a plan that are current before the run starts (not forced, every input current,
+    a verified artefact for their key in the store): they are read, not run, so the run creates no
+    Prefect task for them. What follows a forced or changed stage is left to the run: its key is known
+    only once that stage has written its artefacts."""
+    found = current_results(plan, plan.rooms, skip=lambda item: item.call.force)
+    return {ref: Executed(result, "stored", 0.0) for ref, result in found.items()}
 
 
 @flow(name="building", log_prints=False, validate_parameters=False, persist_result=False)
@@ -132,11 +158,20 @@ def building_flow(req: RunRequest) -> list[StageOutcome]:
     survey = cfgmod.load_survey(Path(req.survey))
     profile = cfgmod.load_sensor_profile(survey.sensor)
     plan = plan_survey(req, cfg, survey, profile)
-    before = {item.ref: _submit(item, {}) for item in plan.before}
+    settled = settled_stages(plan)
+    before = {item.ref: _submit(item, {}) for item in plan.before if item.ref not in settled}
     wait(list(before.values()))
-    rows = outcomes(before)
+    rows = [_settled_row(item, settled[item.ref]) for item in plan.before if item.ref in settled]
+    rows += outcomes(before)
     building = {ref[1]: f.result() for ref, f in before.items() if f.state.is_completed()}
-    rooms = {room: room_task.submit(chain, building) for room, chain in plan.rooms.items() if chain}
+    building.update({ref[1]: done for ref, done in settled.items() if ref[0] == BUILDING})
+    rooms = {}
+    for room, chain in plan.rooms.items():
+        done = {item.call.stage: settled[item.ref] for item in chain if item.ref in settled}
+        if len(done) == len(chain):  # every stage current: no room task at all
+            rows += [_settled_row(item, done[item.call.stage]) for item in chain]
+        elif chain:
+            rooms[room] = room_task.submit(chain, building, done)
     wait(list(rooms.values()))
     rows += plan.failed_rows()  # rooms whose capture cannot be read: failed alone, before any stage
     for room, future in rooms.items():
@@ -196,12 +231,22 @@ def outcomes(futures: dict[tuple[str, str], PrefectFuture]) -> list[StageOutcome
 
 
 def run_survey(
-    req: RunRequest, runner: str = "threads", dask_address: str | None = None
+    req: RunRequest, runner: str = "threads", dask_address: str | None = None, heartbeats: bool = True
 ) -> list[StageOutcome]:
     """Run the building flow and report every stage's outcome; rooms run on `runner` ("threads" or
-    "dask", see flows/runners.py), `flow.max_workers` at once."""
+    "dask", see flows/runners.py), `flow.max_workers` at once.
+
+    `heartbeats=False` (a run on its own embedded server, which dies with it): no flow-run heartbeats.
+    They tell a long-lived server that a run crashed; each flow's heartbeat thread is also joined when
+    the flow ends, about half a second per room's subflow."""
+    from prefect.settings import PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings
+
     from flows.runners import task_runner
 
     workers = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets)).flow.max_workers
     store_for(req.work).sweep_temporaries()
-    return building_flow.with_options(task_runner=task_runner(runner, workers, dask_address))(req)
+    flow_ = building_flow.with_options(task_runner=task_runner(runner, workers, dask_address))
+    if heartbeats:
+        return flow_(req)
+    with temporary_settings(updates={PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
+        return flow_(req)

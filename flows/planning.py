@@ -14,7 +14,7 @@ import platform
 import threading
 import time
 import uuid
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -436,14 +436,17 @@ def fan_in_for(
 
 
 def current_results(
-    plan: SurveyPlan, chains: dict[str, list[PlannedStage]]
+    plan: SurveyPlan,
+    chains: dict[str, list[PlannedStage]],
+    skip: Callable[[PlannedStage], bool] | None = None,
 ) -> dict[tuple[str, str], StageResult]:
     """The results of `chains` that are current for today's inputs, config and code, from the store alone
-    (building-before results as the plan's own, when they are current)."""
+    (building-before results as the plan's own, when they are current); stage runs for which `skip` is
+    true, and what reads them, are left out."""
     found: dict[tuple[str, str], StageResult] = {}
     for item in [*plan.before, *(i for chain in chains.values() for i in chain)]:
         call = item.call
-        if any(ref not in found for ref in item.upstream.values()):
+        if any(ref not in found for ref in item.upstream.values()) or (skip is not None and skip(item)):
             continue
         store = store_for(call.work)
         try:
