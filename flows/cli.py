@@ -718,6 +718,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     _setup_logging(args.quiet)
+    if args.command in ("run", "rerun"):  # rooms on pool threads: few malloc arenas (flows/memory.py)
+        from flows import memory
+
+        memory.limit_arenas(2)
     debug = bool(os.environ.get(DEBUG_VARIABLE))
     try:
         with contextlib.ExitStack() as stack:  # holds a work-dir lock taken by the command

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from flows import memory
 from tasks import config as cfgmod
 from tasks.artefacts import (
     BUILDING,
@@ -169,6 +170,7 @@ def execute(call: StageCall, upstream: dict[str, StageResult], fan_in: FanIn | N
         return {**report, "compute_seconds": round(time.perf_counter() - t0, 3)}
 
     result = store.commit(call.room, call.stage, key, write, manifest)
+    memory.release()  # what the stage freed goes back, so a run's RSS does not ratchet up room by room
     seconds = time.perf_counter() - started
     log.info("[%s] %s: done in %.1f s", call.room, call.stage, seconds)
     return Executed(result, "computed", seconds)
