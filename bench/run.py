@@ -69,7 +69,6 @@ def _peak_rss_sampler(pid: int, stop: threading.Event, out: dict[str, Any]) -> N
         root = psutil.Process(pid)
     except psutil.Error:
         return
-    kinds: dict[int, str] = {}
     started = time.perf_counter()
     while not stop.is_set():
         parts: dict[str, int] = defaultdict(int)
@@ -82,9 +81,7 @@ def _peak_rss_sampler(pid: int, stop: threading.Event, out: dict[str, Any]) -> N
                 rss = proc.memory_info().rss
             except psutil.Error:
                 continue
-            if proc.pid not in kinds:
-                kinds[proc.pid] = _part(proc)
-            parts[kinds[proc.pid]] += rss
+            parts[_part(proc)] += rss  # each time: a child is the CLI's copy until it execs
         total = sum(parts.values())
         if total > out["peak"]:
             out.update(peak=total, parts=dict(parts), at_s=time.perf_counter() - started)
