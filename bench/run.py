@@ -99,6 +99,8 @@ def timed(command: list[str], log: Path) -> dict[str, Any]:
     """Run `command` (output to `log`): wall and CPU seconds, peak RSS of its process tree (bytes) and
     its split; a command that fails stops the benchmark."""
     env = {
+        # on a busy machine Prefect's server may take minutes to start: a benchmark waits for it
+        "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "900",
         **os.environ,
         "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
     }
@@ -312,6 +314,8 @@ def main(argv: list[str] | None = None) -> int:
     for rooms in sizes:
         r = bench_size(rooms, args.root, args.set, args.kind)
         results.append(r)
+        if args.json:  # after each size: a later size that fails keeps the earlier figures
+            args.json.write_text(json.dumps(results, indent=2))
         shares = ", ".join(f"{k} {100 * v:.0f}%" for k, v in r["stage_share"].items())
         cpu = r["cpu_s"]
         parts = ", ".join(f"{k} {v:.0f}" for k, v in r["peak_rss_parts_mb"].items())
