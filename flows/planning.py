@@ -414,6 +414,11 @@ def plan_survey(
         upstream = {name: (BUILDING, name) for name in stage.upstream if name in available}
         after.append(PlannedStage(call, upstream, stage.room_upstream))
         available.add(stage.name)
+    # Every stage's code version now, in this one thread: it parses the stage's modules with `ast`, and
+    # CPython 3.11's parser is not safe to run from two room threads at once ("AST constructor recursion
+    # depth mismatch" failed a stage); each version is read once per process.
+    for name in sorted({i.call.stage for i in [*before, *after, *(i for c in rooms.values() for i in c)]}):
+        STAGES[name].code_version()
     return SurveyPlan(before, rooms, after, others, failed, dict.fromkeys(failed, first_stage))
 
 
