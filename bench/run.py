@@ -1,24 +1,31 @@
 """Growth benchmark of the whole workflow: cold run, no-op rerun and walls-only rerun of synthetic surveys
 of several sizes, as a user runs them (`indoor-survey run` / `rerun` in a child process).
 
-    python -m bench.run                    # 5, 10 and 20 rooms
-    python -m bench.run --sizes 5          # a quick check
+    python -m bench.run                          # TLS rooms: 5, 10 and 20 rooms
+    python -m bench.run --sizes 5                # a quick check
+    python -m bench.run --kind rgbd --sizes 5,10 # RGB-D rooms (registration included)
     python -m bench.run --sizes 5,10 --json bench-run.json
 
-Run from the repository root. The surveys are made of the survey generator's TLS rooms (`indoor-survey synth
---profile tls`: every room a registered two-station cloud, so a room costs ingest + preprocess + walls and
-no registration): the generator draws one building of five rooms and a hallway per seed, so a survey of N
-rooms takes the rooms of seeds 0, 1, 2, ... in turn (ids `r1`.. for seed 0, `s<seed>-r1`.. for the others)
-and the plan and IMU track of seed 0. Rooms of other seeds have no plan room: fusion matches them by shape
-or leaves them unplaced, and reports the differences as changes, as it would for a building the plan does
+Run from the repository root. The surveys are made of the survey generator's rooms: with `--kind tls` (the
+default) its TLS rooms (`indoor-survey synth --profile tls`: every room a registered two-station cloud, so
+a room costs ingest + preprocess + walls and no registration); with `--kind rgbd` its miniature Kinect
+surveys (`indoor-survey synth`, as data/mini: five rooms recorded as RGB-D frames, so a room also costs
+its registration, and one room a TLS cloud, with the survey's calibration target images). The generator
+draws one building of five rooms and a hallway per seed, so a survey of N rooms takes the rooms of seeds
+0, 1, 2, ... in turn (ids `r1`.. for seed 0, `s<seed>-r1`.. for the others) and the plan, IMU track (and
+calibration images) of seed 0. Rooms of other seeds have no plan room: fusion matches them by shape or
+leaves them unplaced, and reports the differences as changes, as it would for a building the plan does
 not show. No truth/ is copied (no metrics.json: the benchmark times the workflow, not its accuracy).
 
 For each size it prints: the cold time (a fresh work dir); the no-op rerun (`run` again: nothing changed)
 the walls-only rerun (`rerun --stage walls`: every room's walls recomputed, then what reads them where
-they changed) and one room's walls (`rerun --stage walls --room r1`) as ratios of the cold time; each stage's share of the cold run's stage time (the run summary's seconds per
-stage, summed over rooms); the peak resident memory of the whole process tree (the CLI, Prefect's server
-and any worker), sampled every 0.1 s with psutil; and the largest over the smallest size's cold time.
-The machine's load average is printed with each run: the figures are wall-clock times.
+they changed) and one room's walls (`rerun --stage walls --room r1`) as ratios of the cold time; the CPU
+seconds of each (user + system of the whole process tree: the CLI, Prefect's server, any Dask worker),
+which the machine's load inflates far less than the wall time; each stage's share of the cold run's stage
+time (the run summary's seconds per stage, summed over rooms); the peak resident memory of the whole
+process tree, sampled every 0.1 s with psutil, and how it splits between the run's own process, Prefect's
+server and the rest at that moment; and the largest over the smallest size's cold time. The machine's
+load average is printed with each run: the figures are wall-clock times.
 """
 
 from __future__ import annotations
@@ -41,39 +48,67 @@ REPO = Path(__file__).resolve().parents[1]
 ROOMS_PER_SEED = ("r1", "r2", "r3", "r4", "r5", "hall")
 
 
-def _peak_rss_sampler(pid: int, stop: threading.Event, out: list[int]) -> None:
-    """Sample the RSS of process `pid` and all its descendants until `stop`; the maximum goes to out[0]."""
+def _part(proc: Any) -> str:
+    """Which part of a run a process is: "server" (Prefect's), "run" (the CLI) or "other" (a worker)."""
+    try:
+        cmdline = " ".join(proc.cmdline())
+    except Exception:
+        return "other"
+    if "prefect.server.api.server" in cmdline:
+        return "server"
+    return "run" if "flows.cli" in cmdline else "other"
+
+
+def _peak_rss_sampler(pid: int, stop: threading.Event, out: dict[str, Any]) -> None:
+    """Sample the RSS of process `pid` and all its descendants until `stop`: the largest total goes to
+    out["peak"], its split by part (run, server, other) to out["parts"], its time after the start to
+    out["at_s"]."""
     import psutil
 
     try:
         root = psutil.Process(pid)
     except psutil.Error:
         return
+    started = time.perf_counter()
     while not stop.is_set():
-        total = 0
+        parts: dict[str, int] = defaultdict(int)
         try:
             procs = [root, *root.children(recursive=True)]
         except psutil.Error:
             break
         for proc in procs:
             try:
-                total += proc.memory_info().rss
+                rss = proc.memory_info().rss
             except psutil.Error:
-                pass
-        out[0] = max(out[0], total)
+                continue
+            parts[_part(proc)] += rss  # each time: a child is the CLI's copy until it execs
+        total = sum(parts.values())
+        if total > out["peak"]:
+            out.update(peak=total, parts=dict(parts), at_s=time.perf_counter() - started)
         stop.wait(0.1)
 
 
+def _children_cpu() -> float:
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def timed(command: list[str], log: Path) -> dict[str, Any]:
-    """Run `command` (output to `log`); wall seconds, peak RSS of its process tree (bytes), exit code."""
+    """Run `command` (output to `log`): wall and CPU seconds, peak RSS of its process tree (bytes) and
+    its split; a command that fails stops the benchmark."""
     env = {
+        # on a busy machine Prefect's server may take minutes to start: a benchmark waits for it
+        "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "900",
         **os.environ,
         "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
     }
-    peak = [0]
+    peak: dict[str, Any] = {"peak": 0, "parts": {}, "at_s": None}
     stop = threading.Event()
     load = os.getloadavg()[0]
     wall_start = time.time()
+    cpu_start = _children_cpu()
     started = time.perf_counter()
     with log.open("w") as out:
         proc = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT, env=env, cwd=REPO)
@@ -86,19 +121,24 @@ def timed(command: list[str], log: Path) -> dict[str, Any]:
             sampler = None
         code = proc.wait()
         seconds = time.perf_counter() - started
+        cpu = _children_cpu() - cpu_start  # the whole tree: each process is reaped by its parent
         stop.set()
         if sampler is not None:
             sampler.join()
     if sampler is None:  # no psutil: the largest child's peak (a lower bound of the tree's)
         import resource
 
-        peak[0] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
+        peak["peak"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
     if code != 0:
         raise SystemExit(f"{' '.join(command)} exited with {code}; see {log}")
     return {
         "seconds": seconds,
-        "peak_rss": peak[0],
+        "cpu_s": cpu,
+        "peak_rss": peak["peak"],
+        "peak_rss_parts": peak["parts"],
+        "peak_at_s": peak["at_s"],
         "load": load,
+        "load_after": os.getloadavg()[0],
         "log": str(log),
         "first_stage_s": first_stage_after(log, wall_start),
     }
@@ -131,29 +171,46 @@ def stage_seconds(log: Path) -> dict[str, float]:
     return dict(totals)
 
 
-def source_survey(cache: Path, seed: int) -> Path:
-    """The generator's TLS survey of `seed` (all five rooms and the hallway), made once."""
-    folder = cache / f"tls-seed{seed}"
+KINDS = {"tls": "tls", "rgbd": "kinect_v1"}
+"""--kind -> the generator's sensor profile of the rooms."""
+
+
+def source_survey(cache: Path, seed: int, kind: str = "tls") -> Path:
+    """The generator's survey of `seed` (all five rooms and the hallway) of `kind`, made once."""
+    folder = cache / f"{kind}-seed{seed}"
     if not (folder / "survey.yaml").is_file():
         from tasks.synth.survey import generate_survey
 
-        generate_survey(folder, seed=seed, profile="tls", overwrite=True)
+        generate_survey(folder, seed=seed, profile=KINDS[kind], size="mini", overwrite=True)
     return folder
 
 
-def compose_survey(cache: Path, rooms: int, out: Path) -> Path:
-    """A survey of `rooms` TLS rooms (seed 0's first, then seed 1's...), seed 0's plan and track."""
+def _link_or_copy(source: Path, dest: Path) -> None:
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    if source.stat().st_dev == dest.parent.stat().st_dev:
+        os.link(source, dest)
+    else:
+        shutil.copy2(source, dest)
+
+
+def compose_survey(cache: Path, rooms: int, out: Path, kind: str = "tls") -> Path:
+    """A survey of `rooms` rooms of `kind` (seed 0's first, then seed 1's...), seed 0's plan and track,
+    and for RGB-D rooms seed 0's calibration images."""
     if out.exists():
         shutil.rmtree(out)
-    base = source_survey(cache, 0)
+    base = source_survey(cache, 0, kind)
     spec = yaml.safe_load((base / "survey.yaml").read_text())
     shutil.copytree(base / "plan", out / "plan")
     entries: list[dict[str, Any]] = []
     if spec.get("track"):
         shutil.copytree(base / Path(spec["track"]).parent, out / Path(spec["track"]).parent)
+    if kind == "rgbd" and spec.get("calibration"):
+        shutil.copytree(base / spec["calibration"], out / spec["calibration"])
+    else:
+        spec.pop("calibration", None)
     seed = 0
     while len(entries) < rooms:
-        src = source_survey(cache, seed)
+        src = source_survey(cache, seed, kind)
         by_id = {r["id"]: r for r in yaml.safe_load((src / "survey.yaml").read_text())["rooms"]}
         for room in ROOMS_PER_SEED:
             if len(entries) == rooms:
@@ -161,45 +218,43 @@ def compose_survey(cache: Path, rooms: int, out: Path) -> Path:
             entry = dict(by_id[room])
             rid = room if seed == 0 else f"s{seed}-{room}"
             capture = src / entry["capture"]
-            dest = out / "rooms" / rid / capture.name
-            dest.parent.mkdir(parents=True, exist_ok=True)
-            os.link(capture, dest) if capture.stat().st_dev == out.stat().st_dev else shutil.copy2(
-                capture, dest
-            )
+            _link_or_copy(capture, out / "rooms" / rid / capture.name)
             entry.update(id=rid, capture=f"rooms/{rid}/{capture.name}")
             if seed != 0:
                 entry.pop("plan_room", None)
             entries.append(entry)
         seed += 1
-    spec.update(name=f"bench-{rooms}-rooms", rooms=entries)
+    spec.update(name=f"bench-{kind}-{rooms}-rooms", rooms=entries)
     spec.pop("truth", None)
-    spec.pop("calibration", None)
     (out / "survey.yaml").write_text(yaml.safe_dump(spec, sort_keys=False))
     return out
 
 
-def bench_size(rooms: int, root: Path, sets: list[str]) -> dict[str, Any]:
-    survey = compose_survey(root / "sources", rooms, root / f"survey-{rooms}")
-    work = root / f"work-{rooms}"
+def bench_size(rooms: int, root: Path, sets: list[str], kind: str = "tls") -> dict[str, Any]:
+    survey = compose_survey(root / "sources", rooms, root / f"survey-{kind}-{rooms}", kind)
+    work = root / f"work-{kind}-{rooms}"
     if work.exists():
         shutil.rmtree(work)
     cli = [sys.executable, "-m", "flows.cli"]
     extra = [a for s in sets for a in ("--set", s)]
-    cold = timed([*cli, "run", str(survey), "--work", str(work), *extra], root / f"cold-{rooms}.log")
-    noop = timed([*cli, "run", str(survey), "--work", str(work), *extra], root / f"noop-{rooms}.log")
+    cold = timed([*cli, "run", str(survey), "--work", str(work), *extra], root / f"cold-{kind}-{rooms}.log")
+    noop = timed([*cli, "run", str(survey), "--work", str(work), *extra], root / f"noop-{kind}-{rooms}.log")
     walls = timed(
         [*cli, "rerun", str(survey), "--work", str(work), "--stage", "walls", *extra],
-        root / f"walls-{rooms}.log",
+        root / f"walls-{kind}-{rooms}.log",
     )
     # the users' other rerun: one stage of one room (after tuning it); its readers stay current when the
     # stage writes the same bytes, so this is the floor of any targeted rerun
     one = timed(
         [*cli, "rerun", str(survey), "--work", str(work), "--stage", "walls", "--room", "r1", *extra],
-        root / f"walls-r1-{rooms}.log",
+        root / f"walls-r1-{kind}-{rooms}.log",
     )
     stages = stage_seconds(Path(cold["log"]))
     total = sum(stages.values()) or 1.0
+    runs = {"cold": cold, "noop": noop, "walls": walls, "one_room_walls": one}
+    peak = max(runs.values(), key=lambda r: r["peak_rss"])
     return {
+        "kind": kind,
         "rooms": rooms,
         "cold_s": cold["seconds"],
         "noop_s": noop["seconds"],
@@ -208,14 +263,18 @@ def bench_size(rooms: int, root: Path, sets: list[str]) -> dict[str, Any]:
         "walls_ratio": walls["seconds"] / cold["seconds"],
         "one_room_walls_s": one["seconds"],
         "one_room_walls_ratio": one["seconds"] / cold["seconds"],
+        "cpu_s": {name: r["cpu_s"] for name, r in runs.items()},
         "stage_seconds": stages,
         "stage_share": {name: s / total for name, s in sorted(stages.items(), key=lambda kv: -kv[1])},
         "walls_stage_seconds": stage_seconds(Path(walls["log"])),
         "cold_first_stage_s": cold["first_stage_s"],
         "walls_first_stage_s": walls["first_stage_s"],
-        "peak_rss_mb": max(cold["peak_rss"], noop["peak_rss"], walls["peak_rss"]) / 2**20,
+        "peak_rss_mb": peak["peak_rss"] / 2**20,
+        "peak_rss_parts_mb": {k: v / 2**20 for k, v in sorted(peak["peak_rss_parts"].items())},
+        "peak_rss_at_s": peak["peak_at_s"],
+        "peak_rss_command": next(name for name, r in runs.items() if r is peak),
         "cold_peak_rss_mb": cold["peak_rss"] / 2**20,
-        "load": [cold["load"], noop["load"], walls["load"]],
+        "load": {name: [r["load"], r["load_after"]] for name, r in runs.items()},
     }
 
 
@@ -235,6 +294,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--set", action="append", default=[], metavar="STAGE.KEY=VALUE", help="config override"
     )
+    parser.add_argument(
+        "--kind",
+        choices=sorted(KINDS),
+        default="tls",
+        help="the rooms: tls (registered clouds, the default) or rgbd (Kinect recordings, as data/mini)",
+    )
     parser.add_argument("--json", type=Path, default=None, help="also write the figures to this file")
     args = parser.parse_args(argv)
     try:
@@ -244,17 +309,26 @@ def main(argv: list[str] | None = None) -> int:
     if not sizes or min(sizes) < 1:
         parser.error(f"--sizes {args.sizes!r}: room counts must be at least 1")
     args.root.mkdir(parents=True, exist_ok=True)
-    print(f"{os.cpu_count()} cores; TLS rooms; root {args.root}", flush=True)
+    print(f"{os.cpu_count()} cores; {args.kind} rooms; root {args.root}", flush=True)
     results = []
     for rooms in sizes:
-        r = bench_size(rooms, args.root, args.set)
+        r = bench_size(rooms, args.root, args.set, args.kind)
         results.append(r)
+        if args.json:  # after each size: a later size that fails keeps the earlier figures
+            args.json.write_text(json.dumps(results, indent=2))
         shares = ", ".join(f"{k} {100 * v:.0f}%" for k, v in r["stage_share"].items())
+        cpu = r["cpu_s"]
+        parts = ", ".join(f"{k} {v:.0f}" for k, v in r["peak_rss_parts_mb"].items())
+        load = ", ".join(f"{k} {a:.1f}-{b:.1f}" for k, (a, b) in r["load"].items())
         print(
             f"{rooms:3d} rooms: cold {r['cold_s']:6.1f} s | no-op {r['noop_s']:5.1f} s = "
             f"{100 * r['noop_ratio']:4.1f}% | walls-only {r['walls_s']:5.1f} s = {100 * r['walls_ratio']:4.1f}% | "
             f"r1's walls {r['one_room_walls_s']:5.1f} s = {100 * r['one_room_walls_ratio']:4.1f}% | "
-            f"peak RSS {r['peak_rss_mb']:.0f} MB | load {r['load'][0]:.1f}\n"
+            f"peak RSS {r['peak_rss_mb']:.0f} MB\n"
+            f"           CPU s: cold {cpu['cold']:.1f}, no-op {cpu['noop']:.1f}, walls-only {cpu['walls']:.1f} "
+            f"= {100 * cpu['walls'] / cpu['cold']:.1f}%, r1's walls {cpu['one_room_walls']:.1f}\n"
+            f"           peak RSS in {r['peak_rss_command']} at {r['peak_rss_at_s'] or 0:.0f} s: {parts} MB\n"
+            f"           load average (start-end): {load}\n"
             f"           stage shares: {shares}\n"
             f"           start-up before the first stage: cold {_s(r['cold_first_stage_s'])}, "
             f"walls-only {_s(r['walls_first_stage_s'])}; walls-only stage time "
@@ -264,8 +338,10 @@ def main(argv: list[str] | None = None) -> int:
     if len(results) > 1:
         small, large = results[0], results[-1]
         print(
-            f"growth: {large['rooms']}/{small['rooms']} rooms = {large['cold_s'] / small['cold_s']:.2f}x cold time "
-            f"(rooms ratio {large['rooms'] / small['rooms']:.1f}x)"
+            f"growth: {large['rooms']}/{small['rooms']} rooms = {large['cold_s'] / small['cold_s']:.2f}x cold time, "
+            f"{large['cpu_s']['cold'] / small['cpu_s']['cold']:.2f}x cold CPU time (rooms ratio "
+            f"{large['rooms'] / small['rooms']:.1f}x); peak RSS {small['peak_rss_mb']:.0f} -> "
+            f"{large['peak_rss_mb']:.0f} MB ({100 * (large['peak_rss_mb'] / small['peak_rss_mb'] - 1):+.0f}%)"
         )
     if args.json:
         args.json.write_text(json.dumps(results, indent=2))

@@ -396,16 +396,22 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     _lock(args, work)
     planning.store_for(work).sweep_temporaries()  # what a killed run left half-written
     started = time.perf_counter()
-    rows = planning.all_current(req)
+    # A rerun always has work (its forced stages); a run may be answered from the store alone
+    rows = None if req.force else planning.all_current(req)
     saved = planning.save_resolved_config(work, cfg, argv)
     if rows is None:
         from flows import prefect_env
 
         prefect_env.apply()
-        with prefect_env.embedded_server(work):  # Prefect's server lives and dies with this run
-            from flows import pipeline  # starts Prefect only when there is work
 
-            rows = pipeline.run_survey(req, runner, address)
+        def import_flows() -> None:  # Prefect's import, while its server starts in another process
+            from flows import pipeline  # noqa: F401
+
+        # Prefect's server lives and dies with this run
+        with prefect_env.embedded_server(work, meanwhile=import_flows) as embedded:
+            from flows import pipeline
+
+            rows = pipeline.run_survey(req, runner, address, heartbeats=embedded is None)
     else:
         print("every stage is current: nothing to compute (Prefect not started)", file=sys.stderr)
     elapsed = time.perf_counter() - started
@@ -712,6 +718,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     _setup_logging(args.quiet)
+    if args.command in ("run", "rerun"):  # rooms on pool threads: few malloc arenas (flows/memory.py)
+        from flows import memory
+
+        memory.limit_arenas(2)
     debug = bool(os.environ.get(DEBUG_VARIABLE))
     try:
         with contextlib.ExitStack() as stack:  # holds a work-dir lock taken by the command

@@ -1,11 +1,13 @@
 """Prefect flows over the artefact store.
 
-`building_flow` runs the building's stages that the rooms read (calibrate, plan), maps `room_flow` over
-the rooms concurrently (a room is a partition: rooms are independent until fusion), then runs the
-building-after stages (fan-in) on every room's results, a failed room passed to them as failed. Each
-stage is one Prefect task whose cache key is the content address of its run (input content hashes + its
-config sections + its code version), with results persisted under the work dir, so Prefect's logs and
-UI show cache hits. The artefact store stays the source of truth: a key whose artefact folder is missing
+`building_flow` runs the building's stages that the rooms read (calibrate, plan), maps `room_task` over
+the rooms concurrently (a room is a partition: rooms are independent until fusion; its stages run one
+after another inside its task, as nested task runs), then runs the building-after stages (fan-in) on
+every room's results, a failed room passed to them as failed. Each stage is one Prefect task whose cache
+key is the content address of its run (input content hashes + its config sections + its code version),
+with results persisted under the work dir, so Prefect's logs and UI show cache hits. A stage that is
+current before the run starts (every input current, a verified artefact for its key) is read from the
+store and makes no task run. The artefact store stays the source of truth: a key whose artefact folder is missing
 or fails its hashes has its Prefect record dropped and recomputes.
 
 Prefect's settings (offline, quiet, patient start-up) are the caller's: `flows.prefect_env.apply()`
@@ -18,7 +20,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from prefect import allow_failure, flow, task
+from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import PrefectFuture, wait
 
@@ -29,6 +31,7 @@ from flows.planning import (
     RunRequest,
     StageCall,
     StageOutcome,
+    SurveyPlan,
     cache_key,
     current_results,
     execute,
@@ -81,47 +84,81 @@ def stage_task(call: StageCall, upstream: dict[str, Any], fan_in: FanIn | None =
     return execute(call, results, fan_in)
 
 
-def _submit(item: PlannedStage, upstream: dict[str, Any], fan_in: FanIn | None = None) -> PrefectFuture:
+def _task_for(item: PlannedStage) -> Any:
     storage = Path(item.call.work) / PREFECT_RESULTS
-    task_ = stage_task.with_options(result_storage=storage, refresh_cache=item.call.force or None)
-    return task_.submit(item.call, upstream, fan_in)
+    return stage_task.with_options(result_storage=storage, refresh_cache=item.call.force or None)
+
+
+def _submit(item: PlannedStage, upstream: dict[str, Any], fan_in: FanIn | None = None) -> PrefectFuture:
+    return _task_for(item).submit(item.call, upstream, fan_in)
 
 
 # ----------------------------------------------------------------------------------------------- flows
 
 
-@flow(name="room", log_prints=False, validate_parameters=False, persist_result=False)
-def room_flow(chain: list[PlannedStage], building: dict[str, Executed]) -> list[StageOutcome]:
-    """Every stage of one room, given the building stages' results it may read. Never raises: a stage
-    that fails is reported, and the stages after it are skipped."""
-    futures: dict[tuple[str, str], PrefectFuture] = {}
+@task(name="room", task_run_name="room[{chain[0].call.room}]", cache_policy=NO_CACHE, persist_result=False)
+def room_task(
+    chain: list[PlannedStage], building: dict[str, Executed], settled: dict[str, Executed] | None = None
+) -> list[StageOutcome]:
+    """Every stage of one room, given the building stages' results it may read and the room's stages
+    that are current already (`settled`: read from the store, no task run). One task per room, so the
+    task runner runs rooms concurrently (threads, or Dask); a room's stages form a chain, each reading the
+    one before, so they run one after another inside it, each a nested task run (no subflow: a flow run
+    per room cost API calls and a thread pool of its own). Never raises: a stage that fails is reported,
+    and the stages after it that need it are skipped."""
+    settled = settled or {}
+    done: dict[str, Executed] = dict(settled)
+    failed: dict[str, BaseException | None] = {}
     rows: list[StageOutcome] = []
     for item in chain:
+        if item.call.stage in settled:
+            rows.append(_settled_row(item, settled[item.call.stage]))
+            continue
         upstream: dict[str, Any] = {}
-        missing = []
+        missing, broken = [], []
         for name, ref in item.upstream.items():
             if ref[0] == BUILDING:
                 if name in building:
                     upstream[name] = building[name]
                 elif name not in item.optional:
                     missing.append(name)
-            elif ref not in futures:
-                missing.append(name)
+            elif ref[1] in done:
+                upstream[name] = done[ref[1]]
+            elif ref[1] in failed and name in item.optional:
+                upstream[name] = failed[ref[1]]  # runs without it, and says so
+            elif ref[1] in failed:
+                broken.append(name)
             else:
-                future = futures[ref]
-                upstream[name] = allow_failure(future) if name in item.optional else future
-        if missing:
-            rows.append(StageOutcome(item.call.room, item.call.stage, "skipped", 0.0, f"{missing[0]} failed"))
+                missing.append(name)
+        if broken:
+            rows.append(StageOutcome(*item.ref, "skipped", 0.0, "an earlier stage failed"))
             continue
-        futures[item.ref] = _submit(item, upstream)
-    wait(list(futures.values()))
-    return outcomes(futures) + rows
+        if missing:
+            rows.append(StageOutcome(*item.ref, "skipped", 0.0, f"{missing[0]} failed"))
+            continue
+        state = _task_for(item).with_options(task_run_name=f"{item.call.stage}[{item.call.room}]")(
+            item.call, upstream, None, return_state=True
+        )
+        row = outcome(item.ref, state)
+        rows.append(row)
+        if row.result is None:
+            failed[item.call.stage] = _exception(state)
+        else:
+            done[item.call.stage] = state.result()
+    return rows
 
 
-@task(name="room", task_run_name="room[{chain[0].call.room}]", cache_policy=NO_CACHE, persist_result=False)
-def room_task(chain: list[PlannedStage], building: dict[str, Executed]) -> list[StageOutcome]:
-    """A room's subflow as a task, so the task runner runs rooms concurrently (threads, or Dask)."""
-    return room_flow(chain, building)
+def _settled_row(item: PlannedStage, done: Executed) -> StageOutcome:
+    return StageOutcome(item.call.room, item.call.stage, "cached", 0.0, "", done.result)
+
+
+def settled_stages(plan: SurveyPlan) -> dict[tuple[str, str], Executed]:
+    """The stage runs of a plan that are current before the run starts (not forced, every input current,
+    a verified artefact for their key in the store): they are read, not run, so the run creates no
+    Prefect task for them. What follows a forced or changed stage is left to the run: its key is known
+    only once that stage has written its artefacts."""
+    found = current_results(plan, plan.rooms, skip=lambda item: item.call.force)
+    return {ref: Executed(result, "stored", 0.0) for ref, result in found.items()}
 
 
 @flow(name="building", log_prints=False, validate_parameters=False, persist_result=False)
@@ -132,18 +169,27 @@ def building_flow(req: RunRequest) -> list[StageOutcome]:
     survey = cfgmod.load_survey(Path(req.survey))
     profile = cfgmod.load_sensor_profile(survey.sensor)
     plan = plan_survey(req, cfg, survey, profile)
-    before = {item.ref: _submit(item, {}) for item in plan.before}
+    settled = settled_stages(plan)
+    before = {item.ref: _submit(item, {}) for item in plan.before if item.ref not in settled}
     wait(list(before.values()))
-    rows = outcomes(before)
+    rows = [_settled_row(item, settled[item.ref]) for item in plan.before if item.ref in settled]
+    rows += outcomes(before)
     building = {ref[1]: f.result() for ref, f in before.items() if f.state.is_completed()}
-    rooms = {room: room_task.submit(chain, building) for room, chain in plan.rooms.items() if chain}
+    building.update({ref[1]: done for ref, done in settled.items() if ref[0] == BUILDING})
+    rooms = {}
+    for room, chain in plan.rooms.items():
+        done = {item.call.stage: settled[item.ref] for item in chain if item.ref in settled}
+        if len(done) == len(chain):  # every stage current: no room task at all
+            rows += [_settled_row(item, done[item.call.stage]) for item in chain]
+        elif chain:
+            rooms[room] = room_task.submit(chain, building, done)
     wait(list(rooms.values()))
     rows += plan.failed_rows()  # rooms whose capture cannot be read: failed alone, before any stage
     for room, future in rooms.items():
         if future.state.is_completed():
             rows += future.result()
-        else:  # the subflow itself broke (not a stage): every stage of the room is reported failed
-            message = _message(future)
+        else:  # the room task itself broke (not a stage): every stage of the room is reported failed
+            message = _message(future.state)
             rows += [StageOutcome(room, i.call.stage, "failed", 0.0, message) for i in plan.rooms[room]]
     results = {(r.room, r.stage): r.result for r in rows if r.result is not None}
     results.update(current_results(plan, plan.others))  # rooms outside the request: read, never run
@@ -170,38 +216,52 @@ def building_flow(req: RunRequest) -> list[StageOutcome]:
 # ---------------------------------------------------------------------------------------------- outcome
 
 
-def _message(future: PrefectFuture) -> str:
-    exc = future.state.result(raise_on_failure=False)
-    if isinstance(exc, BaseException):
+def _exception(state: Any) -> BaseException | None:
+    exc = state.result(raise_on_failure=False)
+    return exc if isinstance(exc, BaseException) else None
+
+
+def _message(state: Any) -> str:
+    exc = _exception(state)
+    if exc is not None:
         return " ".join(str(exc).split())
-    return future.state.message or future.state.name
+    return state.message or state.name
+
+
+def outcome(ref: tuple[str, str], state: Any) -> StageOutcome:
+    """What happened to one stage call, from its final Prefect state."""
+    room, stage = ref
+    if state.is_completed():
+        done: Executed = state.result()
+        how = "cached" if state.name == "Cached" else done.how
+        return StageOutcome(room, stage, how, done.seconds if how == "computed" else 0.0, "", done.result)
+    if state.is_failed() or state.is_crashed():
+        return StageOutcome(room, stage, "failed", 0.0, _message(state))
+    return StageOutcome(room, stage, "skipped", 0.0, "an earlier stage failed")  # never ran
 
 
 def outcomes(futures: dict[tuple[str, str], PrefectFuture]) -> list[StageOutcome]:
     """What happened to every stage call, for the summary and the exit code."""
-    rows = []
-    for (room, stage), future in futures.items():
-        state = future.state
-        if state.is_completed():
-            done: Executed = state.result()
-            how = "cached" if state.name == "Cached" else done.how
-            rows.append(
-                StageOutcome(room, stage, how, done.seconds if how == "computed" else 0.0, "", done.result)
-            )
-        elif state.is_failed() or state.is_crashed():
-            rows.append(StageOutcome(room, stage, "failed", 0.0, _message(future)))
-        else:  # never ran: an upstream stage failed
-            rows.append(StageOutcome(room, stage, "skipped", 0.0, "an earlier stage failed"))
-    return rows
+    return [outcome(ref, future.state) for ref, future in futures.items()]
 
 
 def run_survey(
-    req: RunRequest, runner: str = "threads", dask_address: str | None = None
+    req: RunRequest, runner: str = "threads", dask_address: str | None = None, heartbeats: bool = True
 ) -> list[StageOutcome]:
     """Run the building flow and report every stage's outcome; rooms run on `runner` ("threads" or
-    "dask", see flows/runners.py), `flow.max_workers` at once."""
+    "dask", see flows/runners.py), `flow.max_workers` at once.
+
+    `heartbeats=False` (a run on its own embedded server, which dies with it): no flow-run heartbeats.
+    They tell a long-lived server that a run crashed; the flow's heartbeat thread is also joined when
+    the flow ends (up to a second)."""
+    from prefect.settings import PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings
+
     from flows.runners import task_runner
 
     workers = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets)).flow.max_workers
     store_for(req.work).sweep_temporaries()
-    return building_flow.with_options(task_runner=task_runner(runner, workers, dask_address))(req)
+    flow_ = building_flow.with_options(task_runner=task_runner(runner, workers, dask_address))
+    if heartbeats:
+        return flow_(req)
+    with temporary_settings(updates={PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
+        return flow_(req)

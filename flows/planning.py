@@ -14,11 +14,12 @@ import platform
 import threading
 import time
 import uuid
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from flows import memory
 from tasks import config as cfgmod
 from tasks.artefacts import (
     BUILDING,
@@ -169,6 +170,7 @@ def execute(call: StageCall, upstream: dict[str, StageResult], fan_in: FanIn | N
         return {**report, "compute_seconds": round(time.perf_counter() - t0, 3)}
 
     result = store.commit(call.room, call.stage, key, write, manifest)
+    memory.release()  # what the stage freed goes back, so a run's RSS does not ratchet up room by room
     seconds = time.perf_counter() - started
     log.info("[%s] %s: done in %.1f s", call.room, call.stage, seconds)
     return Executed(result, "computed", seconds)
@@ -412,6 +414,11 @@ def plan_survey(
         upstream = {name: (BUILDING, name) for name in stage.upstream if name in available}
         after.append(PlannedStage(call, upstream, stage.room_upstream))
         available.add(stage.name)
+    # Every stage's code version now, in this one thread: it parses the stage's modules with `ast`, and
+    # CPython 3.11's parser is not safe to run from two room threads at once ("AST constructor recursion
+    # depth mismatch" failed a stage); each version is read once per process.
+    for name in sorted({i.call.stage for i in [*before, *after, *(i for c in rooms.values() for i in c)]}):
+        STAGES[name].code_version()
     return SurveyPlan(before, rooms, after, others, failed, dict.fromkeys(failed, first_stage))
 
 
@@ -436,14 +443,17 @@ def fan_in_for(
 
 
 def current_results(
-    plan: SurveyPlan, chains: dict[str, list[PlannedStage]]
+    plan: SurveyPlan,
+    chains: dict[str, list[PlannedStage]],
+    skip: Callable[[PlannedStage], bool] | None = None,
 ) -> dict[tuple[str, str], StageResult]:
     """The results of `chains` that are current for today's inputs, config and code, from the store alone
-    (building-before results as the plan's own, when they are current)."""
+    (building-before results as the plan's own, when they are current); stage runs for which `skip` is
+    true, and what reads them, are left out."""
     found: dict[tuple[str, str], StageResult] = {}
     for item in [*plan.before, *(i for chain in chains.values() for i in chain)]:
         call = item.call
-        if any(ref not in found for ref in item.upstream.values()):
+        if any(ref not in found for ref in item.upstream.values()) or (skip is not None and skip(item)):
             continue
         store = store_for(call.work)
         try:

@@ -14,7 +14,7 @@ import sys
 import time
 import urllib.error
 import urllib.request
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 DEFAULTS = {
@@ -174,20 +174,34 @@ def _refresh_prefect_settings() -> None:
         refresh_global_settings_context()
 
 
-def _start(work: Path, timeout: float) -> tuple[subprocess.Popen[bytes], str]:
-    """Launch the server, record it, and wait until it answers; (process, API URL)."""
+def _record(work: Path, proc: subprocess.Popen[bytes], port: int) -> None:
+    record = {
+        "server_pid": proc.pid,
+        "server_started": _start_time(proc.pid),
+        "run_pid": os.getpid(),
+        "run_started": _start_time(os.getpid()),
+        "port": port,
+    }
+    (work / SERVER_RECORD).write_text(json.dumps(record))
+
+
+def _start(
+    work: Path, timeout: float, meanwhile: Callable[[], object] | None = None
+) -> tuple[subprocess.Popen[bytes], str]:
+    """Launch the server, record it, run `meanwhile` (the run's own start-up: the server's start is
+    mostly its imports, a few CPU seconds in its own process, which the run's imports can overlap), and
+    wait until the server answers; (process, API URL)."""
     deadline = time.monotonic() + timeout
+    port = _free_port()
+    proc = _launch(port)
+    _record(work, proc, port)
+    if meanwhile is not None:
+        try:
+            meanwhile()
+        except BaseException:
+            _stop(proc)
+            raise
     while True:
-        port = _free_port()
-        proc = _launch(port)
-        record = {
-            "server_pid": proc.pid,
-            "server_started": _start_time(proc.pid),
-            "run_pid": os.getpid(),
-            "run_started": _start_time(os.getpid()),
-            "port": port,
-        }
-        (work / SERVER_RECORD).write_text(json.dumps(record))
         while proc.poll() is None:
             try:
                 with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/health", timeout=2) as reply:
@@ -201,15 +215,19 @@ def _start(work: Path, timeout: float) -> tuple[subprocess.Popen[bytes], str]:
                     f"Prefect's embedded server did not answer within {timeout:.0f} s "
                     "(PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS)"
                 )
-            time.sleep(0.1)
+            time.sleep(0.05)
         if proc.returncode != 3 or time.monotonic() > deadline:  # 3: the port was taken meanwhile
             raise RuntimeError(f"Prefect's embedded server exited with code {proc.returncode}")
+        port = _free_port()
+        proc = _launch(port)
+        _record(work, proc, port)
 
 
 @contextlib.contextmanager
-def embedded_server(work: Path) -> Iterator[str | None]:
+def embedded_server(work: Path, meanwhile: Callable[[], object] | None = None) -> Iterator[str | None]:
     """Prefect's embedded API server for one run, yielding its URL (None, and nothing started, when
-    Prefect is told to use a running server).
+    Prefect is told to use a running server). `meanwhile` (e.g. importing the flows, which imports
+    Prefect) runs while the server starts, in this thread; it runs in any case.
 
     Prefect would start this server itself, as a child process that outlives a killed or aborted run; a
     machine that reprocesses nightly then collects orphaned servers. Started here instead, it is the
@@ -218,12 +236,15 @@ def embedded_server(work: Path) -> Iterator[str | None]:
     stops one that a dead run left (e.g. where no parent-death signal exists). Call it from the main
     thread: the signal follows the thread that started the server."""
     if _api_url_configured():
+        if meanwhile is not None:
+            meanwhile()
         yield None
         return
     work = Path(work)
     work.mkdir(parents=True, exist_ok=True)
     reap_stale_server(work)
-    proc, url = _start(work, float(os.environ.get("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")))
+    timeout = float(os.environ.get("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120"))
+    proc, url = _start(work, timeout, meanwhile)
     try:
         os.environ["PREFECT_API_URL"] = url
         _refresh_prefect_settings()

@@ -1,9 +1,9 @@
 """The task runner that runs a survey's rooms: Prefect's thread pool (one machine), or Dask.
 
-With `dask`, each room's subflow (`flows.pipeline.room_task`) is one Dask task; inside it the room's stages
+With `dask`, each room's task (`flows.pipeline.room_task`) is one Dask task; inside it the room's stages
 run one after another as before, on the Dask worker. Without an address, a `distributed.LocalCluster` is
 started for the run with `flow.max_workers` worker *processes* of one thread each, and closed when the run
-ends. Processes rather than threads: a room's subflow then runs exactly as it would on a remote worker
+ends. Processes rather than threads: a room's task then runs exactly as it would on a remote worker
 (its call, results and fan-in cross a process boundary as pickled plain data, and it reaches the Prefect
 API and the work dir on its own), so a single machine exercises the multi-machine path; and a room's
 pure-Python parts do not share one interpreter lock with the other rooms. With an address, the run uses

@@ -164,3 +164,33 @@ def test_sigkill_mid_stage_then_rerun_completes(tmp_path, prefect_home):
     assert ingest.split()[2] in ("cached", "stored"), ingest
     assert store.latest("big", "preprocess") is not None
     assert not any(stage_root.glob(".tmp-*"))  # swept
+
+
+def test_memory_freed_by_pool_threads_goes_back_to_the_system():
+    """What a stage frees on a pool thread is returned by `release` (glibc), as `execute` calls it after
+    each stage, so a run's RSS stays flat stage after stage (without it, here: 30-180 MB more after each
+    of eight such stages, varying); elsewhere both calls report that they did nothing."""
+    import threading
+
+    from flows import memory
+
+    if not memory.limit_arenas(2):
+        assert not memory.release()
+        pytest.skip("not glibc: nothing to return")
+
+    def rss_mb() -> float:
+        fields = Path("/proc/self/statm").read_text().split()
+        return int(fields[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+    def stage() -> None:  # arrays of 2.4, 16 and 8 MB, freed again, as a stage's would be
+        arrays = [np.ones(n) for n in (300_000, 2_000_000, 1_000_000) * 10]
+        del arrays
+        memory.release()
+
+    after = []
+    for _ in range(8):
+        thread = threading.Thread(target=stage)
+        thread.start()
+        thread.join()
+        after.append(rss_mb())
+    assert max(after) - after[0] < 30, after  # 0-18 MB here
