@@ -136,6 +136,14 @@ class TopCells:
         rows, cols = np.nonzero(cells)
         self.xy = grid.to_metres(np.column_stack([cols, rows]))  # (K, 2)
         self._near: dict[float, Any] = {}
+        self._off: dict[bytes, NDArray[np.bool_]] = {}
+
+    def off_envelope(self, lines: NDArray) -> NDArray[np.bool_]:
+        """(M,) the lines that `top_reach_shares` found off the room's envelope (behind a wall, or furniture
+        in front of one or standing free); all False for lines it has not judged."""
+        return self._off.get(
+            np.ascontiguousarray(lines, dtype=np.float64).tobytes(), np.zeros(len(lines), bool)
+        )
 
     def near(self, tol_m: float):
         """near(points (P, 2)) -> (P,) bool: such a cell lies within tol_m of the point."""
@@ -152,16 +160,22 @@ def top_reach_shares(lines: NDArray, top: TopCells, tol_m: float, angle_tol_deg:
     it (a cabinet's side standing against a wall, and seen from across a large room, range noise spreads
     a wall over decimetres), which says nothing about its own top. A band's half-width is the 90th
     percentile of the distance of the top-reaching cells along that line, plus `tol_m`. A line lying
-    entirely in such bands gets 0."""
+    entirely in such bands gets 0.
+
+    A line off the room's envelope (`off_envelope`: seen behind one of the room's walls, through a door,
+    or furniture in front of a wall or standing free in the room) gets 0 too: where no ceiling was
+    captured everything tall enough reaches the slice top, and this is what tells them from walls."""
     if len(lines) == 0:
         return np.zeros(0)
     pts, owner = sample_segments(lines, top.grid.size)
     hit = top.near(tol_m)(pts)
     count = np.bincount(owner, minlength=len(lines)).astype(np.float64)
     shares = np.bincount(owner, hit, len(lines)) / count
-    strong = np.flatnonzero(shares >= 0.5)
+    off = off_envelope(lines, shares, angle_tol_deg)
+    top._off[np.ascontiguousarray(lines, dtype=np.float64).tobytes()] = off
+    strong = np.flatnonzero((shares >= 0.5) & ~off)
     if len(strong) == 0:
-        return shares
+        return np.where(off, 0.0, shares)
     cell_xy = top.xy
     th = angles(lines)
     L = lengths(lines)
@@ -179,7 +193,147 @@ def top_reach_shares(lines: NDArray, top: TopCells, tol_m: float, angle_tol_deg:
             covered |= point_segment_distances(pts[mine], lines[j : j + 1])[:, 0] <= band[j]
         free = mine[~covered]
         shares[i] = float(hit[free].mean()) if len(free) else 0.0
-    return shares
+    return np.where(off, 0.0, shares)
+
+
+ENVELOPE_MIN_WALL_M = 1.0
+"""`off_envelope`: the room's walls that others are judged against are top-reaching lines this long."""
+BEHIND_MIN_M = 0.8
+"""A line at least this far beyond a room wall (seen from the room) on most of its length was seen
+through a door or a window: deeper than a wall is thick and than an alcove, as near as a corridor's far
+wall."""
+BEHIND_MARGIN_M = 0.5
+"""...when the sight line from the room crosses that wall, or its line within this of its ends."""
+FURNITURE_MAX_M = 1.5
+"""A line shorter than this, parallel to a room wall at least twice as long, in front of it (on the room's
+side) by `FURNITURE_OFFSET_M` and beside it on most of its length, is furniture against that wall, unless
+a parallel face of its length stands before or behind it clear of the wall (a column's other side)."""
+FURNITURE_OFFSET_M = (0.1, 1.0)
+"""...offset range from the wall (m): beyond a wall's jog and noise, within a cabinet's depth and reach."""
+FREE_MAX_M = 1.0
+"""A line shorter than this with no other line within `FREE_END_M` of either end stands free in the room:
+a wardrobe's or a shelf's side, not a wall (a partition stub stands on a wall, a column's faces meet)."""
+FREE_END_M = 0.3
+FREE_BEYOND_M = 4.0
+"""...and with a room wall beyond it (away from the room's centre) within this distance: it stands inside
+the room. A piece of wall seen alone, with the rest of its wall unseen, has nothing beyond it and stays."""
+
+
+def off_envelope(lines: NDArray, shares: NDArray, angle_tol_deg: float) -> NDArray[np.bool_]:
+    """(M,) lines that are not the room's inner faces however high their data reaches: judged against
+    the room's walls, the top-reaching lines (share `shares` (M,) of at least one half) at least
+    `ENVELOPE_MIN_WALL_M` long, and the room's interior, their length-weighted centre.
+
+    - behind: on most of its length, the line lies `BEHIND_MIN_M` or more beyond a room wall, the sight
+      line to the interior crossing that wall (or its line within `BEHIND_MARGIN_M` of its ends), from
+      the centre and from a quarter of the way to each room wall: a wall of the next room or the
+      corridor, seen through a door;
+    - furniture in front of a wall (`FURNITURE_MAX_M`, `FURNITURE_OFFSET_M`);
+    - free-standing short lines inside the room (`FREE_MAX_M`, `FREE_END_M`, `FREE_BEYOND_M`), or in
+      front of a room wall's line by `FURNITURE_OFFSET_M`.
+
+    A handheld scan sees no ceiling, so a cabinet as tall as the cut reaches the top of its slice like a
+    wall; it is short in plan and stands off the walls' envelope."""
+    lines = np.asarray(lines, dtype=np.float64)
+    m = len(lines)
+    off = np.zeros(m, dtype=bool)
+    L = lengths(lines)
+    room = np.flatnonzero((shares >= 0.5) & (L >= ENVELOPE_MIN_WALL_M))
+    if m < 2 or len(room) < 2:
+        return off
+    mid = 0.5 * (lines[:, :2] + lines[:, 2:])
+    centre = (mid[room] * L[room, None]).sum(axis=0) / L[room].sum()
+    u = (lines[:, 2:] - lines[:, :2]) / np.maximum(L, 1e-12)[:, None]
+    nrm = np.column_stack([-u[:, 1], u[:, 0]])
+    th = angles(lines)
+    sin_tol = math.sin(math.radians(angle_tol_deg))
+    # behind a room wall: sample every 5 cm; a sample is behind when a room wall hides it from every one
+    # of a few places in the room (the centre, and a quarter of the way from it to each room wall: a
+    # partition stub hides part of the wall beyond it from the centre, not from the rest of the room)
+    pts, owner = sample_segments(lines, 0.05)
+    views = [centre, *(centre + 0.25 * (mid[j] - centre) for j in room)]
+    behind = np.ones(len(pts), dtype=bool)
+    for view in views:
+        hidden = np.zeros(len(pts), dtype=bool)
+        for j in room:
+            a = lines[j, :2]
+            dc = float((view - a) @ nrm[j])
+            if abs(dc) < 1e-6:
+                continue
+            dp = (pts - a) @ nrm[j]
+            beyond = (np.sign(dp) != np.sign(dc)) & (np.abs(dp) >= BEHIND_MIN_M)
+            # where the sight line crosses wall j's line, as a position along it
+            f = dp / (dp - dc)
+            tp = (pts - a) @ u[j]
+            cross = tp + f * (float((view - a) @ u[j]) - tp)
+            hidden |= beyond & (owner != j) & (cross >= -BEHIND_MARGIN_M) & (cross <= L[j] + BEHIND_MARGIN_M)
+        behind &= hidden
+    share_behind = np.bincount(owner, behind, m) / np.maximum(np.bincount(owner, minlength=m), 1)
+    off |= share_behind > 0.5
+    # furniture in front of a room wall (a column shows its other side too, clear of the wall)
+    lo, hi = FURNITURE_OFFSET_M
+    for i in np.flatnonzero(L < FURNITURE_MAX_M):
+        for j in room:
+            if j == i or L[j] < 2 * L[i] or abs(math.sin(th[j] - th[i])) >= sin_tol:
+                continue
+            a = lines[j, :2]
+            d_i = float((mid[i] - a) @ nrm[j])
+            d_c = float((centre - a) @ nrm[j])
+            if not (lo <= abs(d_i) <= hi) or np.sign(d_i) != np.sign(d_c) or abs(d_c) < abs(d_i):
+                continue
+            t = np.sort([(lines[i, :2] - a) @ u[j], (lines[i, 2:] - a) @ u[j]])
+            if min(t[1], L[j]) - max(t[0], 0.0) < 0.8 * (t[1] - t[0]):
+                continue
+            d_k = (mid - a) @ nrm[j]
+            back = (
+                (np.abs(np.sin(th - th[i])) < sin_tol)
+                & (np.sign(d_k) == np.sign(d_i))
+                & (np.abs(d_k) >= lo / 2)
+                & (np.abs(d_k - d_i) >= lo / 2)
+                & (np.abs(d_k - d_i) <= hi)
+                & (L >= 0.7 * L[i])
+                & (L <= L[i] / 0.7)
+            )
+            if not back.any():
+                off[i] = True
+                break
+    # free-standing short lines with a room wall beyond them, away from the centre (inside the room; a
+    # short piece of a wall seen only there has nothing beyond it)
+    ends = np.concatenate([lines[:, :2], lines[:, 2:]])
+    d = point_segment_distances(ends, lines)
+    d[np.arange(2 * m), np.tile(np.arange(m), 2)] = np.inf
+    free = d.min(axis=1) > FREE_END_M
+    for i in np.flatnonzero((L < FREE_MAX_M) & free[:m] & free[m:] & ~off):
+        # in front of a room wall's line (not necessarily of its span: the wall behind may be unseen there)
+        for j in room:
+            d_i = float((mid[i] - lines[j, :2]) @ nrm[j])
+            d_c = float((centre - lines[j, :2]) @ nrm[j])
+            if (
+                abs(math.sin(th[j] - th[i])) < sin_tol
+                and lo <= abs(d_i) <= hi
+                and np.sign(d_i) == np.sign(d_c)
+                and abs(d_c) > abs(d_i)
+            ):
+                off[i] = True
+                break
+        if off[i]:
+            continue
+        out = nrm[i] * (1.0 if float((mid[i] - centre) @ nrm[i]) >= 0 else -1.0)
+        for j in room:
+            if j == i:
+                continue
+            # the ray mid_i + s out meets segment j at s (along the ray) and r (along j, 0..1)
+            e = lines[j, 2:] - lines[j, :2]
+            den = out[0] * -e[1] + out[1] * e[0]
+            if abs(den) < 1e-9:
+                continue
+            w = lines[j, :2] - mid[i]
+            s_ray = (w[0] * -e[1] + w[1] * e[0]) / den
+            r = (out[0] * w[1] - out[1] * w[0]) / den
+            if FREE_END_M < s_ray <= FREE_BEYOND_M and 0.0 <= r <= 1.0:
+                off[i] = True
+                break
+    return off
 
 
 def thin_wall_faces(
@@ -199,6 +353,7 @@ def thin_wall_faces(
     out = np.zeros(len(lines), dtype=bool)
     if cfg.thin_wall_max_m <= 0 or not walls.any() or walls.all():
         return out
+    off = top.off_envelope(lines)
     grid = top.grid
     near = top.near(grid.size)
     sin_tol = math.sin(math.radians(angle_tol_deg))
@@ -214,7 +369,7 @@ def thin_wall_faces(
         hit = near(pts.reshape(-1, 2)).reshape(len(window), len(reach)).any(axis=0)
         return bool(hit.mean() >= 0.5)
 
-    for i in np.flatnonzero(~walls):
+    for i in np.flatnonzero(~walls & ~off):
         a, b = lines[i, :2], lines[i, 2:]
         L = float(np.hypot(*(b - a)))
         if L <= 0:
@@ -259,7 +414,7 @@ def unshadowed_lines(
     cell_xy = np.concatenate([top.xy, sample_segments(lines[walls], top.grid.size)[0]])
     L = lengths(lines)
     bin_m = 0.1
-    for i in np.flatnonzero(~walls & (L >= cfg.open_min_length_m)):
+    for i in np.flatnonzero(~walls & (L >= cfg.open_min_length_m) & ~top.off_envelope(lines)):
         a = lines[i, :2]
         u = (lines[i, 2:] - a) / L[i]
         rel = cell_xy - a
@@ -283,3 +438,123 @@ def _band_half_width(line: NDArray, cell_xy: NDArray, window_m: float = 0.3, sha
     t, d = rel @ u, np.abs(rel @ np.array([-u[1], u[0]]))
     sel = (t >= 0.1 * L) & (t <= 0.9 * L) & (d <= window_m)
     return float(np.quantile(d[sel], share)) if sel.any() else 0.0
+
+
+def _stubs(walls: NDArray, angle_min_deg: float = 45.0) -> list[tuple[int, int]]:
+    """Partition stubs of a wall model (M, 4): (wall, its joined end 0 or 1) for every wall with one free
+    end whose other end stands on another wall's inside (a T, not a corner: the host wall runs on past
+    the foot on both sides) at more than `angle_min_deg` to it."""
+    m = len(walls)
+    if m < 2:
+        return []
+    ends = np.concatenate([walls[:, :2], walls[:, 2:]])
+    d = point_segment_distances(ends, walls)
+    d[np.arange(2 * m), np.tile(np.arange(m), 2)] = np.inf
+    touching = d <= 1e-6
+    L = lengths(walls)
+    th = angles(walls)
+    out = []
+    for i in range(m):
+        free = [not touching[i + k * m].any() for k in (0, 1)]
+        if free[0] == free[1]:
+            continue
+        k = 1 if free[0] else 0  # the joined end
+        p = ends[i + k * m]
+        for j in np.flatnonzero(touching[i + k * m]):
+            t = float((p - walls[j, :2]) @ (walls[j, 2:] - walls[j, :2])) / max(L[j] ** 2, 1e-12) * L[j]
+            if 0.05 < t < L[j] - 0.05 and abs(math.sin(th[i] - th[j])) > math.sin(
+                math.radians(angle_min_deg)
+            ):
+                out.append((i, k))
+                break
+    return out
+
+
+def faces_below_slice(
+    walls: NDArray, points: NDArray, slice_points: NDArray, floor_z_m: float, cfg: WallsConfig, grid_m: float
+) -> tuple[list[NDArray], list[dict[str, Any]]]:
+    """The second faces of partition stubs, looked for in the levelled cloud under the slice.
+
+    A stub of the wall model (`_stubs`: one free end, the other standing on a wall at a T) whose other
+    face the slice does not hold (a face seen only from close range, below the slice): the levelled
+    points (N, 3) between `below_slice_min_z_m` above the floor and the slice's bottom, beside the stub
+    (further than two grid cells, at most `thin_wall_max_m`) and along it, are histogrammed by their
+    offset on either side; the peak (within 2 cm) is a face when its points cover at least
+    `below_slice_min_share` of the stub's length (10 cm bins) and span `min_column_height_m` in height,
+    and the slice holds no data there. Returns each face's points (K, 2) and what was found (for the
+    metrics)."""
+    faces: list[NDArray] = []
+    found: list[dict[str, Any]] = []
+    if cfg.below_slice_min_share <= 0 or cfg.thin_wall_max_m <= 0 or len(walls) < 2 or len(points) == 0:
+        return faces, found
+    z_lo = floor_z_m + cfg.below_slice_min_z_m
+    z_hi = float(slice_points[:, 2].min())
+    below = points[(points[:, 2] >= z_lo) & (points[:, 2] < z_hi)]
+    if len(below) == 0:
+        return faces, found
+    bin_m = 0.1
+    for i, k in _stubs(walls):
+        a = walls[i, 2 * k : 2 * k + 2]
+        b = walls[i, 2 * (1 - k) : 2 * (1 - k) + 2]
+        L = float(np.hypot(*(b - a)))
+        u = (b - a) / L
+        n = np.array([-u[1], u[0]])
+        rel = below[:, :2] - a
+        t, d = rel @ u, rel @ n
+        near = (t >= 0) & (t <= L) & (np.abs(d) > 2 * grid_m) & (np.abs(d) <= cfg.thin_wall_max_m)
+        srel = slice_points[:, :2] - a
+        st, sd = srel @ u, srel @ n
+        s_near = (st >= 0.1 * L) & (st <= 0.9 * L)  # clear of the host wall and the stub's end
+        best = None
+        for side in (1.0, -1.0):
+            sel = near & (side * d > 0)
+            if sel.sum() < 10:
+                continue
+            hist, edges = np.histogram(
+                side * d[sel], bins=np.arange(2 * grid_m, cfg.thin_wall_max_m + 0.01, 0.01)
+            )
+            peak = 0.5 * (edges[np.argmax(hist)] + edges[np.argmax(hist) + 1])
+            on = sel & (np.abs(side * d - peak) <= 0.02)
+            offset = side * float(np.median(side * d[on]))
+            n_bins = max(1, math.ceil(L / bin_m))
+            cover = float(
+                (
+                    np.bincount(np.minimum((t[on] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins) > 0
+                ).mean()
+            )
+            height = float(np.ptp(below[on, 2]))
+            s_on = s_near & (np.abs(sd - offset) <= 0.02)
+            in_slice = np.bincount(
+                np.minimum((st[s_on] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins
+            )
+            seen = float((in_slice > 0).mean())  # the slice holds that face there already
+            if cover >= cfg.below_slice_min_share and height >= cfg.min_column_height_m and seen < 0.2:
+                if best is None or cover > best[0]:
+                    best = (cover, offset, on, height)
+        if best is None:
+            continue
+        cover, offset, on, height = best
+        faces.append(below[on, :2])
+        found.append(
+            {
+                "stub": [round(float(v), 3) for v in walls[i]],
+                "offset_m": round(offset, 4),
+                "cover": round(cover, 3),
+                "height_span_m": round(height, 3),
+                "points": int(on.sum()),
+            }
+        )
+    return faces, found
+
+
+def lifted(faces: list[NDArray], z_lo: float, z_hi: float, step_m: float) -> NDArray:
+    """The faces' points (K, 2 each), one per `step_m` cell, stood up over the slice's height band
+    [z_lo, z_hi] every `step_m` (M, 3): a partition goes from floor to ceiling, so the face seen under the
+    slice stands in it as the wall it is."""
+    if not faces:
+        return np.zeros((0, 3))
+    xy = np.concatenate(faces)
+    _, first = np.unique(np.floor(xy / step_m).astype(np.int64), axis=0, return_index=True)
+    xy = xy[np.sort(first)]
+    z = np.arange(z_lo, z_hi + 1e-9, step_m)
+    return np.column_stack([np.repeat(xy, len(z), axis=0), np.tile(z, len(xy))])

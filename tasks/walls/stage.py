@@ -15,7 +15,8 @@ from tasks import artefacts as art
 from tasks.context import StageContext
 from tasks.preview import retitle
 from tasks.walls.config import WallsConfig
-from tasks.walls.model import model_walls
+from tasks.walls.evidence import faces_below_slice, lifted
+from tasks.walls.model import WallModel, model_walls
 
 
 def levelled_to_input(levelling: dict[str, Any]) -> tuple[NDArray[np.float64], float]:
@@ -57,13 +58,39 @@ def wall_features(
     return features
 
 
+def model_with_faces_below(
+    slice_points: NDArray[np.float64],
+    levelled: NDArray[np.float64],
+    floor_z_m: float,
+    ceiling_z_m: float,
+    cfg: WallsConfig,
+) -> tuple[WallModel, list[dict[str, Any]]]:
+    """The wall model of the slice (N, 3); when a partition stub's second face is found in the levelled
+    cloud (L, 3) under the slice (`evidence.faces_below_slice`), that face stood up in the slice and the
+    model made again (the only extra cost, and only then). Returns the model and the faces found."""
+    model = model_walls(slice_points, floor_z_m, ceiling_z_m, cfg)
+    if cfg.below_slice_min_share <= 0 or len(model.walls) < 2:
+        return model, []
+    grid = float(model.metrics["grid_size_m"])
+    faces, found = faces_below_slice(model.walls, levelled, slice_points, floor_z_m, cfg, grid)
+    if not faces:
+        return model, []
+    z = slice_points[:, 2]
+    extra = lifted(faces, float(z.min()), float(z.max()), grid)
+    return model_walls(np.concatenate([slice_points, extra]), floor_z_m, ceiling_z_m, cfg), found
+
+
 def run(ctx: StageContext, cfg: WallsConfig, out: Path) -> dict[str, Any]:
     """The room's walls (`walls.parquet`), plan (`plan.geojson`), extruded model (`model.ply`) and preview
     (`preview.png`) from the preprocess stage's furniture slice and levelling."""
     pre = ctx.upstream["preprocess"]
     levelling = art.read_json(pre.file("levelling.json"))
     slice_cloud = art.read_cloud(pre.file("slice.ply"))
-    model = model_walls(slice_cloud.points, levelling["floor_z_m"], levelling["ceiling_z_m"], cfg)
+    # the levelled cloud: a partition's second face may have been seen only under the slice
+    levelled = art.read_cloud(pre.file("levelled.ply"))
+    model, below = model_with_faces_below(
+        slice_cloud.points, levelled.points, levelling["floor_z_m"], levelling["ceiling_z_m"], cfg
+    )
     # A given cloud's frame means something (a TLS survey's, the user's): walls go back into it. A frame
     # made by registration is arbitrary and maybe tilted: walls stay in the levelled (z up) room frame.
     if levelling.get("source") == "register":
@@ -105,5 +132,11 @@ def run(ctx: StageContext, cfg: WallsConfig, out: Path) -> dict[str, Any]:
     art.write_png(out / "preview.png", retitle(model.preview, f"room {ctx.room}: walls"))
     return {
         "frame": frame,
-        "metrics": {**model.metrics, "walls": len(walls), "closed": model.closed, "alpha": model.alpha},
+        "metrics": {
+            **model.metrics,
+            "walls": len(walls),
+            "closed": model.closed,
+            "alpha": model.alpha,
+            "faces_below_slice": below,
+        },
     }
