@@ -1,5 +1,5 @@
 """A partition stub's second face seen only under the slice (`tasks.walls.evidence.faces_below_slice`,
-`tasks.walls.stage.model_with_faces_below`): synthetic rooms with known answers."""
+`tasks.walls.stage.room_model`): synthetic rooms with known answers."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from tasks.evaluate import evaluate_walls
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import _stubs, faces_below_slice, lifted
-from tasks.walls.stage import model_with_faces_below
+from tasks.walls.stage import room_model
 
 CFG = WallsConfig()
 
@@ -58,11 +58,12 @@ def test_a_stub_face_seen_only_under_the_slice_is_found_and_modelled(rng):
     stub is a single dangling wall, with it the stub has both faces and its end, the 0.1 m thickness."""
     levelled, truth = stub_room(rng, north_top=1.3)
     slice_points = in_band(levelled)
-    off, _ = model_with_faces_below(slice_points, levelled, 0.0, 2.5, replace(CFG, below_slice_min_share=0))
+    off, _ = room_model(slice_points, levelled, 0.0, 2.5, replace(CFG, below_slice_min_share=0))
     assert len(_stubs(off.walls)) == 1  # one face: the stub dangles from the west wall
     at_north = np.abs(off.walls[:, [1, 3]] - 1.55).max(axis=1) < 0.02
     assert not at_north.any()  # (within the scoring's 10 cm the south face stands for both)
-    model, found = model_with_faces_below(slice_points, levelled, 0.0, 2.5, CFG)
+    model, choices = room_model(slice_points, levelled, 0.0, 2.5, CFG)
+    found = choices["faces_below_slice"]
     assert len(found) == 1 and found[0]["offset_m"] == pytest.approx(0.1, abs=0.01), found
     assert found[0]["cover"] >= 0.9
     ev = evaluate_walls(model.walls, truth)
@@ -75,8 +76,8 @@ def test_a_face_already_in_the_slice_or_a_corner_is_left_alone(rng):
     """Both faces in the slice: nothing is looked for (no stub dangles). A room corner is not a stub."""
     levelled, _ = stub_room(rng, north_top=2.5)
     slice_points = in_band(levelled)
-    _, found = model_with_faces_below(slice_points, levelled, 0.0, 2.5, CFG)
-    assert found == []
+    _, choices = room_model(slice_points, levelled, 0.0, 2.5, CFG)
+    assert choices["faces_below_slice"] == [] and not choices["grid_from_noise"]
     corner = np.array([[0, 0, 4, 0], [4, 0, 4, 3]], dtype=float)
     assert _stubs(corner) == []
     t_stub = np.array([[0, 0, 4, 0], [2, 0, 2, 1.5]], dtype=float)
@@ -98,3 +99,21 @@ def test_lifted_faces_fill_the_band_once_per_cell():
     out = lifted([xy], 1.5, 1.6, 0.05)
     assert out.shape == (2 * 3, 3)  # two cells, three heights (1.5, 1.55, 1.6)
     assert np.allclose(np.unique(out[:, 2]), [1.5, 1.55, 1.6])
+
+
+def test_a_smeared_cloud_gets_a_grid_of_its_noise(rng):
+    """Walls smeared over 3 cm (sigma; a real handheld cloud's registration): the points' spread about the
+    walls is measured as 3 cm, the model is made again on a 3 cm grid, and it is the box."""
+    c = [(0, 0), (4, 0), (4, 3), (0, 3)]
+    smeared = np.concatenate(
+        [face(c[i], c[(i + 1) % 4], 1.5, 2.4, rng, step=0.02, noise=0.03) for i in range(4)]
+    )
+    model, choices = room_model(smeared, smeared, 0.0, 2.5, CFG)
+    assert choices["grid_from_noise"] and choices["wall_noise_m"] == pytest.approx(0.03, abs=0.006), choices
+    assert model.metrics["grid_size_m"] == pytest.approx(choices["wall_noise_m"], abs=0.001)
+    truth = np.array([[*c[i], *c[(i + 1) % 4]] for i in range(4)], dtype=float)
+    ev = evaluate_walls(model.walls, truth)
+    assert model.closed and ev["completeness"] >= 0.95 and ev["correctness"] >= 0.95, ev
+    crisp = np.concatenate([face(c[i], c[(i + 1) % 4], 1.5, 2.4, rng, noise=0.003) for i in range(4)])
+    _, crisp_choices = room_model(crisp, crisp, 0.0, 2.5, CFG)
+    assert not crisp_choices["grid_from_noise"] and crisp_choices["wall_noise_m"] < 0.01

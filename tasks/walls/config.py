@@ -21,6 +21,14 @@ class WallsConfig:
     grid_spacing_ratio: float = 0.5
     """Grid = this times the slice's median nearest-neighbour spacing, when that is above `grid_size_m`
     (two cells per point spacing: the 3x3 closing bridges the one empty cell between points)."""
+    grid_noise_ratio: float = 1.5
+    """When the slice's points spread about the walls found (1.4826 x the median distance of those within
+    `noise_band_m`: a Gaussian's sigma) by more than this times the grid, the walls stage makes the model again
+    on a grid of that spread (table 6.3: the grid from the cloud's noise): a real handheld cloud's walls,
+    smeared over centimetres by registration, fall apart into dots on a grid finer than that. 0 switches it
+    off."""
+    noise_band_m: float = 0.1
+    """...the points within this distance of a wall count for its spread."""
     gray_levels: int = 255
     """G in eq 5.3 / 5.5."""
     binarization: Literal["alpha", "gaussian"] = "alpha"

@@ -228,6 +228,8 @@ def off_envelope(lines: NDArray, shares: NDArray, angle_tol_deg: float) -> NDArr
       line to the interior crossing that wall (or its line within `BEHIND_MARGIN_M` of its ends), from
       the centre and from a quarter of the way to each room wall: a wall of the next room or the
       corridor, seen through a door;
+    - beyond the envelope: parallel to the outermost room wall of its direction, `BEHIND_MIN_M` or more
+      beyond it, mostly within the room's extent (that wall may be unseen where the line lies);
     - furniture in front of a wall (`FURNITURE_MAX_M`, `FURNITURE_OFFSET_M`);
     - free-standing short lines inside the room (`FREE_MAX_M`, `FREE_END_M`, `FREE_BEYOND_M`), or in
       front of a room wall's line by `FURNITURE_OFFSET_M`.
@@ -270,6 +272,28 @@ def off_envelope(lines: NDArray, shares: NDArray, angle_tol_deg: float) -> NDArr
         behind &= hidden
     share_behind = np.bincount(owner, behind, m) / np.maximum(np.bincount(owner, minlength=m), 1)
     off |= share_behind > 0.5
+    # beyond the room's envelope: parallel to and `BEHIND_MIN_M` beyond the outermost room wall of its
+    # direction on that side, within the room's extent along it (that wall's line extended to meet the
+    # others: the rest of it may be unseen)
+    room_ends = np.concatenate([lines[room, :2], lines[room, 2:]])
+    for j in room:
+        a = lines[j, :2]
+        d_c = float((centre - a) @ nrm[j])
+        if abs(d_c) < 1e-6:
+            continue
+        out_j = -math.copysign(1.0, d_c)  # the side away from the room
+        parallel = np.abs(np.sin(th - th[j])) < sin_tol
+        d_mid = (mid - a) @ nrm[j] * out_j
+        if (parallel[room] & (d_mid[room] > BEHIND_MARGIN_M)).any():
+            continue  # another room wall stands further out: j is not the envelope on this side
+        t_room = (room_ends - a) @ u[j]
+        t_lo, t_hi = float(t_room.min()) - BEHIND_MARGIN_M, float(t_room.max()) + BEHIND_MARGIN_M
+        t_i = np.column_stack([(lines[:, :2] - a) @ u[j], (lines[:, 2:] - a) @ u[j]])
+        span = np.maximum(t_i.max(axis=1) - t_i.min(axis=1), 1e-9)
+        inside = np.minimum(t_i.max(axis=1), t_hi) - np.maximum(t_i.min(axis=1), t_lo) >= 0.5 * span
+        beyond = parallel & (d_mid >= BEHIND_MIN_M) & inside
+        beyond[room] = False
+        off |= beyond
     # furniture in front of a room wall (a column shows its other side too, clear of the wall)
     lo, hi = FURNITURE_OFFSET_M
     for i in np.flatnonzero(L < FURNITURE_MAX_M):
