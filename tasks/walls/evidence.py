@@ -136,14 +136,6 @@ class TopCells:
         rows, cols = np.nonzero(cells)
         self.xy = grid.to_metres(np.column_stack([cols, rows]))  # (K, 2)
         self._near: dict[float, Any] = {}
-        self._off: dict[bytes, NDArray[np.bool_]] = {}
-
-    def off_envelope(self, lines: NDArray) -> NDArray[np.bool_]:
-        """(M,) the lines that `top_reach_shares` found off the room's envelope (behind a wall, or furniture
-        in front of one or standing free); all False for lines it has not judged."""
-        return self._off.get(
-            np.ascontiguousarray(lines, dtype=np.float64).tobytes(), np.zeros(len(lines), bool)
-        )
 
     def near(self, tol_m: float):
         """near(points (P, 2)) -> (P,) bool: such a cell lies within tol_m of the point."""
@@ -160,22 +152,16 @@ def top_reach_shares(lines: NDArray, top: TopCells, tol_m: float, angle_tol_deg:
     it (a cabinet's side standing against a wall, and seen from across a large room, range noise spreads
     a wall over decimetres), which says nothing about its own top. A band's half-width is the 90th
     percentile of the distance of the top-reaching cells along that line, plus `tol_m`. A line lying
-    entirely in such bands gets 0.
-
-    A line off the room's envelope (`off_envelope`: seen behind one of the room's walls, through a door,
-    or furniture in front of a wall or standing free in the room) gets 0 too: where no ceiling was
-    captured everything tall enough reaches the slice top, and this is what tells them from walls."""
+    entirely in such bands gets 0."""
     if len(lines) == 0:
         return np.zeros(0)
     pts, owner = sample_segments(lines, top.grid.size)
     hit = top.near(tol_m)(pts)
     count = np.bincount(owner, minlength=len(lines)).astype(np.float64)
     shares = np.bincount(owner, hit, len(lines)) / count
-    off = off_envelope(lines, shares, angle_tol_deg)
-    top._off[np.ascontiguousarray(lines, dtype=np.float64).tobytes()] = off
-    strong = np.flatnonzero((shares >= 0.5) & ~off)
+    strong = np.flatnonzero(shares >= 0.5)
     if len(strong) == 0:
-        return np.where(off, 0.0, shares)
+        return shares
     cell_xy = top.xy
     th = angles(lines)
     L = lengths(lines)
@@ -193,171 +179,7 @@ def top_reach_shares(lines: NDArray, top: TopCells, tol_m: float, angle_tol_deg:
             covered |= point_segment_distances(pts[mine], lines[j : j + 1])[:, 0] <= band[j]
         free = mine[~covered]
         shares[i] = float(hit[free].mean()) if len(free) else 0.0
-    return np.where(off, 0.0, shares)
-
-
-ENVELOPE_MIN_WALL_M = 1.0
-"""`off_envelope`: the room's walls that others are judged against are top-reaching lines this long."""
-BEHIND_MIN_M = 0.8
-"""A line at least this far beyond a room wall (seen from the room) on most of its length was seen
-through a door or a window: deeper than a wall is thick and than an alcove, as near as a corridor's far
-wall."""
-BEHIND_MARGIN_M = 0.5
-"""...when the sight line from the room crosses that wall, or its line within this of its ends."""
-FURNITURE_MAX_M = 1.5
-"""A line shorter than this, parallel to a room wall at least twice as long, in front of it (on the room's
-side) by `FURNITURE_OFFSET_M` and beside it on most of its length, is furniture against that wall, unless
-a parallel face of its length stands before or behind it clear of the wall (a column's other side)."""
-FURNITURE_OFFSET_M = (0.1, 1.0)
-"""...offset range from the wall (m): beyond a wall's jog and noise, within a cabinet's depth and reach."""
-FREE_MAX_M = 1.0
-"""A line shorter than this with no other line within `FREE_END_M` of either end stands free in the room:
-a wardrobe's or a shelf's side, not a wall (a partition stub stands on a wall, a column's faces meet)."""
-FREE_END_M = 0.3
-FREE_BEYOND_M = 4.0
-"""...and with a room wall beyond it (away from the room's centre) within this distance: it stands inside
-the room. A piece of wall seen alone, with the rest of its wall unseen, has nothing beyond it and stays."""
-
-
-def off_envelope(lines: NDArray, shares: NDArray, angle_tol_deg: float) -> NDArray[np.bool_]:
-    """(M,) lines that are not the room's inner faces however high their data reaches: judged against
-    the room's walls, the top-reaching lines (share `shares` (M,) of at least one half) at least
-    `ENVELOPE_MIN_WALL_M` long, and the room's interior, their length-weighted centre.
-
-    - behind: on most of its length, the line lies `BEHIND_MIN_M` or more beyond a room wall, the sight
-      line to the interior crossing that wall (or its line within `BEHIND_MARGIN_M` of its ends), from
-      the centre and from a quarter of the way to each room wall: a wall of the next room or the
-      corridor, seen through a door;
-    - beyond the envelope: parallel to the outermost room wall of its direction, `BEHIND_MIN_M` or more
-      beyond it, mostly within the room's extent (that wall may be unseen where the line lies);
-    - furniture in front of a wall (`FURNITURE_MAX_M`, `FURNITURE_OFFSET_M`);
-    - free-standing short lines inside the room (`FREE_MAX_M`, `FREE_END_M`, `FREE_BEYOND_M`), or in
-      front of a room wall's line by `FURNITURE_OFFSET_M`.
-
-    A handheld scan sees no ceiling, so a cabinet as tall as the cut reaches the top of its slice like a
-    wall; it is short in plan and stands off the walls' envelope."""
-    lines = np.asarray(lines, dtype=np.float64)
-    m = len(lines)
-    off = np.zeros(m, dtype=bool)
-    L = lengths(lines)
-    room = np.flatnonzero((shares >= 0.5) & (L >= ENVELOPE_MIN_WALL_M))
-    if m < 2 or len(room) < 2:
-        return off
-    mid = 0.5 * (lines[:, :2] + lines[:, 2:])
-    centre = (mid[room] * L[room, None]).sum(axis=0) / L[room].sum()
-    u = (lines[:, 2:] - lines[:, :2]) / np.maximum(L, 1e-12)[:, None]
-    nrm = np.column_stack([-u[:, 1], u[:, 0]])
-    th = angles(lines)
-    sin_tol = math.sin(math.radians(angle_tol_deg))
-    # behind a room wall: sample every 5 cm; a sample is behind when a room wall hides it from every one
-    # of a few places in the room (the centre, and a quarter of the way from it to each room wall: a
-    # partition stub hides part of the wall beyond it from the centre, not from the rest of the room)
-    pts, owner = sample_segments(lines, 0.05)
-    views = [centre, *(centre + 0.25 * (mid[j] - centre) for j in room)]
-    behind = np.ones(len(pts), dtype=bool)
-    for view in views:
-        hidden = np.zeros(len(pts), dtype=bool)
-        for j in room:
-            a = lines[j, :2]
-            dc = float((view - a) @ nrm[j])
-            if abs(dc) < 1e-6:
-                continue
-            dp = (pts - a) @ nrm[j]
-            beyond = (np.sign(dp) != np.sign(dc)) & (np.abs(dp) >= BEHIND_MIN_M)
-            # where the sight line crosses wall j's line, as a position along it
-            f = dp / (dp - dc)
-            tp = (pts - a) @ u[j]
-            cross = tp + f * (float((view - a) @ u[j]) - tp)
-            hidden |= beyond & (owner != j) & (cross >= -BEHIND_MARGIN_M) & (cross <= L[j] + BEHIND_MARGIN_M)
-        behind &= hidden
-    share_behind = np.bincount(owner, behind, m) / np.maximum(np.bincount(owner, minlength=m), 1)
-    off |= share_behind > 0.5
-    # beyond the room's envelope: parallel to and `BEHIND_MIN_M` beyond the outermost room wall of its
-    # direction on that side, within the room's extent along it (that wall's line extended to meet the
-    # others: the rest of it may be unseen)
-    room_ends = np.concatenate([lines[room, :2], lines[room, 2:]])
-    for j in room:
-        a = lines[j, :2]
-        d_c = float((centre - a) @ nrm[j])
-        if abs(d_c) < 1e-6:
-            continue
-        out_j = -math.copysign(1.0, d_c)  # the side away from the room
-        parallel = np.abs(np.sin(th - th[j])) < sin_tol
-        d_mid = (mid - a) @ nrm[j] * out_j
-        if (parallel[room] & (d_mid[room] > BEHIND_MARGIN_M)).any():
-            continue  # another room wall stands further out: j is not the envelope on this side
-        t_room = (room_ends - a) @ u[j]
-        t_lo, t_hi = float(t_room.min()) - BEHIND_MARGIN_M, float(t_room.max()) + BEHIND_MARGIN_M
-        t_i = np.column_stack([(lines[:, :2] - a) @ u[j], (lines[:, 2:] - a) @ u[j]])
-        span = np.maximum(t_i.max(axis=1) - t_i.min(axis=1), 1e-9)
-        inside = np.minimum(t_i.max(axis=1), t_hi) - np.maximum(t_i.min(axis=1), t_lo) >= 0.5 * span
-        beyond = parallel & (d_mid >= BEHIND_MIN_M) & inside
-        beyond[room] = False
-        off |= beyond
-    # furniture in front of a room wall (a column shows its other side too, clear of the wall)
-    lo, hi = FURNITURE_OFFSET_M
-    for i in np.flatnonzero(L < FURNITURE_MAX_M):
-        for j in room:
-            if j == i or L[j] < 2 * L[i] or abs(math.sin(th[j] - th[i])) >= sin_tol:
-                continue
-            a = lines[j, :2]
-            d_i = float((mid[i] - a) @ nrm[j])
-            d_c = float((centre - a) @ nrm[j])
-            if not (lo <= abs(d_i) <= hi) or np.sign(d_i) != np.sign(d_c) or abs(d_c) < abs(d_i):
-                continue
-            t = np.sort([(lines[i, :2] - a) @ u[j], (lines[i, 2:] - a) @ u[j]])
-            if min(t[1], L[j]) - max(t[0], 0.0) < 0.8 * (t[1] - t[0]):
-                continue
-            d_k = (mid - a) @ nrm[j]
-            back = (
-                (np.abs(np.sin(th - th[i])) < sin_tol)
-                & (np.sign(d_k) == np.sign(d_i))
-                & (np.abs(d_k) >= lo / 2)
-                & (np.abs(d_k - d_i) >= lo / 2)
-                & (np.abs(d_k - d_i) <= hi)
-                & (L >= 0.7 * L[i])
-                & (L <= L[i] / 0.7)
-            )
-            if not back.any():
-                off[i] = True
-                break
-    # free-standing short lines with a room wall beyond them, away from the centre (inside the room; a
-    # short piece of a wall seen only there has nothing beyond it)
-    ends = np.concatenate([lines[:, :2], lines[:, 2:]])
-    d = point_segment_distances(ends, lines)
-    d[np.arange(2 * m), np.tile(np.arange(m), 2)] = np.inf
-    free = d.min(axis=1) > FREE_END_M
-    for i in np.flatnonzero((L < FREE_MAX_M) & free[:m] & free[m:] & ~off):
-        # in front of a room wall's line (not necessarily of its span: the wall behind may be unseen there)
-        for j in room:
-            d_i = float((mid[i] - lines[j, :2]) @ nrm[j])
-            d_c = float((centre - lines[j, :2]) @ nrm[j])
-            if (
-                abs(math.sin(th[j] - th[i])) < sin_tol
-                and lo <= abs(d_i) <= hi
-                and np.sign(d_i) == np.sign(d_c)
-                and abs(d_c) > abs(d_i)
-            ):
-                off[i] = True
-                break
-        if off[i]:
-            continue
-        out = nrm[i] * (1.0 if float((mid[i] - centre) @ nrm[i]) >= 0 else -1.0)
-        for j in room:
-            if j == i:
-                continue
-            # the ray mid_i + s out meets segment j at s (along the ray) and r (along j, 0..1)
-            e = lines[j, 2:] - lines[j, :2]
-            den = out[0] * -e[1] + out[1] * e[0]
-            if abs(den) < 1e-9:
-                continue
-            w = lines[j, :2] - mid[i]
-            s_ray = (w[0] * -e[1] + w[1] * e[0]) / den
-            r = (out[0] * w[1] - out[1] * w[0]) / den
-            if FREE_END_M < s_ray <= FREE_BEYOND_M and 0.0 <= r <= 1.0:
-                off[i] = True
-                break
-    return off
+    return shares
 
 
 def thin_wall_faces(
@@ -377,7 +199,6 @@ def thin_wall_faces(
     out = np.zeros(len(lines), dtype=bool)
     if cfg.thin_wall_max_m <= 0 or not walls.any() or walls.all():
         return out
-    off = top.off_envelope(lines)
     grid = top.grid
     near = top.near(grid.size)
     sin_tol = math.sin(math.radians(angle_tol_deg))
@@ -393,7 +214,7 @@ def thin_wall_faces(
         hit = near(pts.reshape(-1, 2)).reshape(len(window), len(reach)).any(axis=0)
         return bool(hit.mean() >= 0.5)
 
-    for i in np.flatnonzero(~walls & ~off):
+    for i in np.flatnonzero(~walls):
         a, b = lines[i, :2], lines[i, 2:]
         L = float(np.hypot(*(b - a)))
         if L <= 0:
@@ -438,7 +259,7 @@ def unshadowed_lines(
     cell_xy = np.concatenate([top.xy, sample_segments(lines[walls], top.grid.size)[0]])
     L = lengths(lines)
     bin_m = 0.1
-    for i in np.flatnonzero(~walls & (L >= cfg.open_min_length_m) & ~top.off_envelope(lines)):
+    for i in np.flatnonzero(~walls & (L >= cfg.open_min_length_m)):
         a = lines[i, :2]
         u = (lines[i, 2:] - a) / L[i]
         rel = cell_xy - a
