@@ -639,13 +639,19 @@ def degrade_handheld(
     along = pts[:, :2] @ np.array([math.cos(phi), math.sin(phi)])
     if floor.any():
         keep &= ~floor | (along <= np.quantile(along[floor], floor_share))
-    pts = pts[keep]
-    # random subsampling: one random point per cube of the spacing
-    order = rng.permutation(len(pts))
-    cells = np.floor(pts[order] / spacing).astype(np.int64)
-    _, first_idx = np.unique(cells, axis=0, return_index=True)
-    out = pts[np.sort(order[first_idx])]
+    out = random_subsample(pts[keep], spacing, rng)
     return out, HandheldDegradation(spacing, cut, unseen_share, floor_share, unseen, seen)
+
+
+def random_subsample(
+    points: NDArray[np.float64], spacing_m: float, rng: np.random.Generator
+) -> NDArray[np.float64]:
+    """One random point (N, 3) of each cube of `spacing_m` that holds any: a handheld scan's sparse
+    spacing."""
+    order = rng.permutation(len(points))
+    cells = np.floor(points[order] / spacing_m).astype(np.int64)
+    _, first_idx = np.unique(cells, axis=0, return_index=True)
+    return points[np.sort(order[first_idx])]
 
 
 def wall_labels(

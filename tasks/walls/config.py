@@ -21,6 +21,14 @@ class WallsConfig:
     grid_spacing_ratio: float = 0.5
     """Grid = this times the slice's median nearest-neighbour spacing, when that is above `grid_size_m`
     (two cells per point spacing: the 3x3 closing bridges the one empty cell between points)."""
+    grid_noise_ratio: float = 1.5
+    """When the slice's points spread about the walls found (1.4826 x the median distance of those within
+    `noise_band_m`: a Gaussian's sigma) by more than this times the grid, the walls stage makes the model again
+    on a grid of that spread (table 6.3: the grid from the cloud's noise): a real handheld cloud's walls,
+    smeared over centimetres by registration, fall apart into dots on a grid finer than that. 0 switches it
+    off."""
+    noise_band_m: float = 0.1
+    """...the points within this distance of a wall count for its spread."""
     gray_levels: int = 255
     """G in eq 5.3 / 5.5."""
     binarization: Literal["alpha", "gaussian"] = "alpha"
@@ -51,6 +59,13 @@ class WallsConfig:
     """The two faces of such a wall end within this distance of each other, at the wall's free end."""
     thin_wall_clear_m: float = 0.3
     """...where no wall runs on beside the end, outward of either face, this far (a corner's wall would)."""
+    below_slice_min_share: float = 0.5
+    """A partition stub (a wall with a free end standing on another at a T) whose second face the slice does
+    not hold takes it from the levelled cloud under the slice (`evidence.faces_below_slice`: a face seen only
+    from close range, below the camera's view of the slice) when that face's points cover at least this
+    share of the stub's length; 0 switches that off."""
+    below_slice_min_z_m: float = 0.3
+    """...looking from this height above the floor (skirting boards and what lies on the floor stay out)."""
     shadow_m: float = 1.0
     """A line below the slice top is still a wall when it is at least `open_min_length_m` long and data
     reaching the top lies within this distance beside it (further than `shadow_gap_m`) along less than half

@@ -283,3 +283,123 @@ def _band_half_width(line: NDArray, cell_xy: NDArray, window_m: float = 0.3, sha
     t, d = rel @ u, np.abs(rel @ np.array([-u[1], u[0]]))
     sel = (t >= 0.1 * L) & (t <= 0.9 * L) & (d <= window_m)
     return float(np.quantile(d[sel], share)) if sel.any() else 0.0
+
+
+def _stubs(walls: NDArray, angle_min_deg: float = 45.0) -> list[tuple[int, int]]:
+    """Partition stubs of a wall model (M, 4): (wall, its joined end 0 or 1) for every wall with one free
+    end whose other end stands on another wall's inside (a T, not a corner: the host wall runs on past
+    the foot on both sides) at more than `angle_min_deg` to it."""
+    m = len(walls)
+    if m < 2:
+        return []
+    ends = np.concatenate([walls[:, :2], walls[:, 2:]])
+    d = point_segment_distances(ends, walls)
+    d[np.arange(2 * m), np.tile(np.arange(m), 2)] = np.inf
+    touching = d <= 1e-6
+    L = lengths(walls)
+    th = angles(walls)
+    out = []
+    for i in range(m):
+        free = [not touching[i + k * m].any() for k in (0, 1)]
+        if free[0] == free[1]:
+            continue
+        k = 1 if free[0] else 0  # the joined end
+        p = ends[i + k * m]
+        for j in np.flatnonzero(touching[i + k * m]):
+            t = float((p - walls[j, :2]) @ (walls[j, 2:] - walls[j, :2])) / max(L[j] ** 2, 1e-12) * L[j]
+            if 0.05 < t < L[j] - 0.05 and abs(math.sin(th[i] - th[j])) > math.sin(
+                math.radians(angle_min_deg)
+            ):
+                out.append((i, k))
+                break
+    return out
+
+
+def faces_below_slice(
+    walls: NDArray, points: NDArray, slice_points: NDArray, floor_z_m: float, cfg: WallsConfig, grid_m: float
+) -> tuple[list[NDArray], list[dict[str, Any]]]:
+    """The second faces of partition stubs, looked for in the levelled cloud under the slice.
+
+    A stub of the wall model (`_stubs`: one free end, the other standing on a wall at a T) whose other
+    face the slice does not hold (a face seen only from close range, below the slice): the levelled
+    points (N, 3) between `below_slice_min_z_m` above the floor and the slice's bottom, beside the stub
+    (further than two grid cells, at most `thin_wall_max_m`) and along it, are histogrammed by their
+    offset on either side; the peak (within 2 cm) is a face when its points cover at least
+    `below_slice_min_share` of the stub's length (10 cm bins) and span `min_column_height_m` in height,
+    and the slice holds no data there. Returns each face's points (K, 2) and what was found (for the
+    metrics)."""
+    faces: list[NDArray] = []
+    found: list[dict[str, Any]] = []
+    if cfg.below_slice_min_share <= 0 or cfg.thin_wall_max_m <= 0 or len(walls) < 2 or len(points) == 0:
+        return faces, found
+    z_lo = floor_z_m + cfg.below_slice_min_z_m
+    z_hi = float(slice_points[:, 2].min())
+    below = points[(points[:, 2] >= z_lo) & (points[:, 2] < z_hi)]
+    if len(below) == 0:
+        return faces, found
+    bin_m = 0.1
+    for i, k in _stubs(walls):
+        a = walls[i, 2 * k : 2 * k + 2]
+        b = walls[i, 2 * (1 - k) : 2 * (1 - k) + 2]
+        L = float(np.hypot(*(b - a)))
+        u = (b - a) / L
+        n = np.array([-u[1], u[0]])
+        rel = below[:, :2] - a
+        t, d = rel @ u, rel @ n
+        near = (t >= 0) & (t <= L) & (np.abs(d) > 2 * grid_m) & (np.abs(d) <= cfg.thin_wall_max_m)
+        srel = slice_points[:, :2] - a
+        st, sd = srel @ u, srel @ n
+        s_near = (st >= 0.1 * L) & (st <= 0.9 * L)  # clear of the host wall and the stub's end
+        best = None
+        for side in (1.0, -1.0):
+            sel = near & (side * d > 0)
+            if sel.sum() < 10:
+                continue
+            hist, edges = np.histogram(
+                side * d[sel], bins=np.arange(2 * grid_m, cfg.thin_wall_max_m + 0.01, 0.01)
+            )
+            peak = 0.5 * (edges[np.argmax(hist)] + edges[np.argmax(hist) + 1])
+            on = sel & (np.abs(side * d - peak) <= 0.02)
+            offset = side * float(np.median(side * d[on]))
+            n_bins = max(1, math.ceil(L / bin_m))
+            cover = float(
+                (
+                    np.bincount(np.minimum((t[on] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins) > 0
+                ).mean()
+            )
+            height = float(np.ptp(below[on, 2]))
+            s_on = s_near & (np.abs(sd - offset) <= 0.02)
+            in_slice = np.bincount(
+                np.minimum((st[s_on] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins
+            )
+            seen = float((in_slice > 0).mean())  # the slice holds that face there already
+            if cover >= cfg.below_slice_min_share and height >= cfg.min_column_height_m and seen < 0.2:
+                if best is None or cover > best[0]:
+                    best = (cover, offset, on, height)
+        if best is None:
+            continue
+        cover, offset, on, height = best
+        faces.append(below[on, :2])
+        found.append(
+            {
+                "stub": [round(float(v), 3) for v in walls[i]],
+                "offset_m": round(offset, 4),
+                "cover": round(cover, 3),
+                "height_span_m": round(height, 3),
+                "points": int(on.sum()),
+            }
+        )
+    return faces, found
+
+
+def lifted(faces: list[NDArray], z_lo: float, z_hi: float, step_m: float) -> NDArray:
+    """The faces' points (K, 2 each), one per `step_m` cell, stood up over the slice's height band
+    [z_lo, z_hi] every `step_m` (M, 3): a partition goes from floor to ceiling, so the face seen under the
+    slice stands in it as the wall it is."""
+    if not faces:
+        return np.zeros((0, 3))
+    xy = np.concatenate(faces)
+    _, first = np.unique(np.floor(xy / step_m).astype(np.int64), axis=0, return_index=True)
+    xy = xy[np.sort(first)]
+    z = np.arange(z_lo, z_hi + 1e-9, step_m)
+    return np.column_stack([np.repeat(xy, len(z), axis=0), np.tile(z, len(xy))])

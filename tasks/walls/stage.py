@@ -3,6 +3,7 @@ preview out, in the input cloud's own frame when that frame means something."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,8 @@ from tasks import artefacts as art
 from tasks.context import StageContext
 from tasks.preview import retitle
 from tasks.walls.config import WallsConfig
-from tasks.walls.model import model_walls
+from tasks.walls.evidence import faces_below_slice, lifted
+from tasks.walls.model import WallModel, model_walls
 
 
 def levelled_to_input(levelling: dict[str, Any]) -> tuple[NDArray[np.float64], float]:
@@ -57,13 +59,72 @@ def wall_features(
     return features
 
 
+def wall_noise(slice_points: NDArray[np.float64], walls: NDArray[np.float64], band_m: float) -> float:
+    """The slice points' spread about the walls (M, 4): 1.4826 x the median plan distance of the points
+    (N, 3) within `band_m` of a wall (a Gaussian's sigma); 0 without such points."""
+    from tasks.lines import point_segment_distances
+
+    if len(walls) == 0:
+        return 0.0
+    d = np.concatenate(
+        [
+            point_segment_distances(slice_points[k : k + 20000, :2], walls).min(axis=1)
+            for k in range(0, len(slice_points), 20000)
+        ]
+    )
+    d = d[d <= band_m]
+    return float(1.4826 * np.median(d)) if len(d) else 0.0
+
+
+def room_model(
+    slice_points: NDArray[np.float64],
+    levelled: NDArray[np.float64],
+    floor_z_m: float,
+    ceiling_z_m: float,
+    cfg: WallsConfig,
+) -> tuple[WallModel, dict[str, Any]]:
+    """The wall model of the slice (N, 3), and what the stage chose beyond `model_walls`:
+
+    - the grid from the noise: when the points spread about the walls found by more than
+      `grid_noise_ratio` times the grid (`wall_noise`), the model is made again on a grid of that spread;
+    - partition faces below the slice: when a stub's second face is found in the levelled cloud (L, 3)
+      under the slice (`evidence.faces_below_slice`), that face is stood up in the slice and the model
+      made again.
+
+    Each costs a second model only when it applies. Returns the model and those choices (metrics)."""
+    model = model_walls(slice_points, floor_z_m, ceiling_z_m, cfg)
+    grid = float(model.metrics["grid_size_m"])
+    noise = wall_noise(slice_points, model.walls, cfg.noise_band_m)
+    choices: dict[str, Any] = {"wall_noise_m": round(noise, 4), "grid_from_noise": False}
+    if cfg.grid_noise_ratio > 0 and noise > cfg.grid_noise_ratio * grid:
+        cfg = replace(cfg, grid_size_m=round(noise, 3))
+        model = model_walls(slice_points, floor_z_m, ceiling_z_m, cfg)
+        grid = float(model.metrics["grid_size_m"])
+        choices["grid_from_noise"] = True
+        choices["wall_noise_after_m"] = round(wall_noise(slice_points, model.walls, cfg.noise_band_m), 4)
+    choices["faces_below_slice"] = []
+    if cfg.below_slice_min_share <= 0 or len(model.walls) < 2:
+        return model, choices
+    faces, found = faces_below_slice(model.walls, levelled, slice_points, floor_z_m, cfg, grid)
+    if not faces:
+        return model, choices
+    z = slice_points[:, 2]
+    extra = lifted(faces, float(z.min()), float(z.max()), grid)
+    choices["faces_below_slice"] = found
+    return model_walls(np.concatenate([slice_points, extra]), floor_z_m, ceiling_z_m, cfg), choices
+
+
 def run(ctx: StageContext, cfg: WallsConfig, out: Path) -> dict[str, Any]:
     """The room's walls (`walls.parquet`), plan (`plan.geojson`), extruded model (`model.ply`) and preview
     (`preview.png`) from the preprocess stage's furniture slice and levelling."""
     pre = ctx.upstream["preprocess"]
     levelling = art.read_json(pre.file("levelling.json"))
     slice_cloud = art.read_cloud(pre.file("slice.ply"))
-    model = model_walls(slice_cloud.points, levelling["floor_z_m"], levelling["ceiling_z_m"], cfg)
+    # the levelled cloud: a partition's second face may have been seen only under the slice
+    levelled = art.read_cloud(pre.file("levelled.ply"))
+    model, choices = room_model(
+        slice_cloud.points, levelled.points, levelling["floor_z_m"], levelling["ceiling_z_m"], cfg
+    )
     # A given cloud's frame means something (a TLS survey's, the user's): walls go back into it. A frame
     # made by registration is arbitrary and maybe tilted: walls stay in the levelled (z up) room frame.
     if levelling.get("source") == "register":
@@ -105,5 +166,11 @@ def run(ctx: StageContext, cfg: WallsConfig, out: Path) -> dict[str, Any]:
     art.write_png(out / "preview.png", retitle(model.preview, f"room {ctx.room}: walls"))
     return {
         "frame": frame,
-        "metrics": {**model.metrics, "walls": len(walls), "closed": model.closed, "alpha": model.alpha},
+        "metrics": {
+            **model.metrics,
+            "walls": len(walls),
+            "closed": model.closed,
+            "alpha": model.alpha,
+            **choices,
+        },
     }

@@ -1,0 +1,119 @@
+"""A partition stub's second face seen only under the slice (`tasks.walls.evidence.faces_below_slice`,
+`tasks.walls.stage.room_model`): synthetic rooms with known answers."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from tasks.evaluate import evaluate_walls
+from tasks.walls.config import WallsConfig
+from tasks.walls.evidence import _stubs, faces_below_slice, lifted
+from tasks.walls.stage import room_model
+
+CFG = WallsConfig()
+
+
+def face(a, b, z0, z1, rng, step=0.01, noise=0.003):
+    """A vertical face from a to b, z0..z1, one point per step², normal noise."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    L = float(np.hypot(*(b - a)))
+    s, z = np.meshgrid(np.arange(0, L, step) + step / 2, np.arange(z0, z1, step) + step / 2)
+    u = (b - a) / L
+    n = np.array([-u[1], u[0]])
+    xy = a + s.reshape(-1, 1) * u + rng.normal(0, noise, (s.size, 1)) * n
+    return np.column_stack([xy, z.reshape(-1)])
+
+
+def stub_room(rng, north_top: float):
+    """A 4 m x 3 m room, 2.5 m high, with a 1.5 m partition stub (0.1 m thick) from the west wall; the
+    stub's north face seen up to `north_top`. Returns the levelled cloud and the truth inner faces."""
+    room = np.concatenate(
+        [
+            face((0, 0), (4, 0), 0, 2.5, rng),
+            face((4, 0), (4, 3), 0, 2.5, rng),
+            face((4, 3), (0, 3), 0, 2.5, rng),
+            face((0, 3), (0, 1.55), 0, 2.5, rng),
+            face((0, 1.45), (0, 0), 0, 2.5, rng),
+            face((0, 1.45), (1.5, 1.45), 0, 2.5, rng),  # the stub's south face
+            face((1.5, 1.45), (1.5, 1.55), 0, 2.5, rng),  # its end
+            face((0, 1.55), (1.5, 1.55), 0.0, north_top, rng),  # its north face
+        ]
+    )
+    truth = np.array(
+        [[0, 0, 4, 0], [4, 0, 4, 3], [4, 3, 0, 3], [0, 3, 0, 1.55], [0, 1.55, 1.5, 1.55], [1.5, 1.55, 1.5, 1.45],
+         [1.5, 1.45, 0, 1.45], [0, 1.45, 0, 0]]
+    )  # fmt: skip
+    return room, truth
+
+
+def in_band(points, lo=1.5, hi=2.4):
+    return points[(points[:, 2] >= lo) & (points[:, 2] <= hi)]
+
+
+def test_a_stub_face_seen_only_under_the_slice_is_found_and_modelled(rng):
+    """The north face seen only up to 1.3 m: the slice (1.5-2.4 m) holds one face; without the search the
+    stub is a single dangling wall, with it the stub has both faces and its end, the 0.1 m thickness."""
+    levelled, truth = stub_room(rng, north_top=1.3)
+    slice_points = in_band(levelled)
+    off, _ = room_model(slice_points, levelled, 0.0, 2.5, replace(CFG, below_slice_min_share=0))
+    assert len(_stubs(off.walls)) == 1  # one face: the stub dangles from the west wall
+    at_north = np.abs(off.walls[:, [1, 3]] - 1.55).max(axis=1) < 0.02
+    assert not at_north.any()  # (within the scoring's 10 cm the south face stands for both)
+    model, choices = room_model(slice_points, levelled, 0.0, 2.5, CFG)
+    found = choices["faces_below_slice"]
+    assert len(found) == 1 and found[0]["offset_m"] == pytest.approx(0.1, abs=0.01), found
+    assert found[0]["cover"] >= 0.9
+    ev = evaluate_walls(model.walls, truth)
+    assert ev["completeness"] >= 0.97 and ev["correctness"] >= 0.99 and ev["corner_f1"] == 1.0, ev
+    north = model.walls[(np.abs(model.walls[:, 1] - 1.55) < 0.02) & (np.abs(model.walls[:, 3] - 1.55) < 0.02)]
+    assert len(north) == 1 and abs(north[0, 2] - north[0, 0]) == pytest.approx(1.5, abs=0.03)
+
+
+def test_a_face_already_in_the_slice_or_a_corner_is_left_alone(rng):
+    """Both faces in the slice: nothing is looked for (no stub dangles). A room corner is not a stub."""
+    levelled, _ = stub_room(rng, north_top=2.5)
+    slice_points = in_band(levelled)
+    _, choices = room_model(slice_points, levelled, 0.0, 2.5, CFG)
+    assert choices["faces_below_slice"] == [] and not choices["grid_from_noise"]
+    corner = np.array([[0, 0, 4, 0], [4, 0, 4, 3]], dtype=float)
+    assert _stubs(corner) == []
+    t_stub = np.array([[0, 0, 4, 0], [2, 0, 2, 1.5]], dtype=float)
+    assert _stubs(t_stub) == [(1, 0)]
+
+
+def test_a_low_sofa_back_beside_a_dangling_wall_is_no_face(rng):
+    """Along a wall piece ending free at a room corner (part of the room unseen), a 0.8 m high sofa back
+    0.25 m in front: the wall stands at a corner, not a T, so no face is taken from under the slice."""
+    walls = np.array([[0, 0, 4, 0], [0, 0, 0, 3]], dtype=float)
+    sofa = face((0.5, 0.25), (2.5, 0.25), 0.0, 0.8, rng)
+    slice_points = np.concatenate([face((0, 0), (4, 0), 1.5, 2.4, rng), face((0, 0), (0, 3), 1.5, 2.4, rng)])
+    faces, found = faces_below_slice(walls, sofa, slice_points, 0.0, CFG, 0.01)
+    assert faces == [] and found == []
+
+
+def test_lifted_faces_fill_the_band_once_per_cell():
+    xy = np.array([[0.0, 0.0], [0.001, 0.001], [0.5, 0.0]])
+    out = lifted([xy], 1.5, 1.6, 0.05)
+    assert out.shape == (2 * 3, 3)  # two cells, three heights (1.5, 1.55, 1.6)
+    assert np.allclose(np.unique(out[:, 2]), [1.5, 1.55, 1.6])
+
+
+def test_a_smeared_cloud_gets_a_grid_of_its_noise(rng):
+    """Walls smeared over 3 cm (sigma; a real handheld cloud's registration): the points' spread about the
+    walls is measured as 3 cm, the model is made again on a 3 cm grid, and it is the box."""
+    c = [(0, 0), (4, 0), (4, 3), (0, 3)]
+    smeared = np.concatenate(
+        [face(c[i], c[(i + 1) % 4], 1.5, 2.4, rng, step=0.02, noise=0.03) for i in range(4)]
+    )
+    model, choices = room_model(smeared, smeared, 0.0, 2.5, CFG)
+    assert choices["grid_from_noise"] and choices["wall_noise_m"] == pytest.approx(0.03, abs=0.006), choices
+    assert model.metrics["grid_size_m"] == pytest.approx(choices["wall_noise_m"], abs=0.001)
+    truth = np.array([[*c[i], *c[(i + 1) % 4]] for i in range(4)], dtype=float)
+    ev = evaluate_walls(model.walls, truth)
+    assert model.closed and ev["completeness"] >= 0.95 and ev["correctness"] >= 0.95, ev
+    crisp = np.concatenate([face(c[i], c[(i + 1) % 4], 1.5, 2.4, rng, noise=0.003) for i in range(4)])
+    _, crisp_choices = room_model(crisp, crisp, 0.0, 2.5, CFG)
+    assert not crisp_choices["grid_from_noise"] and crisp_choices["wall_noise_m"] < 0.01
