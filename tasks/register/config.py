@@ -149,6 +149,26 @@ class SfmConfig:
     """Frames larger than this (longest side) are downscaled for feature extraction."""
     max_num_features: int = 4096
     """SIFT features per frame."""
+    feature_grid: tuple[int, int] = (0, 0)
+    """Grid-bucketed features: SIFT is extracted with up to 4x `max_num_features` and each frame keeps
+    `max_num_features` of them spread over this many (columns, rows) cells: the largest-scale features of
+    every cell first, then the next of every cell, so that no part of the frame is left out while
+    another holds hundreds. (0, 0) keeps SIFT's own choice (the largest scales of the whole frame)."""
+    sift_first_octave: int = -1
+    """SIFT's first octave: -1 doubles the image before the scale space (COLMAP's default: more, smaller
+    features), 0 starts at the image's own resolution."""
+    feature_threads: int = 1
+    """Threads for feature extraction and matching (each frame, each pair is computed alone, so the
+    result does not depend on it); `num_threads` is the mapper's."""
+    ba_global_frames_ratio: float = 1.1
+    """Incremental mapping: a global bundle adjustment is run when the registered frames have grown by
+    this factor since the last one (COLMAP's default 1.1; more means fewer global adjustments)."""
+    ba_global_points_ratio: float = 1.1
+    """Incremental mapping: likewise for the number of 3D points."""
+    ba_global_max_refinements: int = 5
+    """Incremental mapping: rounds of global bundle adjustment with retriangulation and filtering."""
+    ba_local_max_refinements: int = 2
+    """Incremental mapping: rounds of local bundle adjustment after each registered frame."""
     min_num_matches: int = 15
     """Fewest verified matches for an image pair to count in mapping."""
     fix_intrinsics: bool = True
