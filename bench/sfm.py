@@ -23,6 +23,7 @@ printed beside them, and `--json FILE` writes every figure.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import resource
@@ -173,7 +174,15 @@ def register_stage(n: int, sets: list[str]) -> dict[str, Any]:
         results = planning.run_chain(work, cfg, profile, ["ingest", "register"], room)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         metrics = results["register"].manifest.get("metrics", {})
-    return {"seconds": wall, "cpu_s": cpu, "registered": metrics.get("sfm_registered")}
+        digest = hashlib.sha256()
+        for name in ("poses.parquet", "cloud.ply", "scale.json"):
+            digest.update(results["register"].file(name).read_bytes())
+    return {
+        "seconds": wall,
+        "cpu_s": cpu,
+        "registered": metrics.get("sfm_registered"),
+        "digest": digest.hexdigest()[:16],
+    }
 
 
 def write_walk(path: Path, n: int) -> dict:
@@ -292,7 +301,8 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f"yardstick, {args.frames} frames: plain pycolmap {plain['seconds']:.1f} s ({plain['cpu_s']:.1f} s CPU; "
                 f"{plain['registered']} registered, ATE {plain['ate_cm']:.2f} cm), whole register stage "
-                f"{stage['seconds']:.1f} s ({stage['cpu_s']:.1f} s CPU; {stage['registered']} registered by SfM): "
+                f"{stage['seconds']:.1f} s ({stage['cpu_s']:.1f} s CPU; {stage['registered']} registered by SfM; artefacts "
+                f"{stage['digest']}): "
                 f"ratio {figures['yardstick']['ratio']:.2f}x wall, {figures['yardstick']['cpu_ratio']:.2f}x CPU "
                 f"(target <= 0.6x)",
                 flush=True,

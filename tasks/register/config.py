@@ -158,8 +158,9 @@ class SfmConfig:
     """SIFT's first octave: -1 doubles the image before the scale space (COLMAP's default: more, smaller
     features), 0 starts at the image's own resolution."""
     feature_threads: int = 1
-    """Threads for feature extraction and matching (each frame, each pair is computed alone, so the
-    result does not depend on it); `num_threads` is the mapper's."""
+    """Threads for SIFT extraction (each frame is computed alone: the features do not depend on it).
+    Matching runs on one thread (with two, the verified matches changed from run to run) and the mapper
+    on `num_threads`."""
     ba_global_frames_ratio: float = 1.1
     """Incremental mapping: a global bundle adjustment is run when the registered frames have grown by
     this factor since the last one (COLMAP's default 1.1; more means fewer global adjustments)."""

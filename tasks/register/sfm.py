@@ -336,7 +336,9 @@ def _match_features(db: Path, workdir: Path, names: list[str], cfg: SfmConfig) -
     all pairs); returns the matching used ("sequential" or "exhaustive")."""
     import pycolmap
 
-    matching = pycolmap.FeatureMatchingOptions(num_threads=cfg.feature_threads)
+    # one thread: with two (pycolmap 4.2, CPU), the verified matches of 30 real frames differed from run
+    # to run (their features did not), also with verification run afterwards on one thread
+    matching = pycolmap.FeatureMatchingOptions(num_threads=1)
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = cfg.random_seed
     mode = cfg.matching
@@ -351,7 +353,7 @@ def _match_features(db: Path, workdir: Path, names: list[str], cfg: SfmConfig) -
             db,
             matching_options=matching,
             pairing_options=pycolmap.SequentialPairingOptions(
-                overlap=cfg.sequential_overlap, quadratic_overlap=False, num_threads=cfg.feature_threads
+                overlap=cfg.sequential_overlap, quadratic_overlap=False, num_threads=1
             ),
             verification_options=verification,
             device=pycolmap.Device.cpu,
