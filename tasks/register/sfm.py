@@ -255,6 +255,12 @@ def _extract_features(
     bucketed = min(cfg.feature_grid) > 0
     extraction.sift.max_num_features = cfg.max_num_features * (4 if bucketed else 1)
     extraction.sift.first_octave = cfg.sift_first_octave
+    # the frames enter the database in capture order first: the extractor numbers the images it adds in
+    # the order its threads finish them, and the mapper's choices follow the image ids
+    pycolmap.Database.open(db).close()
+    pycolmap.import_images(
+        db, img_dir, camera_mode=pycolmap.CameraMode.SINGLE, image_names=names, options=reader
+    )
     pycolmap.extract_features(
         db,
         img_dir,
@@ -336,9 +342,10 @@ def _match_features(db: Path, workdir: Path, names: list[str], cfg: SfmConfig) -
     all pairs); returns the matching used ("sequential" or "exhaustive")."""
     import pycolmap
 
-    # one thread: with two (pycolmap 4.2, CPU), the verified matches of 30 real frames differed from run
-    # to run (their features did not), also with verification run afterwards on one thread
-    matching = pycolmap.FeatureMatchingOptions(num_threads=1)
+    # pairs are matched and verified one by one (each RANSAC seeded), so the thread count does not change
+    # the verified matches once the image ids are fixed (checked on 30 real frames: same matches with
+    # one thread and with two)
+    matching = pycolmap.FeatureMatchingOptions(num_threads=cfg.feature_threads)
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = cfg.random_seed
     mode = cfg.matching
@@ -353,7 +360,7 @@ def _match_features(db: Path, workdir: Path, names: list[str], cfg: SfmConfig) -
             db,
             matching_options=matching,
             pairing_options=pycolmap.SequentialPairingOptions(
-                overlap=cfg.sequential_overlap, quadratic_overlap=False, num_threads=1
+                overlap=cfg.sequential_overlap, quadratic_overlap=False, num_threads=cfg.feature_threads
             ),
             verification_options=verification,
             device=pycolmap.Device.cpu,
