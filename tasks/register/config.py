@@ -144,7 +144,8 @@ class SfmConfig:
     loop_keyframe_stride: int = 5
     """Loop closures (sequential matching): every n-th frame is also matched with every other n-th frame
     farther apart than the overlap (0 = off). Stands in for vocabulary-tree loop detection, whose tree
-    would have to be downloaded."""
+    would have to be downloaded. They pay on 100 real 7-Scenes frames: without them ATE 5.06 cm instead
+    of 4.14 cm for 12 % less SfM CPU; 15 key frames instead of 30 saved 1 %."""
     loop_max_keyframes: int = 30
     """At most this many loop key frames (the stride grows for long captures: pairs grow with its square)."""
     max_image_size_px: int = 1024
