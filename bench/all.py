@@ -1,7 +1,7 @@
 """The speed table in one command: every figure of the speed targets, each from its own benchmark run in a
 child process, with its accuracy figure beside it.
 
-    python -m bench.all                 # the whole table (about 15-25 min on an idle 2-core machine)
+    python -m bench.all                 # the whole table (long: the SfM row alone maps 100 frames three times)
     python -m bench.all --quick         # smaller inputs, no data/mini run (a few minutes)
     python -m bench.all --json table.json
 
