@@ -1,67 +1,187 @@
-"""Register benchmark: seconds per frame of SfM and of the metric scale at 640x480 on 2 cores, and the peak
-memory of the whole register stage for a long capture.
+"""Register benchmark: seconds per frame of SfM and of the metric scale on real 640x480 Kinect frames with
+their accuracy, the yardstick (plain pycolmap on the same frames), and the time and peak memory of the whole
+register stage on a long capture.
 
-    python -m bench.sfm [--frames 30] [--register-frames 300] [--threads 2]
+    python -m bench.sfm                          # 100 frames: SfM, scale, yardstick; register 300 frames
+    python -m bench.sfm --frames 30 --register-frames 0 --no-yardstick     # a quick check
+    python -m bench.sfm --set sfm.max_num_features=2048                     # another SfM setting
 
-SfM and scale run on real Kinect v1 frames (7-Scenes redkitchen, ../shared/realdata). The memory figure
-comes from a child process running `register_room` (ingest's frames.parquet in, room cloud out) on a
-rendered 640x480 walk through a textured box room with `--register-frames` frames (target: <= 3 GB for 300).
+Run from the repository root. SfM and scale run on real Kinect v1 frames (7-Scenes redkitchen, every 10th
+frame of the recording, ../shared/realdata beside the repository) with the stage's default configuration
+(`--set` overrides it): frames registered and the ATE (RMS of the camera centres after the best similarity
+onto the given poses) are printed next to the time. The yardstick runs plain pycolmap on the same frames in
+the same process: SIFT on the CPU with its default options, sequential matching with overlap 10 and
+incremental mapping with multiple models, all threads; then the whole register stage (the frames ingested
+first, then the stage as a run computes it: depth correction, SfM, scale, fusion) and prints the ratio of
+the two times (target <= 0.6x). The memory figure comes from a child process running `register_room` on a
+rendered 640x480 walk through a textured box room with `--register-frames` frames.
+
+Wall-clock figures depend on what else runs on the machine: CPU seconds (all threads of the process) are
+printed beside them, and `--json FILE` writes every figure.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
+import os
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from tasks.camera import Calibration, CameraModel, RigidPose
 from tasks.register.config import ScaleConfig, SfmConfig
-from tasks.register.scale import estimate_scale
+from tasks.register.scale import estimate_scale, horn_similarity
 from tasks.register.sfm import run_sfm
 from tasks.synth.box_views import look_pose, render, write_rendered_frames
 
 REPO = Path(__file__).resolve().parents[1]
 REALDATA = REPO.parent / "shared" / "realdata" / "rgbd_7scenes_redkitchen"
+KINECT = CameraModel(np.array([[585.0, 0, 320], [0, 585, 240], [0, 0, 1]]), np.zeros(5), (640, 480))
+"""7-Scenes' nominal intrinsics (one set for both streams, as its camera-intrinsics.txt gives)."""
 
 
-def bench_sfm_and_scale(n: int, threads: int) -> dict:
-    import cv2
-
+def real_frames(n: int) -> list[Path]:
+    """The first n colour frames of the 7-Scenes recording."""
     files = sorted(REALDATA.glob("frame-*.color.jpg"))[:n]
     if len(files) < n:
-        raise SystemExit(f"{REALDATA}: only {len(files)} colour frames")
+        raise SystemExit(f"{REALDATA}: only {len(files)} colour frames, {n} asked")
+    return files
+
+
+def ate_m(centres: dict[str, np.ndarray], files: list[Path]) -> float:
+    """RMS distance of the camera centres (frame name k:06d.png -> (3,)) to the given 7-Scenes camera
+    centres after the best similarity mapping the first onto the second; NaN with fewer than 3."""
+    names = [(f"{k:06d}.png", f) for k, f in enumerate(files) if f"{k:06d}.png" in centres]
+    if len(names) < 3:
+        return float("nan")
+    A = np.array([centres[n] for n, _ in names])
+    B = np.array([np.loadtxt(str(f).replace("color.jpg", "pose.txt"))[:3, 3] for _, f in names])
+    lam, R, T = horn_similarity(A, B)
+    return float(np.sqrt(np.mean(np.sum((lam * A @ R.T + T - B) ** 2, axis=1))))
+
+
+def _sfm_of(sets: list[str]) -> SfmConfig:
+    """The stage's SfM settings with `--set sfm.KEY=VALUE` overrides (parsed as the config tree does)."""
+    from tasks.config import load_config
+
+    return load_config([], sets).sfm
+
+
+def bench_sfm_and_scale(n: int, cfg: SfmConfig) -> dict[str, Any]:
+    """SfM and the metric scale on the first n real frames: timings (wall and CPU), frames registered, ATE."""
+    import cv2
+
+    files = real_frames(n)
     images = [
         (f"{k:06d}.png", cv2.cvtColor(cv2.imread(str(f)), cv2.COLOR_BGR2RGB)) for k, f in enumerate(files)
     ]
-    cam = CameraModel(np.array([[585.0, 0, 320], [0, 585, 240], [0, 0, 1]]), np.zeros(5), (640, 480))
     with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
-        sfm = run_sfm(images, cam, SfmConfig(num_threads=threads), Path(tmp))
-        sfm_s = time.perf_counter() - t0
+        t0, c0 = time.perf_counter(), time.process_time()
+        sfm = run_sfm(images, KINECT, cfg, Path(tmp))
+        sfm_s, sfm_cpu = time.perf_counter() - t0, time.process_time() - c0
 
     def depths():
         for k, f in enumerate(files):
             d = cv2.imread(str(f).replace("color.jpg", "depth.png"), cv2.IMREAD_UNCHANGED)
             yield f"{k:06d}.png", np.where(d == 65535, 0, d).astype(np.float32) / 1000.0
 
-    calib = Calibration(cam, cam, RigidPose(np.eye(3), np.zeros(3)))
-    t0 = time.perf_counter()
+    calib = Calibration(KINECT, KINECT, RigidPose(np.eye(3), np.zeros(3)))
+    t0, c0 = time.perf_counter(), time.process_time()
     report = estimate_scale(sfm, depths(), calib, ScaleConfig())
-    scale_s = time.perf_counter() - t0
+    scale_s, scale_cpu = time.perf_counter() - t0, time.process_time() - c0
+    stages = ("extract_s", "extract_cpu_s", "match_s", "match_cpu_s", "map_s", "map_cpu_s")
     return {
         "frames": n,
         "registered": int(sfm.registered.sum()),
+        "ate_cm": 100 * ate_m(sfm.camera_centres(), files),
+        "sfm_s": sfm_s,
+        "sfm_cpu_s": sfm_cpu,
         "sfm_s_per_frame": sfm_s / n,
-        "sfm_stages_s": {k: sfm.metrics[k] for k in ("extract_s", "match_s", "map_s")},
+        "sfm_cpu_s_per_frame": sfm_cpu / n,
+        "sfm_stages_s": {k: sfm.metrics[k] for k in stages},
         "scale_s_per_frame": scale_s / n,
+        "scale_cpu_s_per_frame": scale_cpu / n,
         "scale_frames_used": len(report.frames_used),
+    }
+
+
+def plain_pycolmap(n: int) -> dict[str, Any]:
+    """The yardstick: pycolmap as its documentation runs it on the first n real frames (the JPEG files as
+    they are): SIFT on the CPU with default options, one shared camera of COLMAP's default model, sequential
+    matching with overlap 10, incremental mapping with multiple models; every thread."""
+    import pycolmap
+
+    pycolmap.logging.minloglevel = 2
+    files = real_frames(n)
+    with tempfile.TemporaryDirectory() as tmp:
+        img_dir = Path(tmp) / "images"
+        img_dir.mkdir()
+        for k, f in enumerate(files):
+            os.symlink(f, img_dir / f"{k:06d}.png")
+        db, out = Path(tmp) / "database.db", Path(tmp) / "sparse"
+        out.mkdir()
+        t0, c0 = time.perf_counter(), time.process_time()
+        pycolmap.extract_features(
+            db, img_dir, camera_mode=pycolmap.CameraMode.SINGLE, device=pycolmap.Device.cpu
+        )
+        pycolmap.match_sequential(
+            db, pairing_options=pycolmap.SequentialPairingOptions(overlap=10), device=pycolmap.Device.cpu
+        )
+        recs = pycolmap.incremental_mapping(db, img_dir, out)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    centres: dict[str, np.ndarray] = {}
+    if recs:
+        rec = max(recs.values(), key=lambda r: r.num_reg_images())
+        for image in rec.images.values():
+            if image.has_pose:
+                centres[image.name] = np.asarray(image.projection_center())
+    return {"seconds": wall, "cpu_s": cpu, "registered": len(centres), "ate_cm": 100 * ate_m(centres, files)}
+
+
+def register_stage(n: int, sets: list[str]) -> dict[str, Any]:
+    """The whole register stage on the first n real frames, as a run computes it: the frames are ingested
+    first (not timed), then the register stage runs through load-or-compute (depth correction, SfM, scale,
+    fusion, writing its artefacts)."""
+    from flows import planning
+    from tasks import config as cfgmod
+
+    files = real_frames(n)
+    with tempfile.TemporaryDirectory() as tmp:
+        capture = Path(tmp) / "capture"
+        capture.mkdir()
+        shutil.copy(REALDATA / "camera-intrinsics.txt", capture)
+        for f in files:
+            for suffix in ("color.jpg", "depth.png", "pose.txt"):
+                src = Path(str(f).replace("color.jpg", suffix))
+                os.symlink(src, capture / src.name)
+        cfg = cfgmod.load_config(
+            [], ["ingest.intrinsics_px=[585, 585, 320, 240]", "ingest.tum_depth_units_per_m=1000", *sets]
+        )
+        profile = cfgmod.load_sensor_profile("kinect_v1")
+        room = cfgmod.RoomSpec("room", capture)
+        work = Path(tmp) / "work"
+        planning.run_chain(work, cfg, profile, ["ingest"], room)
+        t0, c0 = time.perf_counter(), time.process_time()
+        results = planning.run_chain(work, cfg, profile, ["ingest", "register"], room)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        metrics = results["register"].manifest.get("metrics", {})
+        digest = hashlib.sha256()
+        for name in ("poses.parquet", "cloud.ply", "scale.json"):
+            digest.update(results["register"].file(name).read_bytes())
+    return {
+        "seconds": wall,
+        "cpu_s": cpu,
+        "registered": metrics.get("sfm_registered"),
+        "digest": digest.hexdigest()[:16],
     }
 
 
@@ -90,29 +210,24 @@ def write_walk(path: Path, n: int) -> dict:
     return {"depth": d, "rgb": dict(d)}
 
 
-def child_register(frames_path: str, info_path: str, threads: int) -> None:
+def child_register(frames_path: str, info_path: str, sets: list[str]) -> None:
     from tasks.register.config import RegisterConfig
     from tasks.register.room import register_room
 
     info = json.loads(Path(info_path).read_text())
     track = np.load(Path(frames_path).with_name("track.npy"))
     with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         res = register_room(
-            Path(frames_path),
-            info,
-            None,
-            RegisterConfig(),
-            SfmConfig(num_threads=threads),
-            Path(tmp),
-            track=track,
+            Path(frames_path), info, None, RegisterConfig(), _sfm_of(sets), Path(tmp), track=track
         )
     out = {k: res.metrics[k] for k in ("frames", "sfm_registered", "cloud_points", "methods")}
     out["seconds"] = time.perf_counter() - t0
+    out["cpu_s"] = time.process_time() - c0
     print(json.dumps(out))
 
 
-def bench_register_memory(n: int, threads: int) -> dict:
+def bench_register_memory(n: int, sets: list[str]) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         frames = Path(tmp) / "frames.parquet"
         info = write_walk(frames, n)
@@ -125,7 +240,7 @@ def bench_register_memory(n: int, threads: int) -> dict:
                 "--child",
                 str(frames),
                 str(Path(tmp) / "camera_info.json"),
-                str(threads),
+                json.dumps(sets),
             ],
             cwd=REPO,
             capture_output=True,
@@ -137,33 +252,75 @@ def bench_register_memory(n: int, threads: int) -> dict:
     return {**json.loads(proc.stdout.strip().splitlines()[-1]), "peak_memory_gb": peak_gb}
 
 
-def main() -> None:
-    if len(sys.argv) > 1 and sys.argv[1] == "--child":
-        child_register(sys.argv[2], sys.argv[3], int(sys.argv[4]))
-        return
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] == "--child":
+        child_register(argv[1], argv[2], json.loads(argv[3]))
+        return 0
+    ap = argparse.ArgumentParser(prog="python -m bench.sfm", description=__doc__.splitlines()[0])
     ap.add_argument(
-        "--frames", type=int, default=30, help="real 640x480 frames for the SfM and scale timings"
+        "--frames", type=int, default=100, help="real 640x480 frames for SfM, scale and yardstick (0 = skip)"
     )
     ap.add_argument(
-        "--register-frames", type=int, default=300, help="rendered frames for the memory figure (0 = skip)"
+        "--register-frames",
+        type=int,
+        default=300,
+        help="rendered frames for the register time and memory (0 = skip)",
     )
-    ap.add_argument("--threads", type=int, default=2)
-    args = ap.parse_args()
-    r = bench_sfm_and_scale(args.frames, args.threads)
-    print(
-        f"SfM   {r['sfm_s_per_frame']:.2f} s/frame at 640x480 on {args.threads} threads "
-        f"({r['registered']}/{r['frames']} registered; {r['sfm_stages_s']})"
+    ap.add_argument("--no-yardstick", action="store_true", help="skip plain pycolmap and the register stage")
+    ap.add_argument(
+        "--set", dest="sets", action="append", default=[], metavar="sfm.KEY=VALUE", help="config override"
     )
-    print(f"scale {r['scale_s_per_frame']:.3f} s/frame ({r['scale_frames_used']} frames used)")
-    if args.register_frames:
-        m = bench_register_memory(args.register_frames, args.threads)
+    ap.add_argument("--json", type=Path, default=None, help="also write the figures to this file")
+    args = ap.parse_args(argv)
+    cfg = _sfm_of(args.sets)
+    figures: dict[str, Any] = {"load_before": os.getloadavg()[0]}
+    print(f"{os.cpu_count()} cores, load average {figures['load_before']:.1f}", flush=True)
+    if args.frames:
+        r = bench_sfm_and_scale(args.frames, cfg)
+        figures["sfm"] = r
+        st = r["sfm_stages_s"]
         print(
-            f"register {m['frames']} frames: peak memory {m['peak_memory_gb']:.2f} GB (target <= 3 GB), "
-            f"{m['seconds']:.0f} s, {m['sfm_registered']} registered by SfM, placed {m['methods']}, "
-            f"{m['cloud_points']} cloud points"
+            f"SfM   {r['sfm_s_per_frame']:.3f} s/frame wall, {r['sfm_cpu_s_per_frame']:.3f} s/frame CPU at 640x480 "
+            f"({r['registered']}/{r['frames']} registered, ATE {r['ate_cm']:.2f} cm; extract "
+            f"{st['extract_s']:.1f} s / {st['extract_cpu_s']:.1f} s CPU, match {st['match_s']:.1f} / "
+            f"{st['match_cpu_s']:.1f}, map {st['map_s']:.1f} / {st['map_cpu_s']:.1f})",
+            flush=True,
         )
+        print(
+            f"scale {r['scale_s_per_frame']:.3f} s/frame wall, {r['scale_cpu_s_per_frame']:.3f} s/frame CPU "
+            f"({r['scale_frames_used']} frames used)",
+            flush=True,
+        )
+        if not args.no_yardstick:
+            plain = plain_pycolmap(args.frames)
+            stage = register_stage(args.frames, args.sets)
+            figures["yardstick"] = {"plain_pycolmap": plain, "register_stage": stage}
+            figures["yardstick"]["ratio"] = stage["seconds"] / plain["seconds"]
+            figures["yardstick"]["cpu_ratio"] = stage["cpu_s"] / plain["cpu_s"]
+            print(
+                f"yardstick, {args.frames} frames: plain pycolmap {plain['seconds']:.1f} s ({plain['cpu_s']:.1f} s CPU; "
+                f"{plain['registered']} registered, ATE {plain['ate_cm']:.2f} cm), whole register stage "
+                f"{stage['seconds']:.1f} s ({stage['cpu_s']:.1f} s CPU; {stage['registered']} registered by SfM; artefacts "
+                f"{stage['digest']}): "
+                f"ratio {figures['yardstick']['ratio']:.2f}x wall, {figures['yardstick']['cpu_ratio']:.2f}x CPU "
+                f"(target <= 0.6x)",
+                flush=True,
+            )
+    if args.register_frames:
+        m = bench_register_memory(args.register_frames, args.sets)
+        figures["register"] = m
+        print(
+            f"register {m['frames']} rendered frames: {m['seconds']:.0f} s ({m['cpu_s']:.0f} s CPU), peak memory "
+            f"{m['peak_memory_gb']:.2f} GB, {m['sfm_registered']} registered by SfM, placed {m['methods']}, "
+            f"{m['cloud_points']} cloud points",
+            flush=True,
+        )
+    figures["load_after"] = os.getloadavg()[0]
+    if args.json:
+        args.json.write_text(json.dumps(figures, indent=2))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

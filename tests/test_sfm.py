@@ -8,7 +8,7 @@ import pytest
 
 from tasks.cloud import DegenerateInputError
 from tasks.register.config import SfmConfig
-from tasks.register.sfm import _loop_pairs, run_sfm
+from tasks.register.sfm import _loop_pairs, grid_bucket, run_sfm
 from tests.scenes import ate_after_similarity, rendered_views
 
 
@@ -80,3 +80,21 @@ def test_real_kinect_frames_sequential_matching_with_loop_pairs(kitchen_register
     )
     assert len(sfm_rows) == sfm["registered"] >= 90
     assert rmse < 0.05
+
+
+def test_grid_bucket_spreads_the_kept_features_over_every_cell():
+    """A 100x100 image in a 2x2 grid: 40 large features crowd the top-left cell, one small feature sits in
+    each other cell; keeping 8 takes every cell's best (rank 0) before the crowded cell's next ones, and the
+    crowded cell gives its largest."""
+    rng = np.random.default_rng(3)
+    crowd = rng.uniform(0, 49, (40, 2))
+    lone = np.array([[75.0, 20.0], [20.0, 75.0], [75.0, 75.0]])
+    xy = np.vstack([crowd, lone])
+    scale = np.concatenate([np.linspace(10.0, 5.0, 40), [1.0, 1.0, 1.0]])
+    kept = grid_bucket(xy, scale, (100, 100), (2, 2), 8)
+    assert list(kept) == sorted(kept) and len(kept) == 8
+    assert {40, 41, 42} <= set(kept.tolist())  # every lone cell is represented
+    assert set(kept.tolist()) - {40, 41, 42} == set(range(5))  # the crowd's five largest
+    # SfM's own choice would have taken the crowd only
+    assert set(np.argsort(-scale)[:8].tolist()) <= set(range(40))
+    assert len(grid_bucket(xy, scale, (100, 100), (2, 2), 100)) == len(xy)
