@@ -57,32 +57,46 @@ class VoxelAccumulator:
         colors: NDArray[np.uint8] | None = None,
         coloured: NDArray[np.bool_] | None = None,
     ) -> None:
-        """Add (N, 3) points (metres) with optional (N, 3) colours and their (N,) valid flags."""
+        """Add (N, 3) points (metres) with optional (N, 3) colours and their (N,) valid flags.
+
+        The frame is reduced to its own voxels first (per-voxel sums in point order), then added to the
+        voxels held: the work per frame grows with the frame's voxels, not with the room's (a voxel the
+        room has not seen yet is inserted in key order). Every voxel's sum is the same float sequence as
+        adding the points one frame after the other, so the result does not depend on how it is done."""
         if len(points) == 0:
             return
-        keys = np.concatenate([self.keys, self._pack(points)])
-        uniq, inv = np.unique(keys, return_inverse=True)
-        old, new = inv[: len(self.keys)], inv[len(self.keys) :]
-        m = len(uniq)
-        sums = np.zeros((m, 3))
-        np.add.at(sums, old, self.sums) if len(old) else None
-        counts = np.bincount(old, weights=self.counts, minlength=m).astype(np.int64)
-        for a in range(3):
-            sums[:, a] += np.bincount(new, weights=points[:, a], minlength=m)
-        counts += np.bincount(new, minlength=m)
-        csums = np.zeros((m, 3))
-        if len(old):
-            csums[old] = self.colour_sums
-        ccounts = np.zeros(m, np.int64)
-        if len(old):
-            ccounts[old] = self.colour_counts
+        keys, inv = np.unique(self._pack(points), return_inverse=True)
+        inv = inv.ravel()
+        m = len(keys)
+        sums = np.stack([np.bincount(inv, weights=points[:, a], minlength=m) for a in range(3)], axis=1)
+        counts = np.bincount(inv, minlength=m).astype(np.int64)
+        csums = ccounts = None
         if colors is not None:
             ok = np.ones(len(points), bool) if coloured is None else np.asarray(coloured, bool)
-            for a in range(3):
-                csums[:, a] += np.bincount(new[ok], weights=colors[ok, a].astype(np.float64), minlength=m)
-            ccounts += np.bincount(new[ok], minlength=m)
-        self.keys, self.sums, self.counts = uniq, sums, counts
-        self.colour_sums, self.colour_counts = csums, ccounts
+            sel = inv[ok]
+            csums = np.stack(
+                [np.bincount(sel, weights=colors[ok, a].astype(np.float64), minlength=m) for a in range(3)],
+                axis=1,
+            )
+            ccounts = np.bincount(sel, minlength=m).astype(np.int64)
+        pos = np.searchsorted(self.keys, keys)
+        held = pos < len(self.keys)
+        held[held] = self.keys[pos[held]] == keys[held]
+        if not held.all():
+            # the frame's new voxels, inserted where they belong in the sorted keys (zero sums)
+            at = pos[~held]
+            self.keys = np.insert(self.keys, at, keys[~held])
+            self.sums = np.insert(self.sums, at, 0.0, axis=0)
+            self.counts = np.insert(self.counts, at, 0)
+            self.colour_sums = np.insert(self.colour_sums, at, 0.0, axis=0)
+            self.colour_counts = np.insert(self.colour_counts, at, 0)
+            pos = np.searchsorted(self.keys, keys)
+        # pos holds no index twice (the frame's keys are unique): plain fancy-index adds
+        self.sums[pos] += sums
+        self.counts[pos] += counts
+        if csums is not None and ccounts is not None:
+            self.colour_sums[pos] += csums
+            self.colour_counts[pos] += ccounts
 
     def cloud(self, min_points: int = 1) -> FusedCloud:
         """The mean point (and mean colour) of every voxel with at least `min_points` points."""
