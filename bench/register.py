@@ -5,6 +5,7 @@ is its own.
     python -m bench.register                      # 300 frames: wall s, CPU s, peak RSS, cloud digest
     python -m bench.register --frames 100 --profile 5 --save-cloud /tmp/cloud.npz
     python -m bench.register --compare /tmp/before.npz /tmp/after.npz
+    python -m bench.register --fusion-only --profile 5   # fusion alone, with the walk's true poses
 
 The frames are written as ingest writes frames.parquet (row groups of 16 frames) into `--frames-dir`
 (kept, so that reruns time the same input; made when missing). Wall-clock figures depend on what else
@@ -136,6 +137,45 @@ def child(folder: Path, threads: int, profile: int, save: str) -> None:
     print(json.dumps(out))
 
 
+def walk_poses(n: int) -> dict[int, np.ndarray]:
+    """The walk's true poses (frame id -> (4, 4) depth camera -> room), as `write_walk` renders them."""
+    from tasks.synth.box_views import look_pose
+
+    poses = {}
+    for k in range(n):
+        a = 2 * np.pi * k / n
+        position = np.array([0.25, 0.25, 1.4]) + 0.6 * np.array([np.cos(a), np.sin(a), 0])
+        poses[k] = look_pose(position, a + 0.4, -0.45)
+    return poses
+
+
+def fusion_only(folder: Path, n: int, profile: int, save: str) -> None:
+    """Only the stage's fusion (`_fuse_placed`: the radial depth error on a sample, then every frame
+    streamed into the voxel grid) with the walk's true poses: what fusion costs, without SfM."""
+    from tasks.register.config import RegisterConfig
+    from tasks.register.room import _fuse_placed, calibration_from_camera_info
+
+    calib = calibration_from_camera_info(json.loads((folder / "camera_info.json").read_text()))
+    poses = walk_poses(n)
+    prof = cProfile.Profile(time.process_time) if profile else None
+    t0, c0 = time.perf_counter(), time.process_time()
+    if prof:
+        prof.enable()
+    cloud, _ = _fuse_placed(folder / "frames.parquet", poses, calib, RegisterConfig(), None)
+    if prof:
+        prof.disable()
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    if prof:
+        pstats.Stats(prof).sort_stats("cumulative").print_stats(profile + 8)
+    if save:
+        np.savez(save, points=cloud.points, colors=cloud.colors)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
+    print(
+        f"fusion of {n} frames: {wall:.1f} s wall, {cpu:.1f} s CPU, peak RSS {peak:.2f} GB, "
+        f"{len(cloud):,} cloud points, digest {digest(cloud.points, cloud.colors)}"
+    )
+
+
 def compare(a: str, b: str) -> None:
     """The largest point difference of two saved clouds (same voxels expected) and whether colours agree."""
     x, y = np.load(a), np.load(b)
@@ -153,6 +193,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2, help="SfM threads")
     ap.add_argument("--profile", type=int, default=0, help="print the top-N functions by cumulative time")
     ap.add_argument("--save-cloud", default="", help="write the fused cloud to this .npz")
+    ap.add_argument("--fusion-only", action="store_true", help="only fusion, with the walk's true poses")
     ap.add_argument("--compare", nargs=2, metavar="NPZ", help="compare two saved clouds and exit")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -167,6 +208,9 @@ def main() -> None:
         t = time.perf_counter()
         write_walk(folder, args.frames)
         print(f"rendered {args.frames} frames into {folder} in {time.perf_counter() - t:.0f} s")
+    if args.fusion_only:
+        fusion_only(folder, args.frames, args.profile, args.save_cloud)
+        return
     cmd = [sys.executable, "-m", "bench.register", "--child", "--frames", str(args.frames)]
     cmd += ["--frames-dir", str(folder), "--threads", str(args.threads), "--profile", str(args.profile)]
     cmd += ["--save-cloud", args.save_cloud] if args.save_cloud else []

@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from tasks.camera import Calibration, CameraModel, colour_points, depth_to_points
-from tasks.cloud import Cloud, DegenerateInputError
+from tasks.cloud import Cloud, DegenerateInputError, apply_transform
 from tasks.register.config import RegisterConfig
 
 
@@ -282,7 +282,8 @@ def fuse_capture(
 
 
 def transform_points(T: NDArray[np.float64], pts: NDArray[np.float64]) -> NDArray[np.float64]:
-    return pts @ T[:3, :3].T + T[:3, 3]
+    """(N, 3) points moved by the (4, 4) pose T (`tasks.cloud.apply_transform`: no threaded BLAS)."""
+    return apply_transform(T, pts)
 
 
 def fuse_frames(
