@@ -84,10 +84,13 @@ def test_voxel_accumulator_means_and_bounded_memory(rng):
     assert not cloud.coloured.any()
 
 
-def test_voxel_accumulator_streamed_frames_give_the_exact_voxel_means_in_key_order(rng):
+@pytest.mark.parametrize("merge_at", [1, 50, 1 << 20])
+def test_voxel_accumulator_streamed_frames_give_the_exact_voxel_means_in_key_order(rng, merge_at):
     # coordinates on a 1/64 m lattice and small counts: every sum is exact in any order, so the means,
-    # counts and colours must come out exactly, however the frames' voxels interleave with those held
+    # counts and colours must come out exactly, however the frames' voxels interleave with those held and
+    # whenever the new voxels are merged in (every frame, now and then, only at the end)
     acc = VoxelAccumulator(0.25)
+    acc.MERGE_AT = merge_at
     frames = []
     for f in range(12):
         pts = rng.integers(-64 * (f % 4 + 1), 64 * (f % 3 + 1), size=(400, 3)) / 64.0
