@@ -3,6 +3,7 @@ preprocess tests' room, scaled up).
 
     python -m bench.preprocess                      # 5 M points: points/s per step and overall, peak memory
     python -m bench.preprocess --points 1000000 --order-study --level-study --voxel-study
+    python -m bench.preprocess --profile 25          # and the stage's top 25 functions by cumulative time
 
 Run from the repository root. Wall-clock figures depend on what else runs on the machine: CPU seconds are
 printed beside them.
@@ -11,8 +12,10 @@ printed beside them.
 from __future__ import annotations
 
 import argparse
+import cProfile
 import math
 import os
+import pstats
 import threading
 import time
 from dataclasses import replace
@@ -65,7 +68,7 @@ class PeakRSS:
         self.peak = max(self.peak, self._rss())
 
 
-def whole_stage(n_points: int, cfg: PreprocessConfig) -> None:
+def whole_stage(n_points: int, cfg: PreprocessConfig, profile: int = 0) -> None:
     t = time.perf_counter()
     cloud, truth = tilted_box_room(n_points, seed=11, size=ROOM)
     print(
@@ -73,10 +76,17 @@ def whole_stage(n_points: int, cfg: PreprocessConfig) -> None:
         f"({int(truth.outliers.sum()):,} outliers), generated in {time.perf_counter() - t:.1f} s"
     )
     print(f"cores: {os.cpu_count()}, load average before: {os.getloadavg()[0]:.1f}")
+    prof = cProfile.Profile() if profile else None
     cpu = time.process_time()
     with PeakRSS() as memory:
+        if prof:
+            prof.enable()
         result = preprocess(cloud, cfg)
+        if prof:
+            prof.disable()
     cpu = time.process_time() - cpu
+    if prof:
+        pstats.Stats(prof).sort_stats("cumulative").print_stats(profile)
     m = result.metrics
     timings = m["timings_s"]
     step_inputs = {
@@ -216,10 +226,11 @@ def main() -> None:
     parser.add_argument("--level-study", action="store_true", help="horizontal / vertical / both normals")
     parser.add_argument("--voxel-study", action="store_true", help="the stage at voxel sizes 1-3 cm")
     parser.add_argument("--skip-main", action="store_true", help="only the studies")
+    parser.add_argument("--profile", type=int, default=0, help="print the stage's top-N functions (cProfile)")
     args = parser.parse_args()
     cfg = PreprocessConfig()
     if not args.skip_main:
-        whole_stage(args.points, cfg)
+        whole_stage(args.points, cfg, args.profile)
     if args.order_study:
         order_study(args.study_points, cfg)
     if args.level_study:

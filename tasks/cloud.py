@@ -39,8 +39,19 @@ class Cloud:
 
     def transformed(self, transform: NDArray[np.float64]) -> Cloud:
         """The cloud moved by a 4x4 rigid (or similarity) transform."""
-        pts = self.points @ transform[:3, :3].T + transform[:3, 3]
-        return Cloud(pts, self.colors)
+        return Cloud(apply_transform(transform, self.points), self.colors)
+
+
+def apply_transform(transform: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, 3) points moved by a 4x4 (or 3x4) transform: R · p + t, one column at a time. An (N, 3) @ (3, 3)
+    product goes to the threaded BLAS, whose threads spin for CPU on a loaded machine: 76.8 k points cost
+    20 ms of CPU (250 ms wall at load 20) there, against 1.2 ms so."""
+    R = np.asarray(transform, dtype=np.float64)[:3]
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    out = np.empty((len(p), 3))
+    for i in range(3):
+        out[:, i] = p[:, 0] * R[i, 0] + p[:, 1] * R[i, 1] + p[:, 2] * R[i, 2] + R[i, 3]
+    return out
 
 
 def require_finite(cloud: Cloud, min_points: int = 1) -> Cloud:

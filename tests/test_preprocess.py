@@ -14,6 +14,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from tasks.cloud import Cloud, DegenerateInputError
+from tasks.preprocess import filters
 from tasks.preprocess.config import PreprocessConfig
 from tasks.preprocess.filters import mls_smooth, statistical_outliers, voxel_grid
 from tasks.preprocess.levelling import floor_and_ceiling, height_histogram, level_by_normals
@@ -145,6 +146,38 @@ def test_voxel_grid_centroids_and_colours():
         (-0.05, -0.05, -0.05): ((1, 2, 3), 1),
     }
     assert voxel_grid(Cloud(points), 0.1)[0].colors is None
+
+
+def test_voxel_grid_ranks_cells_as_a_sort_does_on_the_dense_and_the_hashed_path(rng, monkeypatch):
+    # the occupancy-grid ranking must give np.unique's order and inverse exactly, and so the same cloud
+    keys = rng.integers(0, 5000, size=20000)
+    uniq, want = np.unique(keys, return_inverse=True)
+    for extent in (5000, filters._DENSE_CELLS + 1):  # the occupancy grid, then hashing
+        inverse, cells = filters._dense_ranks(keys, extent)
+        assert cells == len(uniq) and np.array_equal(inverse, want.ravel())
+    points = rng.uniform(-1, 3, size=(30000, 3))
+    dense = voxel_grid(Cloud(points), 0.05)
+    monkeypatch.setattr(filters, "_DENSE_CELLS", 0)  # every grid hashed
+    hashed = voxel_grid(Cloud(points), 0.05)
+    assert np.array_equal(dense[0].points, hashed[0].points) and np.array_equal(dense[1], hashed[1])
+
+
+def test_plane_eigen_is_eigh_for_plane_fits_and_degenerate_ones(rng):
+    m = 2000
+    rot = np.linalg.qr(rng.normal(size=(m, 3, 3)))[0]
+    lam = np.stack([rng.uniform(1e-8, 1e-5, m), rng.uniform(1e-3, 3e-3, m), rng.uniform(1e-3, 3e-3, m)], 1)
+    cov = rot @ (lam[:, :, None] * rot.transpose(0, 2, 1))
+    cov[:5] = np.eye(3) * 1e-3  # isotropic: no defined normal, handed to eigh
+    cov[5:10] = np.diag([0.0, 0.0, 1e-3])  # a line: the two smallest coincide
+    smallest, normal = filters._plane_eigen(cov)
+    evals, evecs = np.linalg.eigh(cov)
+    assert np.allclose(smallest, evals[:, 0], rtol=0, atol=1e-15)
+    assert np.allclose(np.linalg.norm(normal, axis=1), 1.0)
+    planes = slice(10, None)
+    # the same normal up to sign, and an eigenvector of the smallest eigenvalue everywhere
+    assert np.allclose(np.abs(np.einsum("mi,mi->m", normal, evecs[:, :, 0]))[planes], 1.0, atol=1e-12)
+    residual = np.einsum("mij,mj->mi", cov, normal) - smallest[:, None] * normal
+    assert np.abs(residual).max() < 1e-15
 
 
 def test_outlier_filter_is_eq_5_1(rng):

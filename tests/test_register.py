@@ -93,6 +93,45 @@ def test_voxel_accumulator_means_and_bounded_memory(rng):
     assert not cloud.coloured.any()
 
 
+@pytest.mark.parametrize("merge_at", [1, 50, 1 << 20])
+def test_voxel_accumulator_streamed_frames_give_the_exact_voxel_means_in_key_order(rng, merge_at):
+    # coordinates on a 1/64 m lattice and small counts: every sum is exact in any order, so the means,
+    # counts and colours must come out exactly, however the frames' voxels interleave with those held and
+    # whenever the new voxels are merged in (every frame, now and then, only at the end)
+    acc = VoxelAccumulator(0.25)
+    acc.MERGE_AT = merge_at
+    frames = []
+    for f in range(12):
+        pts = rng.integers(-64 * (f % 4 + 1), 64 * (f % 3 + 1), size=(400, 3)) / 64.0
+        cols = rng.integers(0, 256, size=(400, 3)).astype(np.uint8)
+        ok = rng.random(400) < 0.7
+        frames.append((pts, cols if f % 3 else None, ok))
+        acc.add(pts, cols if f % 3 else None, ok)
+    cloud = acc.cloud()
+    assert (np.diff(acc.keys) > 0).all()  # the voxels stay unique and sorted by key
+    all_pts = np.concatenate([p for p, _, _ in frames])
+    voxel = np.floor(all_pts / 0.25).astype(np.int64)
+    uniq, inv = np.unique(voxel, axis=0, return_inverse=True)
+    assert len(cloud) == len(uniq)
+    # the cloud's voxel of each truth voxel, found by its mean (inside the voxel)
+    got = {tuple(v): k for k, v in enumerate(np.floor(cloud.points / 0.25).astype(np.int64))}
+    order = np.array([got[tuple(v)] for v in uniq])
+    inv = inv.ravel()
+    for a in range(3):
+        mean = np.bincount(inv, weights=all_pts[:, a]) / np.bincount(inv)
+        assert np.array_equal(cloud.points[order, a], mean)
+    assert np.array_equal(cloud.counts[order], np.bincount(inv))
+    cols = np.concatenate([c if c is not None else np.zeros((400, 3), np.uint8) for _, c, _ in frames])
+    used = np.concatenate([ok & (c is not None) for _, c, ok in frames])
+    ccount = np.bincount(inv[used], minlength=len(uniq))
+    assert np.array_equal(cloud.coloured[order], ccount > 0)
+    for a in range(3):
+        csum = np.bincount(inv[used], weights=cols[used, a].astype(float), minlength=len(uniq))
+        want = np.clip(np.rint(csum[ccount > 0] / ccount[ccount > 0]), 0, 255).astype(np.uint8)
+        assert np.array_equal(cloud.colors[order][ccount > 0, a], want)
+        assert (cloud.colors[order][ccount == 0, a] == 0).all()
+
+
 def test_fuse_frames_puts_points_on_the_walls_and_never_miscolours():
     cam = small_camera()
     calib = Calibration(cam, cam, RigidPose(np.eye(3), np.zeros(3)))

@@ -8,13 +8,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from tasks.camera import Calibration, CameraModel, colour_points, depth_to_points
-from tasks.cloud import Cloud, DegenerateInputError
+from tasks.cloud import Cloud, DegenerateInputError, apply_transform
 from tasks.register.config import RegisterConfig
 
 
@@ -28,22 +29,77 @@ class FusedCloud(Cloud):
     """(N,) depth points fused into each voxel."""
 
 
-class VoxelAccumulator:
-    """Per-voxel sums of points and colours, keyed by the packed voxel index: memory grows with the occupied
-    volume, not with the number of frames added."""
+class _Voxels:
+    """Per-voxel sums, sorted by packed key."""
 
-    OFFSET = 1 << 20
-    """Voxel indices are offset into 21 bits per axis (±1 M voxels: ±20 km at 2 cm)."""
-
-    def __init__(self, voxel_size_m: float) -> None:
-        if voxel_size_m <= 0:
-            raise ValueError(f"voxel size must be positive, got {voxel_size_m}")
-        self.voxel = float(voxel_size_m)
+    def __init__(self) -> None:
         self.keys = np.zeros(0, np.int64)
         self.sums = np.zeros((0, 3))
         self.counts = np.zeros(0, np.int64)
         self.colour_sums = np.zeros((0, 3))
         self.colour_counts = np.zeros(0, np.int64)
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    def find(self, keys: NDArray[np.int64]) -> tuple[NDArray[np.intp], NDArray[np.bool_]]:
+        """Where sorted unique `keys` are (or would go), and which are held."""
+        pos = np.searchsorted(self.keys, keys)
+        held = pos < len(self.keys)
+        held[held] = self.keys[pos[held]] == keys[held]
+        return pos, held
+
+    def add_at(self, pos: NDArray[np.intp], sums: NDArray, counts: NDArray, csums: Any, ccounts: Any) -> None:
+        # pos holds no index twice (a frame's keys are unique): plain fancy-index adds
+        self.sums[pos] += sums
+        self.counts[pos] += counts
+        if csums is not None:
+            self.colour_sums[pos] += csums
+            self.colour_counts[pos] += ccounts
+
+    def insert(self, other: _Voxels) -> None:
+        """Take in the voxels of `other`, none of which is held here (no sum is touched)."""
+        if not len(other):
+            return
+        at = np.searchsorted(self.keys, other.keys)
+        self.keys = np.insert(self.keys, at, other.keys)
+        self.sums = np.insert(self.sums, at, other.sums, axis=0)
+        self.counts = np.insert(self.counts, at, other.counts)
+        self.colour_sums = np.insert(self.colour_sums, at, other.colour_sums, axis=0)
+        self.colour_counts = np.insert(self.colour_counts, at, other.colour_counts)
+
+
+class VoxelAccumulator:
+    """Per-voxel sums of points and colours, keyed by the packed voxel index: memory grows with the occupied
+    volume, not with the number of frames added.
+
+    A frame is reduced to its own voxels first (per-voxel sums in point order) and added to the voxels
+    held: the work per frame grows with the frame's voxels, not with the room's. Voxels the room has not
+    held yet gather in a small pending set, merged into the sorted main set (a copy of it) only when
+    that set has grown by a quarter. Every voxel's sum is the same float sequence as adding the frames one
+    after the other, so the cloud does not depend on how the frames were batched."""
+
+    OFFSET = 1 << 20
+    """Voxel indices are offset into 21 bits per axis (±1 M voxels: ±20 km at 2 cm)."""
+    MERGE_AT = 65536
+    """Pending voxels merged into the main set once there are this many (or a quarter of the main set)."""
+
+    def __init__(self, voxel_size_m: float) -> None:
+        if voxel_size_m <= 0:
+            raise ValueError(f"voxel size must be positive, got {voxel_size_m}")
+        self.voxel = float(voxel_size_m)
+        self._main = _Voxels()
+        self._pending = _Voxels()
+
+    @property
+    def keys(self) -> NDArray[np.int64]:
+        """The packed keys of the voxels held, sorted."""
+        self._merge()
+        return self._main.keys
+
+    def _merge(self) -> None:
+        self._main.insert(self._pending)
+        self._pending = _Voxels()
 
     def _pack(self, points: NDArray[np.float64]) -> NDArray[np.int64]:
         idx = np.floor(points / self.voxel).astype(np.int64) + self.OFFSET
@@ -60,41 +116,56 @@ class VoxelAccumulator:
         """Add (N, 3) points (metres) with optional (N, 3) colours and their (N,) valid flags."""
         if len(points) == 0:
             return
-        keys = np.concatenate([self.keys, self._pack(points)])
-        uniq, inv = np.unique(keys, return_inverse=True)
-        old, new = inv[: len(self.keys)], inv[len(self.keys) :]
-        m = len(uniq)
-        sums = np.zeros((m, 3))
-        np.add.at(sums, old, self.sums) if len(old) else None
-        counts = np.bincount(old, weights=self.counts, minlength=m).astype(np.int64)
-        for a in range(3):
-            sums[:, a] += np.bincount(new, weights=points[:, a], minlength=m)
-        counts += np.bincount(new, minlength=m)
-        csums = np.zeros((m, 3))
-        if len(old):
-            csums[old] = self.colour_sums
-        ccounts = np.zeros(m, np.int64)
-        if len(old):
-            ccounts[old] = self.colour_counts
+        keys, inv = np.unique(self._pack(points), return_inverse=True)
+        inv = inv.ravel()
+        m = len(keys)
+        sums = np.stack([np.bincount(inv, weights=points[:, a], minlength=m) for a in range(3)], axis=1)
+        counts = np.bincount(inv, minlength=m).astype(np.int64)
+        csums = ccounts = None
         if colors is not None:
             ok = np.ones(len(points), bool) if coloured is None else np.asarray(coloured, bool)
-            for a in range(3):
-                csums[:, a] += np.bincount(new[ok], weights=colors[ok, a].astype(np.float64), minlength=m)
-            ccounts += np.bincount(new[ok], minlength=m)
-        self.keys, self.sums, self.counts = uniq, sums, counts
-        self.colour_sums, self.colour_counts = csums, ccounts
+            sel = inv[ok]
+            csums = np.stack(
+                [np.bincount(sel, weights=colors[ok, a].astype(np.float64), minlength=m) for a in range(3)],
+                axis=1,
+            )
+            ccounts = np.bincount(sel, minlength=m).astype(np.int64)
+        pos, held = self._main.find(keys)
+        pick = lambda v, w: None if v is None else v[w]  # noqa: E731
+        self._main.add_at(pos[held], sums[held], counts[held], pick(csums, held), pick(ccounts, held))
+        rest = ~held
+        if not rest.any():
+            return
+        keys, sums, counts = keys[rest], sums[rest], counts[rest]
+        csums, ccounts = pick(csums, rest), pick(ccounts, rest)
+        pos, held = self._pending.find(keys)
+        self._pending.add_at(pos[held], sums[held], counts[held], pick(csums, held), pick(ccounts, held))
+        new = ~held
+        if new.any():
+            fresh = _Voxels()
+            fresh.keys, fresh.sums, fresh.counts = keys[new], sums[new], counts[new]
+            if csums is not None and ccounts is not None:
+                fresh.colour_sums, fresh.colour_counts = csums[new], ccounts[new]
+            else:
+                fresh.colour_sums = np.zeros((int(new.sum()), 3))
+                fresh.colour_counts = np.zeros(int(new.sum()), np.int64)
+            self._pending.insert(fresh)
+        if len(self._pending) >= max(self.MERGE_AT, len(self._main) // 4):
+            self._merge()
 
     def cloud(self, min_points: int = 1) -> FusedCloud:
         """The mean point (and mean colour) of every voxel with at least `min_points` points."""
-        keep = self.counts >= max(min_points, 1)
-        pts = self.sums[keep] / self.counts[keep, None]
-        cc = self.colour_counts[keep]
+        self._merge()
+        v = self._main
+        keep = v.counts >= max(min_points, 1)
+        pts = v.sums[keep] / v.counts[keep, None]
+        cc = v.colour_counts[keep]
         coloured = cc > 0
         colors = np.zeros((int(keep.sum()), 3), np.uint8)
         colors[coloured] = np.clip(
-            np.rint(self.colour_sums[keep][coloured] / cc[coloured, None]), 0, 255
+            np.rint(v.colour_sums[keep][coloured] / cc[coloured, None]), 0, 255
         ).astype(np.uint8)
-        return FusedCloud(np.ascontiguousarray(pts), colors, coloured, self.counts[keep].copy())
+        return FusedCloud(np.ascontiguousarray(pts), colors, coloured, v.counts[keep].copy())
 
 
 FrameData = tuple[int, NDArray[np.floating], NDArray[np.uint8] | None]
@@ -268,7 +339,8 @@ def fuse_capture(
 
 
 def transform_points(T: NDArray[np.float64], pts: NDArray[np.float64]) -> NDArray[np.float64]:
-    return pts @ T[:3, :3].T + T[:3, 3]
+    """(N, 3) points moved by the (4, 4) pose T (`tasks.cloud.apply_transform`: no threaded BLAS)."""
+    return apply_transform(T, pts)
 
 
 def fuse_frames(

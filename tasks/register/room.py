@@ -245,23 +245,46 @@ def _depth_rows(frames_path: Path) -> Iterator[dict[str, Any]]:
     yield from iter_frames(frames_path, ["frame_id", "t_ns", "depth", "depth_kind", "depth_units_per_m"])
 
 
-def _colour_images(frames_path: Path) -> list[tuple[str, NDArray[np.uint8]]]:
-    """(name, (H, W, 3) RGB) of every frame that has a readable colour image, in frame order."""
+class EncodedImage:
+    """A colour frame kept as its encoded bytes (PNG or JPEG) and decoded where it is read as an array
+    (`np.asarray`): the frames SfM is given stay a few tens of kB each in memory instead of 0.9 MB, and
+    only the one being read is ever decoded."""
+
+    __slots__ = ("data",)
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+    def decode(self) -> NDArray[np.uint8] | None:
+        """(H, W, 3) RGB, or None when the bytes are not a readable image."""
+        import cv2
+
+        img = cv2.imdecode(np.frombuffer(self.data, np.uint8), cv2.IMREAD_COLOR)
+        return None if img is None else cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> NDArray[np.uint8]:
+        img = self.decode()
+        if img is None:
+            raise DegenerateInputError("a colour frame is not a readable image")
+        return img if dtype is None else img.astype(dtype)
+
+
+def _colour_images(frames_path: Path) -> list[tuple[str, EncodedImage]]:
+    """(name, the encoded RGB image) of every frame that has a readable colour image, in frame order;
+    each is decoded once here to check it, and dropped."""
     from tasks.ingest.frames import iter_frames
 
     images = []
     for row in iter_frames(frames_path, ["frame_id", "rgb"]):
         if row["rgb"]:
-            from tasks.ingest.frames import decode_rgb
-
-            img = decode_rgb(row)
-            if img is not None:
-                images.append((_frame_name(int(row["frame_id"])), img))
+            image = EncodedImage(row["rgb"])
+            if image.decode() is not None:
+                images.append((_frame_name(int(row["frame_id"])), image))
     return images
 
 
 def _sfm_with_retry(
-    images: list[tuple[str, NDArray[np.uint8]]],
+    images: list[tuple[str, EncodedImage]],
     frame_count: int,
     depth_frames: Callable[[], Iterator[tuple[str, NDArray[np.float32]]]],
     calib: Calibration,
