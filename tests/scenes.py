@@ -47,3 +47,26 @@ def ate_after_similarity(est: NDArray, truth: NDArray) -> tuple[float, float]:
     s, R, t = umeyama(est, truth)
     e = np.linalg.norm(s * est @ R.T + t - truth, axis=1)
     return float(np.sqrt((e**2).mean())), float(s)
+
+
+def wall_points(
+    a: NDArray | tuple,
+    b: NDArray | tuple,
+    z0: float,
+    z1: float,
+    rng: np.random.Generator,
+    step: float = 0.01,
+    noise: float = 0.0,
+) -> NDArray[np.float64]:
+    """A vertical wall face from a to b, z0..z1, one point per step^2, optional normal noise."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    L = float(np.hypot(*(b - a)))
+    s, z = np.meshgrid(np.arange(0, L, step) + step / 2, np.arange(z0, z1, step) + step / 2)
+    u = (b - a) / L
+    n = np.array([-u[1], u[0]])
+    xy = (
+        a + s.reshape(-1, 1) * u + rng.normal(0, noise, (s.size, 1)) * n
+        if noise
+        else a + s.reshape(-1, 1) * u
+    )
+    return np.column_stack([xy, z.reshape(-1)])

@@ -18,23 +18,9 @@ from tasks.walls.evidence import refine_offsets
 from tasks.walls.image import binarize, hough_segments, projection_image, skeleton
 from tasks.walls.model import extrude, model_walls
 from tasks.walls.topology import choose_alpha, same_walls
+from tests.scenes import wall_points
 
 CFG = WallsConfig()
-
-
-def wall_points(a, b, z0, z1, rng, step=0.01, noise=0.0):
-    """A vertical wall face from a to b, z0..z1, one point per step^2, optional normal noise."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    L = float(np.hypot(*(b - a)))
-    s, z = np.meshgrid(np.arange(0, L, step) + step / 2, np.arange(z0, z1, step) + step / 2)
-    u = (b - a) / L
-    n = np.array([-u[1], u[0]])
-    xy = (
-        a + s.reshape(-1, 1) * u + rng.normal(0, noise, (s.size, 1)) * n
-        if noise
-        else a + s.reshape(-1, 1) * u
-    )
-    return np.column_stack([xy, z.reshape(-1)])
 
 
 def box_slice(rng, w=4.0, h=3.0, noise=0.0):

@@ -12,19 +12,14 @@ from tasks.evaluate import evaluate_walls
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import _stubs, faces_below_slice, lifted
 from tasks.walls.stage import room_model
+from tests.scenes import wall_points
 
 CFG = WallsConfig()
 
 
 def face(a, b, z0, z1, rng, step=0.01, noise=0.003):
-    """A vertical face from a to b, z0..z1, one point per step², normal noise."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    L = float(np.hypot(*(b - a)))
-    s, z = np.meshgrid(np.arange(0, L, step) + step / 2, np.arange(z0, z1, step) + step / 2)
-    u = (b - a) / L
-    n = np.array([-u[1], u[0]])
-    xy = a + s.reshape(-1, 1) * u + rng.normal(0, noise, (s.size, 1)) * n
-    return np.column_stack([xy, z.reshape(-1)])
+    """A vertical face from a to b, z0..z1, one point per step², normal noise (3 mm by default)."""
+    return wall_points(a, b, z0, z1, rng, step=step, noise=noise)
 
 
 def stub_room(rng, north_top: float):
