@@ -137,10 +137,10 @@ class SfmConfig:
     `exhaustive_max_frames` frames, sequential beyond."""
     exhaustive_max_frames: int = 40
     """Largest frame count matched exhaustively by `matching="auto"`."""
-    sequential_overlap: int = 5
-    """Sequential matching: each frame is matched with this many following frames. 5 instead of 10 on 100
-    real 7-Scenes frames (every 10th of the recording, loop pairs as below): matching CPU 11.1 -> 8.0 s,
-    ATE 4.29 -> 4.26 cm, all registered."""
+    sequential_overlap: int = 10
+    """Sequential matching: each frame is matched with this many following frames. 5 on 100 real 7-Scenes
+    frames (every 10th of the recording, loop pairs as below): matching CPU 11.1 -> 8.0 s of about 96,
+    ATE 4.29 -> 4.26 cm, all registered; too little to leave the plain pycolmap setting."""
     loop_keyframe_stride: int = 5
     """Loop closures (sequential matching): every n-th frame is also matched with every other n-th frame
     farther apart than the overlap (0 = off). Stands in for vocabulary-tree loop detection, whose tree
@@ -164,20 +164,22 @@ class SfmConfig:
     with the fewer, larger features) at ATE 4.23 -> 4.29 cm, all registered, but on the rendered views of
     the synthetic rooms the camera centres came out 12 mm off instead of 1.9 mm (fewer, worse-placed
     points). Worth setting for real, blurred video frames."""
-    feature_threads: int = 2
-    """Threads for SIFT extraction and matching: each frame, each pair is computed alone (the frames enter
-    the database in capture order first), so the result does not depend on it. The mapper's are
-    `num_threads`."""
-    ba_global_frames_ratio: float = 1.4
+    feature_threads: int = 1
+    """Threads for SIFT extraction and matching (the frames enter the database in capture order first, so
+    the image ids do not depend on it). One by default: with two, a 300-frame register stage gave a
+    different cloud from run to run (308,748 and 309,307 points), which a cache key cannot allow. The
+    mapper's are `num_threads`."""
+    ba_global_frames_ratio: float = 1.1
     """Incremental mapping: a global bundle adjustment is run when the registered frames have grown by
     this factor since the last one (COLMAP's default 1.1; more means fewer global adjustments). 1.4 with
-    the points ratio 1.4 and one local refinement on 100 real 7-Scenes frames: mapping CPU 19.0 -> 11.8 s,
-    ATE 4.26 -> 4.25 cm (the final global adjustment still runs)."""
-    ba_global_points_ratio: float = 1.4
+    the points ratio 1.4 and one local refinement: on 100 real 7-Scenes frames mapping CPU 19.0 -> 11.8 s
+    at ATE 4.26 -> 4.25 cm, but (with two feature threads) data/mini's r1 came out at ATE 2.3 cm instead
+    of 0.3, scale -0.37 % instead of -0.10 %, corner F1 0.71 instead of 1.00; so COLMAP's defaults stay."""
+    ba_global_points_ratio: float = 1.1
     """Incremental mapping: likewise for the number of 3D points."""
     ba_global_max_refinements: int = 5
     """Incremental mapping: rounds of global bundle adjustment with retriangulation and filtering."""
-    ba_local_max_refinements: int = 1
+    ba_local_max_refinements: int = 2
     """Incremental mapping: rounds of local bundle adjustment after each registered frame."""
     min_num_matches: int = 15
     """Fewest verified matches for an image pair to count in mapping."""
