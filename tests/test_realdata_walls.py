@@ -23,7 +23,7 @@ def test_real_kitchen_walls_survive_a_handheld_subsample_and_cut(realdata):
     full = model_cloud(points, cfg)
     assert not full.pre.metrics["ceiling_captured"] and "top of the walls" in full.pre.metrics["slice_reason"]
     assert full.choices["grid_from_noise"] and 0.015 <= full.choices["wall_noise_m"] <= 0.04, full.choices
-    assert len(full.walls) >= 2 and lengths(full.walls).max() >= 4.5 and lengths(full.walls).sum() >= 6.5
+    assert len(full.walls) >= 2 and _back_wall_m(full.walls) >= 4.5 and lengths(full.walls).sum() >= 6.5
     cut = handheld_cut(points, full.pre, 0.04, 1.5)
     assert len(cut) < 0.3 * len(points)
     degraded = model_cloud(cut, cfg)
@@ -33,3 +33,15 @@ def test_real_kitchen_walls_survive_a_handheld_subsample_and_cut(realdata):
     assert same["completeness"] >= 0.9 and same["correctness"] >= 0.9, same
     assert same["accuracy_mean_m"] <= 0.03 and same["angle_error_deg"] <= 1.0, same
     assert np.isfinite(degraded.walls).all()
+
+
+def _back_wall_m(walls: np.ndarray) -> float:
+    """Length of the longest wall plus the pieces parallel to it and within 0.10 m of its line (a wall a
+    jog of a centimetre or two splits is still that wall)."""
+    L = lengths(walls)
+    i = int(np.argmax(L))
+    u = (walls[i, 2:] - walls[i, :2]) / L[i]
+    n = np.array([-u[1], u[0]])
+    d = (walls - np.tile(walls[i, :2], 2)).reshape(-1, 2, 2) @ n
+    parallel = np.abs(((walls[:, 2:] - walls[:, :2]) / np.maximum(L, 1e-12)[:, None]) @ n) < 0.05
+    return float(L[parallel & (np.abs(d).max(axis=1) <= 0.10)].sum())

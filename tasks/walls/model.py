@@ -264,7 +264,7 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
     else:
         # candidates are compared on the pixel-accurate model; the chosen one is refined on the points
         cands = [model_for(proj, cfg, a) for a in alphas]
-        chosen, reason = choose_alpha(cands, cfg.stable_tol_m)
+        chosen, reason = choose_alpha(cands, cfg.stable_tol_m, cfg.thin_wall_max_m)
         best = model_for(proj, cfg, alphas[chosen], xy)
         if cands[chosen].closed and not best.closed:
             # the refinement moved a borderline corner out of reach: keep the pixel-accurate model

@@ -467,15 +467,20 @@ CLOSED_MIN_LENGTH_SHARE = 0.5
 median wall length."""
 
 
-def choose_alpha(cands: list[Candidate], tol_m: float) -> tuple[int, str]:
+def choose_alpha(cands: list[Candidate], tol_m: float, wall_max_m: float = 0.0) -> tuple[int, str]:
     """Index of the chosen candidate and the reason (see the module docstring). Models closed as they
-    are rank before models closed only by bridging wider gaps, which rank before unclosed ones."""
+    are rank before models closed only by bridging wider gaps, which rank before unclosed ones. A room
+    whose mean width (2 area / perimeter) is no more than `wall_max_m` (the thickest thin wall) is not
+    a room but the two faces of one wall or a cabinet."""
     n = len(cands)
     # a closed model holding under half the wall length the candidates typically find is a piece of
     # furniture or a closet the walls of a poorly seen room happen to enclose, not the room
     length = np.array([float(lengths(c.walls).sum()) for c in cands])
     typical = float(np.median(length)) if n else 0.0
-    room_sized = length >= CLOSED_MIN_LENGTH_SHARE * typical
+    room_sized = (length >= CLOSED_MIN_LENGTH_SHARE * typical) & np.array(
+        [c.polygon is None or 2 * c.polygon.area / max(c.polygon.length, 1e-9) > wall_max_m for c in cands],
+        dtype=bool,
+    )
     tiers = (
         (
             "closed",
