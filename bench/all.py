@@ -10,8 +10,7 @@ Run from the repository root. Rows:
 - SfM: seconds per frame on real 640x480 Kinect frames, frames registered and ATE (`bench.sfm`), and the
   yardstick: the whole register stage's time over plain pycolmap's on the same frames;
 - scale: seconds per frame of the metric scale (`bench.sfm`);
-- register: the whole register stage on a rendered walk, time and peak resident memory (`bench.register`
-  where it exists, else `bench.sfm --register-frames`);
+- register: the whole register stage on a rendered walk, time and peak resident memory (`bench.register`);
 - preprocess: input points per second (`bench.preprocess`);
 - walls: the 10 m x 10 m room at a 1 cm grid (`bench.walls`);
 - data/mini: a cold `indoor-survey run` of the miniature survey into a fresh work dir, with the mean wall
@@ -128,12 +127,8 @@ def row_sfm(size: dict[str, int], quick: bool, sets: list[str]) -> list[dict[str
 
 def row_register(size: dict[str, int], quick: bool, sets: list[str]) -> list[dict[str, Any]]:
     n = size["register_frames"]
-    if (REPO / "bench" / "register.py").exists():
-        run = child(["-m", "bench.register", "--frames", str(n)], 3600)
-        pattern = r"register (\d+) frames: ([\d.]+) s wall, ([\d.]+) s CPU, peak RSS ([\d.]+) GB"
-    else:
-        run = child(["-m", "bench.sfm", "--frames", "0", "--register-frames", str(n)], 3600)
-        pattern = r"register (\d+) rendered frames: ([\d.]+) s \(([\d.]+) s CPU\), peak memory ([\d.]+) GB"
+    run = child(["-m", "bench.register", "--frames", str(n)], 3600)
+    pattern = r"register (\d+) frames: ([\d.]+) s wall, ([\d.]+) s CPU, peak RSS ([\d.]+) GB"
     why = _failed(run)
     if why:
         return [{"row": "register", "error": why}]

@@ -502,26 +502,23 @@ def test_two_concurrent_runs_compute_every_stage_once(tmp_path, prefect_harness)
     survey = small_survey(tmp_path / "s")
     work = tmp_path / "w"
     env = prefect_env()
-    first = subprocess.Popen(
-        cli("run", str(survey), "--work", str(work)),
-        env=env,
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+
+    def start() -> subprocess.Popen:
+        return subprocess.Popen(
+            cli("run", str(survey), "--work", str(work)),
+            env=env,
+            cwd=REPO,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+
+    first = start()
     deadline = time.time() + 120
     while not (work / ".lock.json").is_file():  # the first holds the lock
         assert first.poll() is None and time.time() < deadline
         time.sleep(0.05)
-    second = subprocess.Popen(
-        cli("run", str(survey), "--work", str(work)),
-        env=env,
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    second = start()
     out1, err1 = first.communicate(timeout=600)
     out2, err2 = second.communicate(timeout=600)
     assert first.returncode == 0 and second.returncode == 0, (err1, err2)

@@ -81,11 +81,15 @@ def _horizontal_layer(
 
 
 def level_frame(
-    depth_m: NDArray[np.floating], camera: CameraModel, cfg: RegisterConfig
+    depth_m: NDArray[np.floating],
+    camera: CameraModel,
+    cfg: RegisterConfig,
+    normals: tuple[NDArray, NDArray] | None = None,
 ) -> tuple[NDArray[np.float64], float, int] | None:
     """The floor of one frame (3.2.2.4), see `_horizontal_layer`. Returns ((3,) up direction in the camera
-    frame, camera height above the floor (m), floor points) or None when too few floor points are seen."""
-    pts, nrm = depth_normals(depth_m, camera)
+    frame, camera height above the floor (m), floor points) or None when too few floor points are seen.
+    `normals`: the frame's `depth_normals`, when already computed."""
+    pts, nrm = normals or depth_normals(depth_m, camera)
     if len(pts) < cfg.floor_min_points:
         return None
     fit = _horizontal_layer(pts, nrm, cfg, ceiling=False)
@@ -99,12 +103,16 @@ def level_frame(
 
 
 def level_by_ceiling(
-    depth_m: NDArray[np.floating], camera: CameraModel, cfg: RegisterConfig
+    depth_m: NDArray[np.floating],
+    camera: CameraModel,
+    cfg: RegisterConfig,
+    normals: tuple[NDArray, NDArray] | None = None,
 ) -> NDArray[np.float64] | None:
     """Beyond the thesis: the up direction (camera frame) of a frame that sees no floor, from its ceiling.
     A handheld camera pitched up sees the ceiling, not the floor; the capture's median up would tilt it by
-    twice its pitch. The height above the floor stays the capture's median. None without a ceiling."""
-    pts, nrm = depth_normals(depth_m, camera)
+    twice its pitch. The height above the floor stays the capture's median. None without a ceiling.
+    `normals`: the frame's `depth_normals`, when already computed."""
+    pts, nrm = normals or depth_normals(depth_m, camera)
     if len(pts) < cfg.floor_min_points:
         return None
     fit = _horizontal_layer(pts, nrm, cfg, ceiling=True)
@@ -279,10 +287,11 @@ def _level_frames(
     cam_points: dict[int, NDArray[np.float64]] = {}
     for frame_id, t_ns, depth in frames:
         fid = int(frame_id)
-        lv = level_frame(depth, calibration.ir, cfg)
+        normals = depth_normals(depth, calibration.ir)  # shared by the floor's and the ceiling's fit
+        lv = level_frame(depth, calibration.ir, cfg, normals)
         if lv is not None:
             levels[fid] = _Level("floor", lv[0], lv[1])
-        elif (up := level_by_ceiling(depth, calibration.ir, cfg)) is not None:
+        elif (up := level_by_ceiling(depth, calibration.ir, cfg, normals)) is not None:
             levels[fid] = _Level("ceiling", up)
         else:
             walls = wall_directions(depth, calibration.ir, cfg)
