@@ -17,6 +17,7 @@ ifcopenshell.guid.compress of a uuid5 of the element's identity.
 
 from __future__ import annotations
 
+import itertools
 import uuid
 from pathlib import Path
 from typing import Any
@@ -304,30 +305,21 @@ def build(
         RepresentationContexts=[w.model],
         UnitsInContext=w.units,
     )
-    site_place = w.placement(None, np.zeros(2), np.array([1.0, 0.0]))
-    site = c(
-        "IfcSite", GlobalId=guid("site"), Name="Site", ObjectPlacement=site_place, CompositionType="ELEMENT"
-    )
-    building_place = w.placement(site_place, np.zeros(2), np.array([1.0, 0.0]))
-    building = c(
-        "IfcBuilding",
-        GlobalId=guid("building"),
-        Name="Building",
-        ObjectPlacement=building_place,
-        CompositionType="ELEMENT",
-    )
-    storey_place = w.placement(building_place, np.zeros(2), np.array([1.0, 0.0]))
-    storey = c(
-        "IfcBuildingStorey",
-        GlobalId=guid("storey"),
-        Name="Surveyed floor",
-        ObjectPlacement=storey_place,
-        CompositionType="ELEMENT",
-        Elevation=0.0,
-    )
-    w.rel("IfcRelAggregates", "project:site", RelatingObject=project, RelatedObjects=[site])
-    w.rel("IfcRelAggregates", "site:building", RelatingObject=site, RelatedObjects=[building])
-    w.rel("IfcRelAggregates", "building:storey", RelatingObject=building, RelatedObjects=[storey])
+    # the spatial chain project > site > building > storey, each placed at its parent's origin
+    chain: list[tuple[str, Any, Any]] = [("project", project, None)]
+    for key, entity, label, extra in (
+        ("site", "IfcSite", "Site", {}),
+        ("building", "IfcBuilding", "Building", {}),
+        ("storey", "IfcBuildingStorey", "Surveyed floor", {"Elevation": 0.0}),
+    ):
+        place = w.placement(chain[-1][2], np.zeros(2), np.array([1.0, 0.0]))
+        element = c(
+            entity, GlobalId=guid(key), Name=label, ObjectPlacement=place, CompositionType="ELEMENT", **extra
+        )
+        chain.append((key, element, place))
+    for (whole_key, whole, _), (key, part, _) in itertools.pairwise(chain):
+        w.rel("IfcRelAggregates", f"{whole_key}:{key}", RelatingObject=whole, RelatedObjects=[part])
+    _, storey, storey_place = chain[-1]
     materials: dict[Any, Any] = {}
     hosts: dict[int, tuple[Any, Any]] = {}
     contained = []
