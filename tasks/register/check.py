@@ -163,7 +163,8 @@ def judge_pairs(
 ) -> DepthConsistency:
     """The inconsistent frames of a chain of neighbour pairs (`neighbour_depth_consistency`): a frame whose
     informative pairs (at least `min_points` checked) all agree on less than `min_share`. A wrong frame
-    spoils both its pairs, while its neighbours keep their other, good pair."""
+    spoils both its pairs, while its neighbours keep their other, good pair; a neighbour whose only
+    informative pair is the one with a frame spoiling two is not blamed."""
     informative = [p for p in pairs if p.checked >= min_points]
     best: dict[str, float] = {}
     for p in pairs:
@@ -172,7 +173,19 @@ def judge_pairs(
     for p in informative:
         for f in (p.a, p.b):
             best[f] = p.share if not np.isfinite(best[f]) else max(best[f], p.share)
-    inconsistent = sorted(f for f, s in best.items() if np.isfinite(s) and s < min_share)
+    suspects = {f for f, s in best.items() if np.isfinite(s) and s < min_share}
+    bad_pairs = {f: [p for p in informative if f in (p.a, p.b)] for f in suspects}
+    # a frame whose one informative pair is with a suspect that disagrees with more frames is cleared:
+    # the other one is to blame (its own other neighbours are checked once it is left out)
+    inconsistent = sorted(
+        f
+        for f in suspects
+        if not (
+            len(bad_pairs[f]) == 1
+            and (other := bad_pairs[f][0].b if bad_pairs[f][0].a == f else bad_pairs[f][0].a) in suspects
+            and len(bad_pairs[other]) > 1
+        )
+    )
     shares = np.array([p.share for p in informative])
     return DepthConsistency(
         pairs,
