@@ -202,6 +202,8 @@ def register_room(
     elif track is not None:
         why = sfm_error or f"SfM registered {registered} of {len(frame_ids)} frames"
         say(f"track-based fallback ({why})")
+        if "map_check" in metrics:
+            metrics["map_check"]["used"] = "IMU track fallback"
         poses, methods, scale_json = _track_placement(
             frames_path, track, calib, cfg, plan_walls, why, depth_units_per_m, metrics
         )
@@ -380,8 +382,12 @@ def _sfm_with_retry(
             verdict = "inconsistent frames left unplaced"
         if abs(report.relative_trend) > cfg.sfm_max_scale_trend:
             verdict = "scales drift (bent map) in every attempt; the straightest kept"
+        failed = [_attempt_failure(a, cfg) for a in tried]
+        why = "; ".join(f"seed {a['seed']}: {f}" for a, f in zip(tried, failed, strict=True) if f)
         metrics["map_check"] = {
             "verdict": verdict,
+            "used": f"sfm seed {kept_seed}" + (f" without {len(dropped)} frames" if dropped else ""),
+            "why": why or "the first map passed the checks",
             "seed": kept_seed,
             "attempts": len(tried),
             "unplaced_frames": sorted(dropped),
@@ -395,6 +401,19 @@ def _sfm_with_retry(
             )
             report = None
     return sfm, report, sfm_error, tried, dropped
+
+
+def _attempt_failure(attempt: dict[str, Any], cfg: RegisterConfig) -> str:
+    """What an SfM attempt's record says is wrong with its map ("" when nothing)."""
+    out = []
+    if abs(attempt["relative_trend"]) > cfg.sfm_max_scale_trend:
+        out.append(f"per-frame scales drift {attempt['relative_trend']:+.1%} along the capture")
+    if attempt["inconsistent_frames"]:
+        out.append(
+            f"{', '.join(attempt['inconsistent_frames'])} disagree with their neighbours' depth "
+            f"(lowest pair agreement {attempt['min_pair_agreement']})"
+        )
+    return " and ".join(out)
 
 
 def map_check(
