@@ -1,5 +1,7 @@
 """One room registered (thesis 3.2): SfM → metric scale → fused cloud, the SfM made again with another seed
-while its per-frame scales drift, or the track-based fallback when SfM places too few frames.
+while the map fails a check from the data (its per-frame scales drift along the capture, or a frame's
+depth disagrees with its neighbours': `tasks.register.check`), or the track-based fallback when SfM places
+too few frames (consistently).
 
 Frames: SfM placements are in a room frame anchored at the first registered depth camera (x right, y
 forward, z up); track placements are in the track's (plan) frame with z up from the floor.
