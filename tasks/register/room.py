@@ -1,5 +1,7 @@
 """One room registered (thesis 3.2): SfM → metric scale → fused cloud, the SfM made again with another seed
-while its per-frame scales drift, or the track-based fallback when SfM places too few frames.
+while the map fails a check from the data (its per-frame scales drift along the capture, or a frame's
+depth disagrees with its neighbours': `tasks.register.check`), or the track-based fallback when SfM places
+too few frames (consistently).
 
 Frames: SfM placements are in a room frame anchored at the first registered depth camera (x right, y
 forward, z up); track placements are in the track's (plan) frame with z up from the floor.
@@ -19,6 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from tasks.camera import Calibration, CameraModel, RigidPose, profile_calibration
 from tasks.cloud import DegenerateInputError
+from tasks.register.check import DepthConsistency, neighbour_depth_consistency
 from tasks.register.config import RegisterConfig, ScaleConfig, SfmConfig
 from tasks.register.fusion import (
     FrameData,
@@ -186,7 +189,7 @@ def register_room(
     images = _colour_images(frames_path)
     say(f"sfm on {len(images)} colour frames")
     radial_k = 0.0 if radial is None else radial.k_inv_m
-    sfm, report, sfm_error, tried = _sfm_with_retry(
+    sfm, report, sfm_error, tried, dropped = _sfm_with_retry(
         images, len(frame_ids), depth_frames, calib, cfg, sfm_cfg, scale_cfg, workdir, metrics, say, radial_k
     )
     del images
@@ -197,10 +200,12 @@ def register_room(
         metrics["sfm"] = sfm.metrics
     frame = "room"
     if report is not None and sfm is not None:
-        poses, methods, scale_json = _sfm_placement(sfm, report, calib, frame_ids)
+        poses, methods, scale_json = _sfm_placement(sfm, report, calib, frame_ids, dropped)
     elif track is not None:
         why = sfm_error or f"SfM registered {registered} of {len(frame_ids)} frames"
         say(f"track-based fallback ({why})")
+        if "map_check" in metrics:
+            metrics["map_check"]["used"] = "IMU track fallback"
         poses, methods, scale_json = _track_placement(
             frames_path, track, calib, cfg, plan_walls, why, depth_units_per_m, metrics
         )
@@ -295,17 +300,22 @@ def _sfm_with_retry(
     metrics: dict[str, Any],
     say: Callable[[str], None],
     radial_k: float = 0.0,
-) -> tuple[SfmResult | None, ScaleReport | None, str, list[dict[str, Any]]]:
+) -> tuple[SfmResult | None, ScaleReport | None, str, list[dict[str, Any]], set[str]]:
     """SfM and its metric scale, made again with the next seed (up to `cfg.sfm_attempts` runs) while the
-    per-frame scales drift along the capture; the run registering most frames, then the straightest, is
+    map fails a check: its per-frame scales drift along the capture, or a frame's depth disagrees with
+    its neighbours' (`map_check`). The run placing most frames consistently, then the straightest, is
     kept. Returns (the kept reconstruction or the last one registering too few frames, its scale report
-    (None: not usable), why SfM failed ("" when it did not), one record per scaled attempt). Adds the
-    scale timing to `metrics`. radial_k: the depth camera's radial error taken out of the depth
-    (`estimate_scale`)."""
+    (None: not usable), why SfM failed ("" when it did not), one record per scaled attempt, the kept
+    run's inconsistent frames, left unplaced). Adds the scale and check timings and `map_check` (the
+    verdict on the kept run) to `metrics`. radial_k: the depth camera's radial error taken out of the
+    depth (`estimate_scale`)."""
     sfm: SfmResult | None = None
     sfm_error = ""
     report = None
     tried: list[dict[str, Any]] = []
+    dropped: set[str] = set()
+    kept_check: DepthConsistency | None = None
+    kept_seed = sfm_cfg.random_seed
     for attempt in range(max(cfg.sfm_attempts, 1)):
         # RANSAC in the mapper now and then bends a reconstruction (seen on a synthetic room: 8 cm ATE
         # with one seed, 0.3 cm with the next two); the bend shows as per-frame scales that drift along
@@ -344,34 +354,123 @@ def _sfm_with_retry(
                 sfm = candidate
             break
         metrics["scale_s"] = round(metrics.get("scale_s", 0.0) + time.perf_counter() - t0, 3)
+        t0 = time.perf_counter()
+        check = map_check(candidate, candidate_report, depth_frames, calib, cfg, scale_cfg)
+        metrics["check_s"] = round(metrics.get("check_s", 0.0) + time.perf_counter() - t0, 3)
+        consistent = n_reg - len(check.inconsistent)
+        straight = abs(candidate_report.relative_trend) <= cfg.sfm_max_scale_trend
         tried.append(
             {
                 "seed": seeded.random_seed,
                 "registered": n_reg,
                 "relative_spread": candidate_report.relative_spread,
                 "relative_trend": round(candidate_report.relative_trend, 5),
+                **check.to_json(),
             }
         )
-        better = report is None or (n_reg, -abs(candidate_report.relative_trend)) > (
-            int(sfm.registered.sum()),
+        better = report is None or (consistent, -abs(candidate_report.relative_trend)) > (
+            int(sfm.registered.sum()) - len(dropped),
             -abs(report.relative_trend),
         )
         if better:
             sfm, report, sfm_error = candidate, candidate_report, ""
-        if abs(report.relative_trend) <= cfg.sfm_max_scale_trend:
+            dropped, kept_check, kept_seed = set(check.inconsistent), check, seeded.random_seed
+        if straight and not check.inconsistent:
             break
-    return sfm, report, sfm_error, tried
+    if report is not None and sfm is not None and kept_check is not None:
+        kept = int(sfm.registered.sum()) - len(dropped)
+        verdict = "consistent"
+        if dropped:
+            verdict = "inconsistent frames left unplaced"
+        if abs(report.relative_trend) > cfg.sfm_max_scale_trend:
+            verdict = "scales drift (bent map) in every attempt; the straightest kept"
+        failed = [_attempt_failure(a, cfg) for a in tried]
+        why = "; ".join(f"seed {a['seed']}: {f}" for a, f in zip(tried, failed, strict=True) if f)
+        metrics["map_check"] = {
+            "verdict": verdict,
+            "used": f"sfm seed {kept_seed}" + (f" without {len(dropped)} frames" if dropped else ""),
+            "why": why or "the first map passed the checks",
+            "seed": kept_seed,
+            "attempts": len(tried),
+            "unplaced_frames": sorted(dropped),
+            "relative_trend": round(report.relative_trend, 5),
+            **{k: v for k, v in kept_check.to_json().items() if k != "inconsistent_frames"},
+        }
+        if kept / frame_count < cfg.fallback_min_registered_fraction:
+            sfm_error = (
+                f"SfM placed {kept} of {frame_count} frames consistently with their depth "
+                f"({len(dropped)} inconsistent)"
+            )
+            report = None
+    return sfm, report, sfm_error, tried, dropped
+
+
+def _attempt_failure(attempt: dict[str, Any], cfg: RegisterConfig) -> str:
+    """What an SfM attempt's record says is wrong with its map ("" when nothing)."""
+    out = []
+    if abs(attempt["relative_trend"]) > cfg.sfm_max_scale_trend:
+        out.append(f"per-frame scales drift {attempt['relative_trend']:+.1%} along the capture")
+    if attempt["inconsistent_frames"]:
+        out.append(
+            f"{', '.join(attempt['inconsistent_frames'])} disagree with their neighbours' depth "
+            f"(lowest pair agreement {attempt['min_pair_agreement']})"
+        )
+    return " and ".join(out)
+
+
+def map_check(
+    sfm: SfmResult,
+    report: ScaleReport,
+    depth_frames: Callable[[], Iterator[tuple[str, NDArray[np.float32]]]],
+    calib: Calibration,
+    cfg: RegisterConfig,
+    scale_cfg: ScaleConfig,
+) -> DepthConsistency:
+    """The neighbour depth check (`tasks.register.check`) of an SfM map made metric by its scale: the
+    frames whose depth disagrees with their neighbours' are checked once more without them (their
+    neighbours then meet), and the frames found on either pass are inconsistent. The figures are the
+    first pass's."""
+    metric = apply_scale(sfm, report.scale, calib)
+    names = [n for n in sfm.names if n in metric]
+    left_out: list[str] = []
+    first = check = None
+    for _ in range(2):
+        poses = {n: metric[n] for n in names if n not in left_out}
+        check = neighbour_depth_consistency(
+            depth_frames(),
+            poses,
+            calib.ir,
+            scale_cfg.inlier_threshold_m,
+            scale_cfg.inlier_threshold_rel,
+            cfg.map_min_agreement,
+            cfg.map_min_pair_points,
+            min_depth_m=cfg.min_depth_m,
+            max_depth_m=cfg.max_depth_m,
+        )
+        first = first or check
+        if not check.inconsistent:
+            break
+        left_out += check.inconsistent
+    assert first is not None and check is not None
+    # the figures of the first pass (the evidence), the frames of both
+    first.inconsistent = sorted(set(left_out) | set(check.inconsistent))
+    return first
 
 
 def _sfm_placement(
-    sfm: SfmResult, report: ScaleReport, calib: Calibration, frame_ids: list[int]
+    sfm: SfmResult,
+    report: ScaleReport,
+    calib: Calibration,
+    frame_ids: list[int],
+    dropped: set[str] | None = None,
 ) -> tuple[dict[int, NDArray[np.float64]], dict[int, str], dict[str, Any]]:
-    """The SfM poses made metric (frame id -> (4, 4) depth camera → room), their method, and scale.json."""
+    """The SfM poses made metric (frame id -> (4, 4) depth camera → room), their method, and scale.json;
+    the `dropped` frames (names) are left unplaced."""
     poses: dict[int, NDArray[np.float64]] = {}
     methods: dict[int, str] = {}
     by_name = apply_scale(sfm, report.scale, calib)
     for fid in frame_ids:
-        if _frame_name(fid) in by_name:
+        if _frame_name(fid) in by_name and _frame_name(fid) not in (dropped or set()):
             poses[fid] = by_name[_frame_name(fid)]
             methods[fid] = "sfm"
     scale_json = {"method": "sfm", **report.to_json()}
