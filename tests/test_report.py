@@ -18,7 +18,8 @@ from tasks import artefacts as art
 from tasks.artefacts import ArtefactStore
 from tasks.preview import TITLE_PX, Key, View, frame_picture, retitle, tick_step
 from tasks.report import write_report
-from tasks.report.gather import gather
+from tasks.report.gather import RoomData, StageRow, gather
+from tasks.report.page import room_figures
 from tasks.report.svg import face_support, floor_svg, wall_outline
 
 REPO = Path(__file__).resolve().parents[1]
@@ -411,3 +412,12 @@ def test_report_of_the_mini_run_in_a_real_browser(mini_run, tmp_path) -> None:
     assert 0 < shot.stat().st_size < 500_000
     if os.environ.get("INDOOR_SURVEY_WRITE_DOCS") == "1":  # refresh the README's picture
         shutil.copyfile(shot, REPO / "docs" / "report.png")
+
+
+def test_room_figures_say_which_map_was_used_and_why() -> None:
+    check = {"used": "sfm seed 1", "why": "seed 0: 000007.png disagrees with its neighbours' depth"}
+    row = StageRow(
+        "r1", "register", "computed", 1.0, manifest={"metrics": {"frames": 24, "map_check": check}}
+    )
+    figures = dict(room_figures(RoomData("r1", {"register": row}), None, None))
+    assert figures["map used"] == "sfm seed 1 (seed 0: 000007.png disagrees with its neighbours' depth)"

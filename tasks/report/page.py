@@ -148,6 +148,10 @@ def room_figures(room: RoomData, floor_room: dict[str, Any] | None, fuse_room: d
                 f"none {methods.get('none', 0)})",
             )
         )
+        check = reg.get("map_check") or {}
+        if check.get("used"):
+            why = f" ({check['why']})" if check.get("why") else ""
+            rows.append(("map used", f"{check['used']}{why}"))
         if reg.get("fallback_reason"):
             rows.append(("fallback used", f"IMU track: {reg['fallback_reason']}"))
         drift = (reg.get("fallback") or {}).get("drift_model") or {}
