@@ -24,6 +24,10 @@ class ChangesConfig:
     """An added piece must show in its room's cloud: something standing from 0.15 to 1.9 m within
     face_margin_m of it along at least this share of its length (a wall the model found in its slice
     near the ceiling may be a lamp or a beam)."""
+    added_top_share: float = 0.5
+    """An added piece must reach the ceiling: the room's cloud shows points just below it (fuse's
+    top_band_m) within face_margin_m along at least this share of its length. Furniture the wall model
+    took for a wall (a wardrobe's front, 2.1 m high under a 3 m ceiling) does not: it is no added wall."""
     face_margin_m: float = 0.05
     """How far from an added piece the cloud's standing points count."""
     room_change_share: float = 0.10

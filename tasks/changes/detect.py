@@ -4,7 +4,8 @@ Wall level (changes.parquet):
 - **added**: pieces of the placed room models (observed walls, doors cut out) outside every plan wall's
   buffer (half its fused thickness plus a margin), standing in a plan room's free space and in the
   room's cloud from 0.15 to 1.9 m (the wall model is found near the ceiling: a lamp there is no wall),
-  from a crisp capture (one whose frames disagree by centimetres shows ghosts of walls). A
+  from a crisp capture (one whose frames disagree by centimetres shows ghosts of walls), reaching up to
+  just below the ceiling (a wardrobe's front that the wall model took for a wall stops short). A
   model wall across a plan door gap is added only when the room's capture shows that door closed (its
   face seen across, nothing through), so a door the model merely spans (above the lintel) is no change;
 - **removed**: plan walls that no placed room supports (no parallel model wall within a tolerance of the
@@ -62,6 +63,9 @@ class PlacedRoom:
     crisp: bool | None = None
     """Its capture's wall faces are crisp (its frames agree; None: not known): a smeared capture shows
     ghosts of walls and claims no added wall."""
+    tops: CoverageLike | None = None
+    """Where its cloud shows something just below the ceiling (None: not known): a wall reaches up there,
+    furniture the wall model took for a wall (a wardrobe's front or side) does not."""
 
 
 @dataclass(frozen=True)
@@ -164,6 +168,8 @@ def added_walls(
                 and _standing_share(piece, room.surfaces, cfg) < cfg.added_face_share
             ):
                 continue
+            if room.tops is not None and _standing_share(piece, room.tops, cfg) < cfg.added_top_share:
+                continue  # stops short of the ceiling: furniture
             dist = float(shapely.distance(cl, mid).min()) if cl is not None else math.inf
             out.append(Change(*piece.tolist(), ADDED, room.id, float(sup), dist))
     return out
