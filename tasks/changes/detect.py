@@ -168,7 +168,10 @@ def added_walls(
                 and _standing_share(piece, room.surfaces, cfg) < cfg.added_face_share
             ):
                 continue
-            if room.tops is not None and _standing_share(piece, room.tops, cfg) < cfg.added_top_share:
+            if (
+                room.tops is not None
+                and _standing_share(piece, room.tops, cfg, margin_m=cfg.top_margin_m) < cfg.added_top_share
+            ):
                 continue  # stops short of the ceiling: furniture
             dist = float(shapely.distance(cl, mid).min()) if cl is not None else math.inf
             out.append(Change(*piece.tolist(), ADDED, room.id, float(sup), dist))
@@ -176,9 +179,15 @@ def added_walls(
 
 
 def _standing_share(
-    piece: NDArray, surfaces: CoverageLike, cfg: ChangesConfig, step_m: float = 0.05
+    piece: NDArray,
+    surfaces: CoverageLike,
+    cfg: ChangesConfig,
+    step_m: float = 0.05,
+    margin_m: float | None = None,
 ) -> float:
-    """Share of a piece's length along which the cloud shows something standing within face_margin_m."""
+    """Share of a piece's length along which the cloud shows something standing within margin_m (default
+    face_margin_m)."""
+    margin = cfg.face_margin_m if margin_m is None else margin_m
     a, b = piece[:2], piece[2:]
     length = float(np.hypot(*(b - a)))
     u = (b - a) / max(length, 1e-12)
@@ -186,7 +195,7 @@ def _standing_share(
     s = np.arange(step_m / 2, length, step_m)
     pts = a + s[:, None] * u
     hit = np.zeros(len(s), dtype=bool)
-    for o in np.arange(-cfg.face_margin_m, cfg.face_margin_m + 1e-9, 0.025):
+    for o in np.arange(-margin, margin + 1e-9, 0.025):
         hit |= surfaces.at(pts + o * n)
     return float(hit.mean()) if len(hit) else 0.0
 

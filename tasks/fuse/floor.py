@@ -132,8 +132,8 @@ def wall_evidence(
     face's typical column; all of it when no face shows at all) and two points or more lie beyond it: a
     removed wall, a door. It stands where its face shows, neither it nor a neighbour was seen through,
     and the capture is crisp (crisp_face_m: a smeared capture fills openings with the wall beside them):
-    a wall the model missed still stands. A stretch never looked at is neither. Runs shorter than
-    min_run_m are left out."""
+    a wall the model missed still stands. A stretch never looked at is neither, and a room testifies only
+    along the stretch its polygon lies beside. Runs shorter than min_run_m are left out."""
     standing: dict[int, list[tuple[float, float]]] = {}
     through: dict[int, list[tuple[float, float]]] = {}
     centrelines = as_segments(centrelines)
@@ -170,6 +170,12 @@ def wall_evidence(
                 near_beyond = np.convolve(beyond.astype(float), np.ones(3), mode="same") > 0
                 crisp = models[rid].face_spread_m <= cfg.crisp_face_m
                 stands = ~empty & ~near_beyond & crisp
+                # only where the room lies beside the face: past the end of its own wall a room sees
+                # nothing of the face (a stretch of the next room's wall), only the floor beyond it
+                # through a door, which is no opening there
+                mine = _beside(f.gaps.polygon, a, u, side * n, t, len(stands))
+                opened &= mine
+                stands &= mine
                 k = min(nbins, len(stands))
                 stands_any[:k] |= stands[:k]
                 open_any[:k] |= opened[:k]
@@ -185,6 +191,16 @@ def wall_evidence(
             if runs:
                 out[i] = runs
     return WallEvidence(standing, through)
+
+
+def _beside(
+    polygon: Polygon, start: NDArray, along: NDArray, normal: NDArray, thickness: float, bins: int
+) -> NDArray[np.bool_]:
+    """(bins,) the 5 cm columns of a plan wall's face (from `start` along `along`) beside which the room's
+    polygon lies: their middles 15 cm off the face on the `normal` side inside it (grown by 5 cm)."""
+    s = (np.arange(bins) + 0.5) * 0.05
+    pts = start + s[:, None] * along + (thickness / 2 + 0.15) * normal
+    return shapely.contains_xy(polygon.buffer(0.05), pts[:, 0], pts[:, 1])
 
 
 def _bool_runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
