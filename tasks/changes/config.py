@@ -31,6 +31,10 @@ class ChangesConfig:
     top_margin_m: float = 0.10
     """How far from an added piece the points below the ceiling count: a bent SfM map puts a wall's top
     up to 10 cm off the piece the wall model drew (a wardrobe's top is no nearer than its depth)."""
+    own_reach_m: float = 0.30
+    """A room claims added walls within this of its own polygon (its plan room's, when it did not close):
+    a closed door gap lies a wall's thickness out of it; a wall a corridor saw through a door lies in the
+    next room."""
     face_margin_m: float = 0.05
     """How far from an added piece the cloud's standing points count."""
     room_change_share: float = 0.10

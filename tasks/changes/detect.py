@@ -124,12 +124,15 @@ def added_walls(
     plan_doors: Segments,
     cfg: ChangesConfig,
     plan_rooms: list[Polygon] | None = None,
+    own: Polygon | None = None,
 ) -> list[Change]:
     """Pieces of the room's walls (its doors cut out) outside every plan wall's buffer: in a plan door
     gap that the room shows closed, or standing in a plan room's free space (farther than the margin
     inside its outline: where the plan's wall lines leave a gap at a junction the drawn wall is still
     there, and a wall modelled along the outline is no new wall). Without `plan_rooms` every piece outside
-    the buffers and the open door gaps counts."""
+    the buffers and the open door gaps counts. With `own` (the room's polygon, else its plan room) only
+    pieces within a wall's thickness (own_reach_m) of it: a wall or a cupboard of the next room that a
+    corridor saw through a door is that room's to claim."""
     buffers = plan_buffers(centrelines, thickness_m, cfg.buffer_margin_m)
     doors = as_segments(room.doors)
     cut = (
@@ -160,6 +163,8 @@ def added_walls(
         for piece in _pieces(rest, cfg.min_length_m):
             mid = shapely.Point(*(0.5 * (piece[:2] + piece[2:])))
             if free is not None and not (free.contains(mid) or closed_gaps.contains(mid)):
+                continue
+            if own is not None and own.distance(mid) > cfg.own_reach_m:
                 continue
             if room.crisp is False:  # a smeared capture shows ghosts of walls
                 continue

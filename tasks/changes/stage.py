@@ -86,7 +86,8 @@ def detect_all(
     changes: list[Change] = []
     polys = list(plan_polys.values())
     for room in rooms:
-        changes += added_walls(room, centrelines, thickness, doors, cfg, polys)
+        own = room.polygon if room.polygon is not None else plan_polys.get(room.plan_room)
+        changes += added_walls(room, centrelines, thickness, doors, cfg, polys, own)
     evidence = evidence or {}
     changes += removed_walls(
         centrelines,

@@ -77,6 +77,11 @@ class FuseConfig:
     """What reaches the ceiling: points from this far (first) to this far (second) below it, in 5 cm cells
     (tasks.fuse.openings.tops). Above a 2.2 m wardrobe in a 2.5 m room, clear of the ceiling's own points
     (a few centimetres of depth noise)."""
+    furniture_top_share: float = 0.5
+    """A shell wall with no plan face after registration, reaching up to just below the ceiling
+    (top_band_m) along less than this share of its length, is no wall of the room (a wardrobe's front) and
+    leaves the room model (tasks.fuse.floor.furniture_walls); only in a crisp capture whose matched walls
+    reach it along at least this share (length-weighted)."""
     crisp_face_m: float = 0.03
     """A capture tells a closed stretch of wall from an opening only where its wall face is crisp: the
     interquartile range of the face's points' offsets within this (about 1 cm when the frames agree; a

@@ -225,7 +225,9 @@ def _fuse_room(
     if placed.placement is None or model is None:
         return FusedRoom(placed, walls, room.origin, room.support, room.height_m, inward, doors, None)
     pl = placed.placement
-    walls_p, doors_p, inward_p = pl.segments(walls), pl.segments(doors), inward @ pl.rotation.T
+    furniture = furniture_walls(walls, model, placed, cfg)
+    keep = ~furniture
+    walls_p, doors_p, inward_p = pl.segments(walls[keep]), pl.segments(doors), inward[keep] @ pl.rotation.T
     plan_room = plan_rooms[placed.correspondence.plan_room or ""]
     shell = shell_polygon(plan_room.polygon, centrelines, thickness.thickness_m, plan_doors)
     gaps = fill_gaps(walls_p, shell, cfg.gap_end_tol_m)
@@ -233,8 +235,8 @@ def _fuse_room(
     return FusedRoom(
         placed,
         np.concatenate([walls_p, gaps.walls]),
-        np.concatenate([np.asarray(room.origin, dtype=str), np.full(len(gaps.walls), GAP_FILLED)]),
-        np.concatenate([np.asarray(room.support, dtype=np.float64), np.zeros(len(gaps.walls))]),
+        np.concatenate([np.asarray(room.origin, dtype=str)[keep], np.full(len(gaps.walls), GAP_FILLED)]),
+        np.concatenate([np.asarray(room.support, dtype=np.float64)[keep], np.zeros(len(gaps.walls))]),
         room.height_m,
         np.concatenate([inward_p, _filled_inward(gaps.walls, gaps.polygon)]),
         doors_p,
@@ -242,6 +244,46 @@ def _fuse_room(
         closed_doors,
         as_segments(plan_doors),
     )
+
+
+def furniture_walls(walls: Segments, model: RoomModel, placed: Placed, cfg: FuseConfig) -> NDArray[np.bool_]:
+    """(N,) model walls that are no walls of the room: shell walls without a plan face after registration
+    that the cloud does not show reaching up to just below the ceiling (tasks.fuse.openings.tops), in a
+    capture that shows its matched walls reaching it (it looked up there): a wardrobe's front and side
+    that the wall model took for the room's wall (and drew on to the next wall), a wall of the next room
+    seen through a door. Gap filling then closes the room along the plan's wall behind them."""
+    walls = as_segments(walls)
+    out = np.zeros(len(walls), dtype=bool)
+    fit = placed.fit
+    if fit is None or model.tops is None or not model.shell.any():
+        return out
+    if not model.face_spread_m <= cfg.crisp_face_m:  # a smeared capture cannot tell
+        return out
+    shell = np.flatnonzero(model.shell)
+    if len(fit.matched) != len(shell):
+        return out
+    top = np.array([_share(w, model.tops, 0.10) for w in walls[shell]])
+    matched = fit.matched >= 0
+    w = lengths(walls[shell])
+    if not matched.any() or np.average(top[matched], weights=w[matched]) < cfg.furniture_top_share:
+        return out
+    out[shell[~matched & (top < cfg.furniture_top_share)]] = True
+    return out
+
+
+def _share(wall: NDArray, grid, margin_m: float, step_m: float = 0.05) -> float:
+    """Share of a wall's length along which the grid (room frame) holds something within margin_m."""
+    a, b = wall[:2], wall[2:]
+    length = float(np.hypot(*(b - a)))
+    if length <= 0:
+        return 0.0
+    u = (b - a) / length
+    n = np.array([-u[1], u[0]])
+    pts = a + np.arange(step_m / 2, length, step_m)[:, None] * u
+    hit = np.zeros(len(pts), dtype=bool)
+    for o in np.arange(-margin_m, margin_m + 1e-9, 0.025):
+        hit |= grid.at(pts + o * n)
+    return float(hit.mean()) if len(hit) else 0.0
 
 
 def _filled_inward(walls: Segments, polygon: Polygon | None) -> NDArray:
