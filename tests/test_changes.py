@@ -262,3 +262,15 @@ def test_furniture_the_wall_model_took_for_a_wall_is_no_added_wall() -> None:
     wardrobe = replace(wall_of, tops=below_ceiling)
     assert [c.kind for c in added_walls(wall_of, CENTRE, THICK, np.zeros((0, 4)), CFG)] == [ADDED]
     assert added_walls(wardrobe, CENTRE, THICK, np.zeros((0, 4)), CFG) == []
+
+
+def test_a_room_claims_added_walls_only_beside_its_own_polygon() -> None:
+    """A corridor (the 6 x 4 room) saw through a door a wall standing in the next plan room (y = 6): that
+    room's to claim, not the corridor's; the corridor's own partition (y = 2) is claimed."""
+    walls = np.vstack([FACES, [[0.5, 2.0, 2.5, 2.0], [1.0, 6.0, 3.0, 6.0]]])
+    rooms = [box(0, 0, 6, 4), box(0, 4.2, 6, 8)]
+    r = room(walls, seen_everywhere())
+    anywhere = added_walls(r, CENTRE, THICK, np.zeros((0, 4)), CFG, rooms)
+    assert sorted(round(c.y0, 1) for c in anywhere) == [2.0, 6.0]
+    own = added_walls(r, CENTRE, THICK, np.zeros((0, 4)), CFG, rooms, box(0, 0, 6, 4))
+    assert [round(c.y0, 1) for c in own] == [2.0]

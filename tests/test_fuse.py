@@ -594,3 +594,58 @@ def test_a_room_testifies_only_along_the_stretch_of_a_plan_wall_it_lies_beside()
     runs = floor.evidence.seen_through.get(2, [])
     assert len(runs) == 1 and 4.0 < runs[0][0] < 4.3 and 5.0 < runs[0][1] < 5.3  # the door, x 4..5
     assert all(b <= 6.3 for _, b in floor.evidence.standing.get(2, []))
+
+
+def test_a_wardrobe_front_modelled_as_a_wall_leaves_the_room_and_the_gap_closes_along_the_plan() -> None:
+    """The TLS room of seed 811 in the plan frame: the wardrobe (x 4.74..5.2, y 2.1..4.3, 2.1 m high under
+    a 3 m ceiling) hides the east wall's north half below 2.1 m, the scanner sees the wall above it. The
+    wall model took the wardrobe's front and side for walls: with no plan face and nothing just below the
+    ceiling they leave the model, and gap filling closes the room along the plan's east wall."""
+    from tasks.fuse.correspond import PlanRoom
+    from tasks.fuse.floor import fuse_floor
+
+    rng = np.random.default_rng(8)
+    pts = [
+        [x, y, z] for x in np.arange(0.0, 5.2, 0.05) for y in np.arange(0.0, 4.3, 0.05) for z in (0.0, 3.0)
+    ]
+    for z in np.arange(0.0, 3.0, 0.04):
+        for x in np.arange(0.0, 5.2, 0.03):
+            pts += [[x, rng.normal(0, 0.003), z], [x, 4.3 + rng.normal(0, 0.003), z]]
+        for y in np.arange(0.0, 4.3, 0.03):
+            pts.append([rng.normal(0, 0.003), y, z])
+            if y < 2.1 or z > 2.1:
+                pts.append([5.2 + rng.normal(0, 0.003), y, z])  # the east wall, above the wardrobe
+            elif z <= 2.1:
+                pts.append([4.74 + rng.normal(0, 0.003), y, z])  # the wardrobe's front
+        if z <= 2.1:
+            pts += [[x, 2.1 + rng.normal(0, 0.003), z] for x in np.arange(4.74, 5.2, 0.03)]  # its side
+    room = RoomInput(
+        "r5",
+        WARDROBE_MODEL,
+        np.full(len(WARDROBE_MODEL), "observed"),
+        np.ones(len(WARDROBE_MODEL)),
+        3.0,
+        True,
+        "105",
+        np.array(pts),
+        0.0,
+        3.0,
+    )
+    centrelines = ring_segments(box(-0.1, -0.1, 5.3, 4.4))
+    floor = fuse_floor(
+        [room],
+        [PlanRoom("R3", "105", WARDROBE_ROOM)],
+        centrelines,
+        np.full(4, 0.2),
+        np.zeros((0, 4)),
+        None,
+        CFG,
+    )
+    fused = floor.rooms["r5"]
+    assert fused.in_plan and fused.gaps is not None and fused.gaps.closed
+    walls = fused.walls
+    assert not (np.abs(walls[:, [0, 2]] - 4.74) < 0.02).all(axis=1).any()  # the wardrobe's front is gone
+    assert fused.gaps.polygon.area == pytest.approx(5.2 * 4.3, rel=0.01)
+    filled = walls[fused.origin == GAP_FILLED]
+    east = filled[(np.abs(filled[:, [0, 2]] - 5.2) < 0.02).all(axis=1)]
+    assert np.abs(east[:, 3] - east[:, 1]).sum() == pytest.approx(2.2, abs=0.05)
