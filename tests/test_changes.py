@@ -3,6 +3,8 @@ a moved door, and the room-level changes (split, merged, enlarged)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from shapely.geometry import box
@@ -247,3 +249,28 @@ def test_fuse_and_changes_stage_bodies_on_a_two_room_plan(tmp_path) -> None:
     metrics = run_changes(ctx2, CFG, out2)["metrics"]
     assert metrics["added"] == 2 and metrics["removed"] == 0
     assert {"changes.parquet", "changes.geojson", "changes.png"} <= {p.name for p in out2.iterdir()}
+
+
+def test_furniture_the_wall_model_took_for_a_wall_is_no_added_wall() -> None:
+    """A wardrobe's front, 0.46 m before the east wall (x = 5.54, y 2..4), stands from the floor to 2.1 m
+    under a 3 m ceiling: it stands in the room's free space like a partition, but only a wall reaches up
+    to just below the ceiling (fuse's tops grid)."""
+    walls = np.vstack([FACES, [[5.54, 2.0, 5.54, 4.0]]])
+    everywhere = seen_everywhere(cell=0.05)
+    below_ceiling = Coverage((-1.0, -1.0), 0.05, np.zeros((120, 160), dtype=bool))
+    wall_of = replace(room(walls, seen_everywhere()), surfaces=everywhere, tops=everywhere)
+    wardrobe = replace(wall_of, tops=below_ceiling)
+    assert [c.kind for c in added_walls(wall_of, CENTRE, THICK, np.zeros((0, 4)), CFG)] == [ADDED]
+    assert added_walls(wardrobe, CENTRE, THICK, np.zeros((0, 4)), CFG) == []
+
+
+def test_a_room_claims_added_walls_only_beside_its_own_polygon() -> None:
+    """A corridor (the 6 x 4 room) saw through a door a wall standing in the next plan room (y = 6): that
+    room's to claim, not the corridor's; the corridor's own partition (y = 2) is claimed."""
+    walls = np.vstack([FACES, [[0.5, 2.0, 2.5, 2.0], [1.0, 6.0, 3.0, 6.0]]])
+    rooms = [box(0, 0, 6, 4), box(0, 4.2, 6, 8)]
+    r = room(walls, seen_everywhere())
+    anywhere = added_walls(r, CENTRE, THICK, np.zeros((0, 4)), CFG, rooms)
+    assert sorted(round(c.y0, 1) for c in anywhere) == [2.0, 6.0]
+    own = added_walls(r, CENTRE, THICK, np.zeros((0, 4)), CFG, rooms, box(0, 0, 6, 4))
+    assert [round(c.y0, 1) for c in own] == [2.0]

@@ -4,7 +4,8 @@ Wall level (changes.parquet):
 - **added**: pieces of the placed room models (observed walls, doors cut out) outside every plan wall's
   buffer (half its fused thickness plus a margin), standing in a plan room's free space and in the
   room's cloud from 0.15 to 1.9 m (the wall model is found near the ceiling: a lamp there is no wall),
-  from a crisp capture (one whose frames disagree by centimetres shows ghosts of walls). A
+  from a crisp capture (one whose frames disagree by centimetres shows ghosts of walls), reaching up to
+  just below the ceiling (a wardrobe's front that the wall model took for a wall stops short). A
   model wall across a plan door gap is added only when the room's capture shows that door closed (its
   face seen across, nothing through), so a door the model merely spans (above the lintel) is no change;
 - **removed**: plan walls that no placed room supports (no parallel model wall within a tolerance of the
@@ -62,6 +63,9 @@ class PlacedRoom:
     crisp: bool | None = None
     """Its capture's wall faces are crisp (its frames agree; None: not known): a smeared capture shows
     ghosts of walls and claims no added wall."""
+    tops: CoverageLike | None = None
+    """Where its cloud shows something just below the ceiling (None: not known): a wall reaches up there,
+    furniture the wall model took for a wall (a wardrobe's front or side) does not."""
 
 
 @dataclass(frozen=True)
@@ -120,12 +124,15 @@ def added_walls(
     plan_doors: Segments,
     cfg: ChangesConfig,
     plan_rooms: list[Polygon] | None = None,
+    own: Polygon | None = None,
 ) -> list[Change]:
     """Pieces of the room's walls (its doors cut out) outside every plan wall's buffer: in a plan door
     gap that the room shows closed, or standing in a plan room's free space (farther than the margin
     inside its outline: where the plan's wall lines leave a gap at a junction the drawn wall is still
     there, and a wall modelled along the outline is no new wall). Without `plan_rooms` every piece outside
-    the buffers and the open door gaps counts."""
+    the buffers and the open door gaps counts. With `own` (the room's polygon, else its plan room) only
+    pieces within a wall's thickness (own_reach_m) of it: a wall or a cupboard of the next room that a
+    corridor saw through a door is that room's to claim."""
     buffers = plan_buffers(centrelines, thickness_m, cfg.buffer_margin_m)
     doors = as_segments(room.doors)
     cut = (
@@ -157,6 +164,8 @@ def added_walls(
             mid = shapely.Point(*(0.5 * (piece[:2] + piece[2:])))
             if free is not None and not (free.contains(mid) or closed_gaps.contains(mid)):
                 continue
+            if own is not None and own.distance(mid) > cfg.own_reach_m:
+                continue
             if room.crisp is False:  # a smeared capture shows ghosts of walls
                 continue
             if (
@@ -164,15 +173,26 @@ def added_walls(
                 and _standing_share(piece, room.surfaces, cfg) < cfg.added_face_share
             ):
                 continue
+            if (
+                room.tops is not None
+                and _standing_share(piece, room.tops, cfg, margin_m=cfg.top_margin_m) < cfg.added_top_share
+            ):
+                continue  # stops short of the ceiling: furniture
             dist = float(shapely.distance(cl, mid).min()) if cl is not None else math.inf
             out.append(Change(*piece.tolist(), ADDED, room.id, float(sup), dist))
     return out
 
 
 def _standing_share(
-    piece: NDArray, surfaces: CoverageLike, cfg: ChangesConfig, step_m: float = 0.05
+    piece: NDArray,
+    surfaces: CoverageLike,
+    cfg: ChangesConfig,
+    step_m: float = 0.05,
+    margin_m: float | None = None,
 ) -> float:
-    """Share of a piece's length along which the cloud shows something standing within face_margin_m."""
+    """Share of a piece's length along which the cloud shows something standing within margin_m (default
+    face_margin_m)."""
+    margin = cfg.face_margin_m if margin_m is None else margin_m
     a, b = piece[:2], piece[2:]
     length = float(np.hypot(*(b - a)))
     u = (b - a) / max(length, 1e-12)
@@ -180,7 +200,7 @@ def _standing_share(
     s = np.arange(step_m / 2, length, step_m)
     pts = a + s[:, None] * u
     hit = np.zeros(len(s), dtype=bool)
-    for o in np.arange(-cfg.face_margin_m, cfg.face_margin_m + 1e-9, 0.025):
+    for o in np.arange(-margin, margin + 1e-9, 0.025):
         hit |= surfaces.at(pts + o * n)
     return float(hit.mean()) if len(hit) else 0.0
 

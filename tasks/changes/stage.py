@@ -40,6 +40,7 @@ def placed_rooms(fuse: art.StageResult) -> tuple[list[PlacedRoom], dict[str, str
         placement = Placement(np.radians(rep["theta_deg"]), tuple(rep["t_m"]))
         cov = _grid(fuse, rid, rep, "coverage", placement)
         standing = _grid(fuse, rid, rep, "surfaces", placement)
+        top = _grid(fuse, rid, rep, "tops", placement)
         poly = None
         data = art.read_json(fuse.file(f"{rid}.plan.geojson"))
         for feat in data["features"]:
@@ -57,13 +58,14 @@ def placed_rooms(fuse: art.StageResult) -> tuple[list[PlacedRoom], dict[str, str
                 tuple(rep.get("closed_plan_doors", [])),
                 standing,
                 rep["surfaces"]["crisp"] if "surfaces" in rep else None,
+                top,
             )
         )
     return rooms, plan_of
 
 
 def _grid(fuse: art.StageResult, rid: str, rep: dict, name: str, placement: Placement):
-    """A room's coverage or surfaces grid (fuse's <room>.<name>.png), looked up from the plan frame."""
+    """A room's coverage, surfaces or tops grid (fuse's <room>.<name>.png), looked up from the plan frame."""
     if name not in rep or not fuse.has(f"{rid}.{name}.png"):
         return None
     seen = art.read_image(fuse.file(f"{rid}.{name}.png"), unchanged=True) > 0
@@ -84,7 +86,8 @@ def detect_all(
     changes: list[Change] = []
     polys = list(plan_polys.values())
     for room in rooms:
-        changes += added_walls(room, centrelines, thickness, doors, cfg, polys)
+        own = room.polygon if room.polygon is not None else plan_polys.get(room.plan_room)
+        changes += added_walls(room, centrelines, thickness, doors, cfg, polys, own)
     evidence = evidence or {}
     changes += removed_walls(
         centrelines,

@@ -37,6 +37,11 @@ class FuseConfig:
     max_residual_m: float = 0.10
     """Once converging, a correspondence whose wall lies farther than this from its face is dropped (a
     changed wall, a plan face drawn off)."""
+    consensus_tol_m: float = 0.20
+    """Each iteration's translation is fitted to the largest set of walls that one translation puts within
+    this of their faces (tasks.fuse.register2d.consensus): twice the residual gate, so a room model a
+    percent long keeps both end walls, while furniture modelled as a wall half a metre before its plan
+    face (a wardrobe) does not drag the room."""
     fit_tol_m: float = 0.05
     """Fit score: the share of the shell's length lying within this of a plan face of the same
     orientation after registration."""
@@ -68,6 +73,15 @@ class FuseConfig:
     closed_door_share: float = 0.9
     """A plan door gap is closed in the capture when the model wall's face shows across at least this
     share of it (tasks.fuse.openings.span_state) and nothing was seen through it."""
+    top_band_m: tuple[float, float] = (0.30, 0.08)
+    """What reaches the ceiling: points from this far (first) to this far (second) below it, in 5 cm cells
+    (tasks.fuse.openings.tops). Above a 2.2 m wardrobe in a 2.5 m room, clear of the ceiling's own points
+    (a few centimetres of depth noise)."""
+    furniture_top_share: float = 0.5
+    """A shell wall with no plan face after registration, reaching up to just below the ceiling
+    (top_band_m) along less than this share of its length, is no wall of the room (a wardrobe's front) and
+    leaves the room model (tasks.fuse.floor.furniture_walls); only in a crisp capture whose matched walls
+    reach it along at least this share (length-weighted)."""
     crisp_face_m: float = 0.03
     """A capture tells a closed stretch of wall from an opening only where its wall face is crisp: the
     interquartile range of the face's points' offsets within this (about 1 cm when the frames agree; a

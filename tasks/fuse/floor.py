@@ -132,8 +132,8 @@ def wall_evidence(
     face's typical column; all of it when no face shows at all) and two points or more lie beyond it: a
     removed wall, a door. It stands where its face shows, neither it nor a neighbour was seen through,
     and the capture is crisp (crisp_face_m: a smeared capture fills openings with the wall beside them):
-    a wall the model missed still stands. A stretch never looked at is neither. Runs shorter than
-    min_run_m are left out."""
+    a wall the model missed still stands. A stretch never looked at is neither, and a room testifies only
+    along the stretch its polygon lies beside. Runs shorter than min_run_m are left out."""
     standing: dict[int, list[tuple[float, float]]] = {}
     through: dict[int, list[tuple[float, float]]] = {}
     centrelines = as_segments(centrelines)
@@ -170,6 +170,12 @@ def wall_evidence(
                 near_beyond = np.convolve(beyond.astype(float), np.ones(3), mode="same") > 0
                 crisp = models[rid].face_spread_m <= cfg.crisp_face_m
                 stands = ~empty & ~near_beyond & crisp
+                # only where the room lies beside the face: past the end of its own wall a room sees
+                # nothing of the face (a stretch of the next room's wall), only the floor beyond it
+                # through a door, which is no opening there
+                mine = _beside(f.gaps.polygon, a, u, side * n, t, len(stands))
+                opened &= mine
+                stands &= mine
                 k = min(nbins, len(stands))
                 stands_any[:k] |= stands[:k]
                 open_any[:k] |= opened[:k]
@@ -185,6 +191,16 @@ def wall_evidence(
             if runs:
                 out[i] = runs
     return WallEvidence(standing, through)
+
+
+def _beside(
+    polygon: Polygon, start: NDArray, along: NDArray, normal: NDArray, thickness: float, bins: int
+) -> NDArray[np.bool_]:
+    """(bins,) the 5 cm columns of a plan wall's face (from `start` along `along`) beside which the room's
+    polygon lies: their middles 15 cm off the face on the `normal` side inside it (grown by 5 cm)."""
+    s = (np.arange(bins) + 0.5) * 0.05
+    pts = start + s[:, None] * along + (thickness / 2 + 0.15) * normal
+    return shapely.contains_xy(polygon.buffer(0.05), pts[:, 0], pts[:, 1])
 
 
 def _bool_runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
@@ -209,7 +225,9 @@ def _fuse_room(
     if placed.placement is None or model is None:
         return FusedRoom(placed, walls, room.origin, room.support, room.height_m, inward, doors, None)
     pl = placed.placement
-    walls_p, doors_p, inward_p = pl.segments(walls), pl.segments(doors), inward @ pl.rotation.T
+    furniture = furniture_walls(walls, model, placed, cfg)
+    keep = ~furniture
+    walls_p, doors_p, inward_p = pl.segments(walls[keep]), pl.segments(doors), inward[keep] @ pl.rotation.T
     plan_room = plan_rooms[placed.correspondence.plan_room or ""]
     shell = shell_polygon(plan_room.polygon, centrelines, thickness.thickness_m, plan_doors)
     gaps = fill_gaps(walls_p, shell, cfg.gap_end_tol_m)
@@ -217,8 +235,8 @@ def _fuse_room(
     return FusedRoom(
         placed,
         np.concatenate([walls_p, gaps.walls]),
-        np.concatenate([np.asarray(room.origin, dtype=str), np.full(len(gaps.walls), GAP_FILLED)]),
-        np.concatenate([np.asarray(room.support, dtype=np.float64), np.zeros(len(gaps.walls))]),
+        np.concatenate([np.asarray(room.origin, dtype=str)[keep], np.full(len(gaps.walls), GAP_FILLED)]),
+        np.concatenate([np.asarray(room.support, dtype=np.float64)[keep], np.zeros(len(gaps.walls))]),
         room.height_m,
         np.concatenate([inward_p, _filled_inward(gaps.walls, gaps.polygon)]),
         doors_p,
@@ -226,6 +244,46 @@ def _fuse_room(
         closed_doors,
         as_segments(plan_doors),
     )
+
+
+def furniture_walls(walls: Segments, model: RoomModel, placed: Placed, cfg: FuseConfig) -> NDArray[np.bool_]:
+    """(N,) model walls that are no walls of the room: shell walls without a plan face after registration
+    that the cloud does not show reaching up to just below the ceiling (tasks.fuse.openings.tops), in a
+    capture that shows its matched walls reaching it (it looked up there): a wardrobe's front and side
+    that the wall model took for the room's wall (and drew on to the next wall), a wall of the next room
+    seen through a door. Gap filling then closes the room along the plan's wall behind them."""
+    walls = as_segments(walls)
+    out = np.zeros(len(walls), dtype=bool)
+    fit = placed.fit
+    if fit is None or model.tops is None or not model.shell.any():
+        return out
+    if not model.face_spread_m <= cfg.crisp_face_m:  # a smeared capture cannot tell
+        return out
+    shell = np.flatnonzero(model.shell)
+    if len(fit.matched) != len(shell):
+        return out
+    top = np.array([_share(w, model.tops, 0.10) for w in walls[shell]])
+    matched = fit.matched >= 0
+    w = lengths(walls[shell])
+    if not matched.any() or np.average(top[matched], weights=w[matched]) < cfg.furniture_top_share:
+        return out
+    out[shell[~matched & (top < cfg.furniture_top_share)]] = True
+    return out
+
+
+def _share(wall: NDArray, grid, margin_m: float, step_m: float = 0.05) -> float:
+    """Share of a wall's length along which the grid (room frame) holds something within margin_m."""
+    a, b = wall[:2], wall[2:]
+    length = float(np.hypot(*(b - a)))
+    if length <= 0:
+        return 0.0
+    u = (b - a) / length
+    n = np.array([-u[1], u[0]])
+    pts = a + np.arange(step_m / 2, length, step_m)[:, None] * u
+    hit = np.zeros(len(pts), dtype=bool)
+    for o in np.arange(-margin_m, margin_m + 1e-9, 0.025):
+        hit |= grid.at(pts + o * n)
+    return float(hit.mean()) if len(hit) else 0.0
 
 
 def _filled_inward(walls: Segments, polygon: Polygon | None) -> NDArray:

@@ -20,7 +20,8 @@ whose room side was seen and which has no model wall is removed, one whose room 
 unknown (the changes stage). Surfaces: the cells holding points from 0.15 to 1.9 m above the floor (walls,
 furniture, anything standing): where the cloud shows a wall's face whatever the wall model made of it
 (a wall the model missed still stands; a "wall" the model found at the ceiling, a lamp, does not reach
-down).
+down). Tops: the cells holding points just below the ceiling: a wall reaches up there, furniture
+modelled as a wall (a wardrobe's front) does not.
 """
 
 from __future__ import annotations
@@ -335,7 +336,26 @@ def surfaces(
     what stands there (module doc). (N, 3) points, z up."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     z = pts[:, 2] - floor_z
-    xy = pts[(z >= LOW_M[0]) & (z <= HIGH_M[1]), :2]
+    return _cells(pts[(z >= LOW_M[0]) & (z <= HIGH_M[1]), :2], cell_m, min_points)
+
+
+def tops(
+    points: NDArray[np.float64],
+    ceiling_z: float,
+    band_m: tuple[float, float] = (0.30, 0.08),
+    cell_m: float = 0.05,
+    min_points: int = 2,
+) -> Coverage:
+    """Cells holding at least min_points points from band_m[0] to band_m[1] below the ceiling: what
+    reaches up to it. A wall does; a wardrobe, a shelf or a partition screen stops short (in a scanner's
+    cloud the wall behind shows above it). (N, 3) points, z up."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    below = ceiling_z - pts[:, 2]
+    return _cells(pts[(below <= band_m[0]) & (below >= band_m[1]), :2], cell_m, min_points)
+
+
+def _cells(xy: NDArray[np.float64], cell_m: float, min_points: int) -> Coverage:
+    """The grid of cells holding at least min_points of the (N, 2) points."""
     if len(xy) == 0:
         return Coverage((0.0, 0.0), cell_m, np.zeros((1, 1), dtype=bool))
     lo = xy.min(axis=0) - cell_m

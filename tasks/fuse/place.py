@@ -12,7 +12,7 @@ from shapely.geometry import Polygon
 
 from tasks.fuse.config import FuseConfig
 from tasks.fuse.correspond import Correspondence, PlanRoom, RoomEvidence, correspond_rooms
-from tasks.fuse.openings import Coverage, Door, coverage, face_spread, find_doors, surfaces
+from tasks.fuse.openings import Coverage, Door, coverage, face_spread, find_doors, surfaces, tops
 from tasks.fuse.register2d import (
     IDENTITY,
     DoorPair,
@@ -65,6 +65,8 @@ class RoomModel:
     """Where the cloud shows something standing (tasks.fuse.openings.surfaces), room frame."""
     face_spread_m: float = float("nan")
     """How crisp the capture's wall faces are (tasks.fuse.openings.face_spread)."""
+    tops: Coverage | None = None
+    """Where the cloud shows something just below the ceiling (tasks.fuse.openings.tops), room frame."""
 
 
 def describe(room: RoomInput, cfg: FuseConfig) -> RoomModel:
@@ -75,7 +77,7 @@ def describe(room: RoomInput, cfg: FuseConfig) -> RoomModel:
     centre = np.asarray(poly.centroid.coords[0]) if poly is not None else walls.reshape(-1, 2).mean(axis=0)
     inward = inward_normals(walls, poly, centre)
     doors: list[Door] = []
-    cov, standing, spread = None, None, float("nan")
+    cov, standing, spread, top = None, None, float("nan"), None
     if room.points is not None and len(room.points):
         doors = find_doors(
             room.points,
@@ -88,7 +90,9 @@ def describe(room: RoomInput, cfg: FuseConfig) -> RoomModel:
         cov = coverage(room.points, room.floor_z, room.ceiling_z, 0.10)
         standing = surfaces(room.points, room.floor_z)
         spread = face_spread(room.points, room.floor_z, walls, inward)
-    return RoomModel(poly, centre, inward, shell_mask(walls, cfg.shell_tol_m), doors, cov, standing, spread)
+        top = tops(room.points, room.ceiling_z, cfg.top_band_m)
+    shell = shell_mask(walls, cfg.shell_tol_m)
+    return RoomModel(poly, centre, inward, shell, doors, cov, standing, spread, top)
 
 
 @dataclass(frozen=True)

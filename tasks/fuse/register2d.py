@@ -405,6 +405,9 @@ def optimal_fit(
         d_alpha = angle_difference(angles(faces.segments[matched[m]]), angles(moved[m]))
         d_theta = rotation_update(d_alpha, w[m], math.radians(cfg.rotation_outlier_deg))
         placement = placement.then(d_theta, c, np.zeros(2))
+        # the walls that agree on one translation (a wall modelled on a wardrobe's front has no face
+        # of its own and must not pull the ones that have)
+        matched = consensus(midpoints(placement.segments(shell)), w, faces, matched, cfg.consensus_tol_m)
         shift = np.zeros(2)
         for _ in range(5):  # Gauss-Newton (eq 7.9, 7.10); linear in t, so it settles at once
             moved = placement.segments(shell)
@@ -420,6 +423,42 @@ def optimal_fit(
             break
     used = len(_door_rows(doors or [], placement, cfg.max_residual_m))
     return _finish(shell, inward, centre, faces, placement, cfg, it, converged, used)
+
+
+def consensus(
+    mid: NDArray, w: NDArray, faces: Faces, matched: NDArray[np.intp], tol_m: float
+) -> NDArray[np.intp]:
+    """The correspondences that agree on one translation (the others set to -1): every translation that
+    puts two non-parallel walls (or one wall, along its normal) on their faces is tried, and the one that
+    brings the most wall length within tol_m of its face wins (ties: the smaller sum of squared
+    residuals, then the smaller shift). A least-squares translation over every wall is pulled by a
+    minority of walls without a plan counterpart (furniture modelled as a wall, a changed wall) until
+    the walls that do match drift out of the residual gate; the largest consistent set is not."""
+    m = np.flatnonzero(matched >= 0)
+    if len(m) < 2 or not math.isfinite(tol_m):
+        return matched
+    seg = faces.segments[matched[m]]
+    n = faces.inward[matched[m]]
+    f = ((mid[m] - seg[:, :2]) * n).sum(1)  # residual after a shift s: f + n . s
+    ww = w[m]
+    cands = [np.zeros(2)] + [-f[i] * n[i] for i in range(len(m))]
+    i, j = np.triu_indices(len(m), 1)
+    det = n[i, 0] * n[j, 1] - n[i, 1] * n[j, 0]
+    ok = np.abs(det) > math.sin(math.radians(30))
+    i, j, det = i[ok], j[ok], det[ok]
+    # solve [n_i; n_j] s = [-f_i; -f_j]
+    sx = (-f[i] * n[j, 1] + f[j] * n[i, 1]) / det
+    sy = (-n[i, 0] * f[j] + n[j, 0] * f[i]) / det
+    s = np.concatenate([np.array(cands), np.column_stack([sx, sy])])
+    r = f[None, :] + s @ n.T  # (C, M)
+    inl = np.abs(r) <= tol_m
+    weight = (inl * ww[None]).sum(1)
+    ssr = (np.where(inl, r, 0.0) ** 2 * ww[None]).sum(1)
+    order = np.lexsort((np.hypot(s[:, 0], s[:, 1]), ssr, -np.round(weight, 9)))
+    best = inl[order[0]]
+    out = matched.copy()
+    out[m[~best]] = -1
+    return out
 
 
 def rotation_update(d_alpha: NDArray, weights: NDArray, outlier: float) -> float:

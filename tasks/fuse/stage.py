@@ -12,7 +12,9 @@ Outputs (its own folder; the publish step copies them):
   frame otherwise, and the file says so): what outputs/rooms/<room>/ should hold after fusion;
 - <room>.coverage.png: where the capture saw floor or ceiling (room frame; fuse.json has its grid);
 - <room>.surfaces.png: where its cloud shows something standing, 0.15-1.9 m (room frame, 5 cm cells;
-  fuse.json has its grid, and whether the capture's faces are crisp enough to tell an opening).
+  fuse.json has its grid, and whether the capture's faces are crisp enough to tell an opening);
+- <room>.tops.png: where its cloud shows something just below the ceiling (top_band_m; room frame, 5 cm
+  cells; fuse.json has its grid): what reaches the ceiling, as a wall does and furniture does not.
 """
 
 from __future__ import annotations
@@ -178,6 +180,9 @@ def write_outputs(
                 "face_spread_m": model.face_spread_m if math.isfinite(model.face_spread_m) else None,
                 "crisp": bool(model.face_spread_m <= cfg.crisp_face_m),
             }
+        if model is not None and model.tops is not None:
+            art.write_png(out / f"{rid}.tops.png", model.tops.seen.astype(np.uint8) * 255)
+            report["rooms"][rid]["tops"] = {"origin": model.tops.origin, "cell_m": model.tops.cell_m}
     if floor.evidence is not None:
         report["standing"] = {str(i): runs for i, runs in floor.evidence.standing.items()}
         report["seen_through"] = {str(i): runs for i, runs in floor.evidence.seen_through.items()}
