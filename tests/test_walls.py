@@ -798,3 +798,23 @@ def test_a_corridor_keeps_no_wall_of_the_rooms_seen_through_its_doors(rng):
     assert model.closed and ev["correctness"] == 1.0 and ev["completeness"] >= 0.99, (ev, model.walls)
     assert ev["corner_f1"] == 1.0 and len(model.walls) == 4, model.walls
     assert model.metrics["walls_seen_through_gaps"] == 3
+
+
+@pytest.mark.parametrize(
+    "corners",
+    [
+        [(0, 0), (8, 0), (8, 4), (6.5, 4), (6.5, 1.5), (5.5, 1.5), (5.5, 4), (0, 4)],  # a U: a notch's sides
+        [(0, 0), (6, 0), (6, 4), (4, 4), (4, 5), (2.5, 5), (2.5, 4), (0, 4)],  # an alcove 1 m deep
+    ],
+    ids=["u_room", "alcove"],
+)
+def test_a_rooms_own_walls_behind_another_walls_line_are_not_taken_for_walls_seen_through_a_door(
+    corners, rng
+):
+    c = corners
+    truth = np.array([[*c[i], *c[(i + 1) % len(c)]] for i in range(len(c))], float)
+    pts = np.concatenate([wall_points(t[:2], t[2:], 1.5, 2.5, rng, noise=0.005) for t in truth])
+    model = model_walls(pts, 0.0, 2.7, CFG)
+    ev = evaluate_walls(model.walls, truth)
+    assert model.metrics["walls_seen_through_gaps"] == 0
+    assert model.closed and ev["corner_f1"] == 1.0 and ev["completeness"] == 1.0, (ev, model.walls)
