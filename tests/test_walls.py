@@ -801,19 +801,28 @@ def test_a_corridor_keeps_no_wall_of_the_rooms_seen_through_its_doors(rng):
 
 
 @pytest.mark.parametrize(
-    "corners",
+    ("corners", "seen"),
     [
-        [(0, 0), (8, 0), (8, 4), (6.5, 4), (6.5, 1.5), (5.5, 1.5), (5.5, 4), (0, 4)],  # a U: a notch's sides
-        [(0, 0), (6, 0), (6, 4), (4, 4), (4, 5), (2.5, 5), (2.5, 4), (0, 4)],  # an alcove 1 m deep
+        # a U: the notch's far side lies behind its near side's line, beyond the room's own space
+        ([(0, 0), (8, 0), (8, 4), (6.5, 4), (6.5, 1.5), (5.5, 1.5), (5.5, 4), (0, 4)], None),
+        # an alcove 1 m deep: its back wall lies behind the wall's mouth
+        ([(0, 0), (6, 0), (6, 4), (4, 4), (4, 5), (2.5, 5), (2.5, 4), (0, 4)], None),
+        # an L one of whose inner walls was seen only from 0.5 m off the inner corner: it lies wholly behind
+        # the other inner wall's line, its foot at that wall's end
+        (
+            [(0, 0), (6, 0), (6, 2), (2.5, 2), (2.5, 5), (0, 5)],
+            [(0, 0, 6, 0), (6, 0, 6, 2), (6, 2, 2.5, 2), (2.5, 2.5, 2.5, 5), (2.5, 5, 0, 5), (0, 5, 0, 0)],
+        ),
     ],
-    ids=["u_room", "alcove"],
+    ids=["u_room", "alcove", "l_room_unseen_corner"],
 )
 def test_a_rooms_own_walls_behind_another_walls_line_are_not_taken_for_walls_seen_through_a_door(
-    corners, rng
+    corners, seen, rng
 ):
     c = corners
     truth = np.array([[*c[i], *c[(i + 1) % len(c)]] for i in range(len(c))], float)
-    pts = np.concatenate([wall_points(t[:2], t[2:], 1.5, 2.5, rng, noise=0.005) for t in truth])
+    faces = truth if seen is None else np.array(seen, float)
+    pts = np.concatenate([wall_points(t[:2], t[2:], 1.5, 2.5, rng, noise=0.005) for t in faces])
     model = model_walls(pts, 0.0, 2.7, CFG)
     ev = evaluate_walls(model.walls, truth)
     assert model.metrics["walls_seen_through_gaps"] == 0
