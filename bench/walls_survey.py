@@ -4,6 +4,7 @@
     python -m bench.walls_survey --split heldout       # held-out buildings (report only, never tune on)
     python -m bench.walls_survey --split handheld      # the same rooms degraded like handheld scans
     python -m bench.walls_survey --seeds 0 3 --rooms r4 --set walls.lines.extend_m=1.0
+    python -m bench.walls_survey --seeds 541 542 543 544 545 546 --rooms hall   # the hallways
 
 Run from the repository root. Every seed is a whole building (`tasks.synth.building.generate_building`):
 
@@ -13,12 +14,15 @@ Run from the repository root. Every seed is a whole building (`tasks.synth.build
   the frames are fused with the TRUE poses (`tasks.register.fuse_capture`: the radial depth error estimated
   on the capture and taken out, as the register stage does; the register section of the
   default config), so registration error is excluded;
-- the TLS room (r5): the generator's registered two-station TLS cloud.
+- the TLS room (r5): the generator's registered two-station TLS cloud;
+- the hallway (`--rooms hall`, not in the default rooms): a long corridor with a jog and doors to the rooms
+  on its sides, captured like an RGB-D room (its poorly textured walls matter to SfM only, and the poses
+  here are true). Its walls are seen from close range and, where the walk passes quickly, sparsely.
 
 Each cloud goes through `preprocess` and `model_walls` with the default configuration (configs/default.yaml
 plus any `--set`), the walls are mapped back into the plan frame and scored against the truth inner wall
 faces with `tasks.evaluate.evaluate_walls`. Per room: completeness, correctness, mean accuracy, corner F1,
-angle error, time, and what the capture saw where the wall stage looks: `seen`, the share of the truth wall
+angle error, time (wall and CPU seconds of preprocess and walls), and what the capture saw where the wall stage looks: `seen`, the share of the truth wall
 length whose 1 cm samples have a fused point of the furniture slice's height band within 5 cm, and
 `seen10`, the same with at least 10 points (a surface rather than stray noise: a partition's face 10 cm
 away puts a few noisy points there). Walls with seen10 below one half are listed. Means per sensor follow, and the issue's targets are
@@ -94,6 +98,7 @@ class RoomResult:
     sensor: str
     points: int
     seconds: float
+    cpu_seconds: float
     completeness: float
     correctness: float
     acc_mean_mm: float
@@ -224,7 +229,7 @@ def run_room(
         labels = wall_labels(points, truth)
         extra["degraded"] = f"sp{100 * d.spacing_m:.1f}cm cut{d.cut_m:.2f}m unseen{d.unseen_share:.2f}"
     base = dict(seed=seed, room=room_id, shape=room.shape, sensor=sensor, points=len(points), **extra)
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     try:
         pre = preprocess(Cloud(points), cfg.preprocess)
         model = model_walls(pre.slice.points, pre.floor_z_m, pre.ceiling_z_m, cfg.walls)
@@ -233,6 +238,7 @@ def run_room(
         return RoomResult(
             **base,
             seconds=time.perf_counter() - t,
+            cpu_seconds=time.process_time() - cpu,
             completeness=0.0,
             correctness=0.0,
             acc_mean_mm=nan,
@@ -245,7 +251,7 @@ def run_room(
             unseen_walls=[],
             error=f"{type(exc).__name__}: {exc}",
         )
-    seconds = time.perf_counter() - t
+    seconds, cpu_seconds = time.perf_counter() - t, time.process_time() - cpu
     back, z = levelled_to_input(
         {"transform": pre.levelling.tolist(), "pivot_m": pre.metrics["levelling_pivot_m"]}
     )
@@ -271,6 +277,7 @@ def run_room(
     return RoomResult(
         **base,
         seconds=seconds,
+        cpu_seconds=cpu_seconds,
         completeness=ev["completeness"],
         correctness=ev["correctness"],
         acc_mean_mm=1000 * ev["accuracy_mean_m"],
@@ -287,7 +294,7 @@ def run_room(
 # ------------------------------------------------------------------------------------------- report
 
 HEADER = (
-    f"{'seed':>4s} {'room':4s} {'shape':11s} {'sensor':9s} {'points':>7s} {'time_s':>6s} {'compl':>6s} "
+    f"{'seed':>4s} {'room':4s} {'shape':11s} {'sensor':9s} {'points':>7s} {'time_s':>6s} {'cpu_s':>6s} {'compl':>6s} "
     f"{'corr':>6s} {'acc_mm':>6s} {'cornF1':>6s} {'ang_deg':>7s} {'walls':>5s} {'closed':>6s} {'seen':>5s} "
     f"{'seen10':>6s} {'ok':>3s}  walls seen10 < 0.5 (length:share)"
 )
@@ -295,9 +302,9 @@ HEADER = (
 
 def row(r: RoomResult) -> str:
     if r.error is not None:
-        return f"{r.seed:4d} {r.room:4s} {r.shape:11s} {r.sensor:9s} {r.points:7d} {r.seconds:6.2f} ERROR {r.error}"
+        return f"{r.seed:4d} {r.room:4s} {r.shape:11s} {r.sensor:9s} {r.points:7d} {r.seconds:6.2f} {r.cpu_seconds:6.2f} ERROR {r.error}"
     return (
-        f"{r.seed:4d} {r.room:4s} {r.shape:11s} {r.sensor:9s} {r.points:7d} {r.seconds:6.2f} "
+        f"{r.seed:4d} {r.room:4s} {r.shape:11s} {r.sensor:9s} {r.points:7d} {r.seconds:6.2f} {r.cpu_seconds:6.2f} "
         f"{r.completeness:6.3f} {r.correctness:6.3f} {r.acc_mean_mm:6.1f} {r.corner_f1:6.3f} "
         f"{r.angle_deg:7.3f} {r.walls:5d} {'yes' if r.closed else 'no':>6s} {r.seen:5.2f} {r.seen_surface:6.2f} "
         f"{'yes' if r.meets() else 'NO':>3s}  {' '.join(r.unseen_walls)}"
@@ -326,7 +333,7 @@ def summary(results: list[RoomResult]) -> list[str]:
             f"{mean('completeness'):.3f}, correctness {mean('correctness'):.3f}, accuracy "
             f"{mean('acc_mean_mm'):.1f} mm, corner F1 {mean('corner_f1'):.3f}, angle {mean('angle_deg'):.3f} deg, "
             f"seen {mean('seen'):.3f} / {mean('seen_surface'):.3f}, time {mean('seconds'):.2f} s/room (max "
-            f"{max(r.seconds for r in sel):.2f}); meet all targets: {sum(r.meets() for r in sel)}/{len(sel)}"
+            f"{max(r.seconds for r in sel):.2f}; CPU {mean('cpu_seconds'):.2f} s/room); meet all targets: {sum(r.meets() for r in sel)}/{len(sel)}"
         )
         if any(r.degraded is not None for r in sel):
             out.append(
@@ -348,7 +355,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", choices=sorted(SPLITS), help="a named set of building seeds")
     ap.add_argument("--seeds", type=int, nargs="*", help="building seeds (instead of --split)")
-    ap.add_argument("--rooms", nargs="*", default=list(ROOMS), help="room ids (r1-r4 RGB-D, r5 TLS)")
+    ap.add_argument(
+        "--rooms",
+        nargs="*",
+        default=list(ROOMS),
+        help="room ids (r1-r4 RGB-D, r5 TLS, hall the hallway; default r1-r5)",
+    )
     ap.add_argument(
         "--size", choices=("mini", "full"), default="mini", help="capture size, as `synth --size`"
     )

@@ -728,3 +728,102 @@ def test_a_wall_no_orientation_cluster_supports_and_its_data_do_not_back_goes():
     assert not stray_walls(walls, np.array([0.0, 70.0, 90.0]), share, CFG.lines).any()
     step = np.array([[8, 0, 8, 0.03]])  # a step of a few cm carries no direction: never stray
     assert not stray_walls(step, np.array([0.0, 70.0]), share, CFG.lines).any()
+
+
+def _door_cells(lines: np.ndarray, gaps: list[tuple[int, float, float]], grid_m: float = 0.01):
+    """A wall-data image of `lines` (M, 4) on a 1 cm grid, with the spans (line, t0, t1) left empty."""
+    from tasks.lines import sample_segments
+    from tasks.walls.image import Grid
+
+    pts, owner = sample_segments(lines, grid_m / 2)
+    keep = np.ones(len(pts), dtype=bool)
+    for i, t0, t1 in gaps:
+        a, b = lines[i, :2], lines[i, 2:]
+        t = (pts - a) @ ((b - a) / np.hypot(*(b - a)))
+        keep &= ~((owner == i) & (t > t0) & (t < t1))
+    lo = lines.reshape(-1, 2).min(axis=0) - 0.5
+    shape = tuple(np.ceil((lines.reshape(-1, 2).max(axis=0) + 0.5 - lo) / grid_m).astype(int))[::-1]
+    grid = Grid(lo, grid_m, shape)
+    cells = np.zeros(shape, dtype=bool)
+    px = np.rint(grid.to_pixels(pts[keep])).astype(int)
+    cells[px[:, 1], px[:, 0]] = True
+    return cells, grid
+
+
+def test_walls_seen_through_a_door_are_told_from_the_rooms_own_walls():
+    from tasks.walls.evidence import seen_through_gaps
+
+    lines = np.array(
+        [
+            [0, 0, 8, 0],  # 0 the corridor's south wall: a door at x 3.0-3.9, an alcove's mouth at 6.0-7.0
+            [8, 0, 8, 2],  # 1
+            [8, 2, 0, 2],  # 2 north wall: a door at x 1.5-2.4
+            [0, 2, 0, 0],  # 3
+            [4.4, -0.6, 4.4, -1.6],  # 4 the next room's side wall, seen through the south door
+            [2.0, -3.0, 5.0, -3.0],  # 5 ... and its far wall, mostly straight behind the south wall
+            [1.0, 2.6, 1.0, 3.4],  # 6 a side wall of the room north, through the north door
+            [6.0, -0.6, 7.0, -0.6],  # 7 the alcove's back wall: behind the mouth, not behind the wall
+            [6.0, 0.0, 6.0, -0.6],  # 8 the alcove's sides start at the wall
+            [7.0, -0.6, 7.0, 0.0],  # 9
+            [0.3, 1.0, 1.5, 1.0],  # 10 a thin free-standing wall's two faces, 10 cm apart
+            [0.3, 1.1, 1.5, 1.1],  # 11
+        ],
+        dtype=float,
+    )
+    cells, grid = _door_cells(lines, [(0, 3.0, 3.9), (0, 6.0, 7.0), (2, 8 - 2.4, 8 - 1.5)])
+    interior = np.array([4.0, 1.0])
+    found = seen_through_gaps(lines, cells, grid, interior, 0.3, 0.5, 0.05)
+    assert np.flatnonzero(found).tolist() == [4, 5, 6]
+    assert not seen_through_gaps(lines, cells, grid, interior, 0.3, 0.0, 0.05).any()  # 0: off
+
+
+def test_a_corridor_keeps_no_wall_of_the_rooms_seen_through_its_doors(rng):
+    # a 8 m x 2 m corridor with a door in each long wall; through them the camera saw a side wall and the
+    # far wall of the room south and a side wall of the room north: none is a wall of the corridor
+    truth = np.array([[0, 0, 8, 0], [8, 0, 8, 2], [8, 2, 0, 2], [0, 2, 0, 0]], float)
+    faces = [
+        ((0, 0), (3.0, 0)),
+        ((3.9, 0), (8, 0)),
+        ((8, 0), (8, 2)),
+        ((8, 2), (2.4, 2)),
+        ((1.5, 2), (0, 2)),
+        ((0, 2), (0, 0)),
+        ((4.4, -0.6), (4.4, -1.8)),
+        ((2.0, -3.0), (5.0, -3.0)),
+        ((1.0, 2.6), (1.0, 3.6)),
+    ]
+    pts = np.concatenate([wall_points(a, b, 1.5, 2.5, rng, noise=0.005) for a, b in faces])
+    model = model_walls(pts, 0.0, 2.7, CFG)
+    ev = evaluate_walls(model.walls, truth)
+    assert model.closed and ev["correctness"] == 1.0 and ev["completeness"] >= 0.99, (ev, model.walls)
+    assert ev["corner_f1"] == 1.0 and len(model.walls) == 4, model.walls
+    assert model.metrics["walls_seen_through_gaps"] == 3
+
+
+@pytest.mark.parametrize(
+    ("corners", "seen"),
+    [
+        # a U: the notch's far side lies behind its near side's line, beyond the room's own space
+        ([(0, 0), (8, 0), (8, 4), (6.5, 4), (6.5, 1.5), (5.5, 1.5), (5.5, 4), (0, 4)], None),
+        # an alcove 1 m deep: its back wall lies behind the wall's mouth
+        ([(0, 0), (6, 0), (6, 4), (4, 4), (4, 5), (2.5, 5), (2.5, 4), (0, 4)], None),
+        # an L one of whose inner walls was seen only from 0.5 m off the inner corner: it lies wholly behind
+        # the other inner wall's line, its foot at that wall's end
+        (
+            [(0, 0), (6, 0), (6, 2), (2.5, 2), (2.5, 5), (0, 5)],
+            [(0, 0, 6, 0), (6, 0, 6, 2), (6, 2, 2.5, 2), (2.5, 2.5, 2.5, 5), (2.5, 5, 0, 5), (0, 5, 0, 0)],
+        ),
+    ],
+    ids=["u_room", "alcove", "l_room_unseen_corner"],
+)
+def test_a_rooms_own_walls_behind_another_walls_line_are_not_taken_for_walls_seen_through_a_door(
+    corners, seen, rng
+):
+    c = corners
+    truth = np.array([[*c[i], *c[(i + 1) % len(c)]] for i in range(len(c))], float)
+    faces = truth if seen is None else np.array(seen, float)
+    pts = np.concatenate([wall_points(t[:2], t[2:], 1.5, 2.5, rng, noise=0.005) for t in faces])
+    model = model_walls(pts, 0.0, 2.7, CFG)
+    ev = evaluate_walls(model.walls, truth)
+    assert model.metrics["walls_seen_through_gaps"] == 0
+    assert model.closed and ev["corner_f1"] == 1.0 and ev["completeness"] == 1.0, (ev, model.walls)

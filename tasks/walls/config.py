@@ -55,6 +55,11 @@ class WallsConfig:
     thin_wall_max_m: float = 0.3
     """A line below the slice top is still a wall when it is the other face of a free-standing wall at most
     this thick whose first face reaches the top (`thin_wall_faces`); 0 switches that off."""
+    through_gap_share: float = 0.5
+    """A line wholly more than `thin_wall_max_m` behind another, longer line of the room (on its side away
+    from the room), with at least this share of its length straight behind that line's data, was seen through
+    a gap in it (a door): a wall of the room beyond, dropped before the walls are connected
+    (`evidence.seen_through_gaps`); 0 switches that off."""
     thin_wall_end_tol_m: float = 0.15
     """The two faces of such a wall end within this distance of each other, at the wall's free end."""
     thin_wall_clear_m: float = 0.3

@@ -403,3 +403,57 @@ def lifted(faces: list[NDArray], z_lo: float, z_hi: float, step_m: float) -> NDA
     xy = xy[np.sort(first)]
     z = np.arange(z_lo, z_hi + 1e-9, step_m)
     return np.column_stack([np.repeat(xy, len(z), axis=0), np.tile(z, len(xy))])
+
+
+def seen_through_gaps(
+    lines: NDArray,
+    wall_data: NDArray[np.bool_],
+    grid: Grid,
+    interior: NDArray | None,
+    min_depth_m: float,
+    min_share: float,
+    tol_m: float,
+) -> NDArray[np.bool_]:
+    """(M,) lines seen through a gap (a door, a window) in another line of the room: walls of the rooms
+    beyond, not of this one.
+
+    A line L is such a wall when some longer line W has L wholly on its back (the side away from the room's
+    `interior`: the lines' length-weighted centre), every point of L more than `min_depth_m` behind W's
+    line, and at least `min_share` of L's points lie straight behind W's data (`wall_data` within `tol_m` of
+    their foot on W): the sensor, in the room, cannot have seen them through W, only obliquely through a gap
+    in it. A room's own walls are never behind another of its walls' data: an alcove's or an L-room's far
+    walls lie behind a wall's *line* but beyond its end or behind the gap itself (an alcove's mouth), and a
+    thin wall's second face lies within `min_depth_m` (the thickest thin wall) of its first. `min_share` 0
+    switches the test off."""
+    lines = np.asarray(lines, dtype=np.float64)
+    out = np.zeros(len(lines), dtype=bool)
+    if min_share <= 0 or interior is None or len(lines) < 2:
+        return out
+    L = lengths(lines)
+    ok = L > 0
+    u = np.zeros((len(lines), 2))
+    u[ok] = (lines[ok, 2:] - lines[ok, :2]) / L[ok, None]
+    back = np.column_stack([u[:, 1], -u[:, 0]])
+    # the normal pointing away from the room
+    back[((np.asarray(interior) - lines[:, :2]) * back).sum(axis=1) > 0] *= -1
+    near = _near_sampler(wall_data, grid, tol_m)
+    pts, owner = sample_segments(lines, grid.size)
+    for w in np.flatnonzero(ok):
+        rel = pts - lines[w, :2]
+        depth, t = rel @ back[w], rel @ u[w]
+        # the lines wholly behind W (every sample deeper than min_depth_m), shorter than W
+        deep = np.bincount(owner, depth <= min_depth_m, len(lines)) == 0
+        cand = deep & (L < L[w])
+        cand[w] = False
+        if not cand.any():
+            continue
+        sel = cand[owner]
+        inside = (t[sel] >= 0) & (t[sel] <= L[w])
+        foot = lines[w, :2] + np.outer(t[sel], u[w])
+        solid = np.zeros(int(sel.sum()), dtype=bool)
+        solid[inside] = near(foot[inside])
+        share = np.bincount(owner[sel], solid, len(lines)) / np.maximum(
+            np.bincount(owner[sel], minlength=len(lines)), 1
+        )
+        out |= cand & (share >= min_share)
+    return out

@@ -29,6 +29,7 @@ from tasks.walls.evidence import (
     TopCells,
     extend_to_data,
     refine_offsets,
+    seen_through_gaps,
     support_sampler,
     thin_wall_faces,
     top_reach_shares,
@@ -92,6 +93,7 @@ def model_for(
         "lines_below_top": found.below_top,
         "removed_extensions": len(found.conn.removed),
         "walls_outside_room": found.outside,
+        "walls_seen_through_gaps": found.through,
         "walls_hung_from_ceiling": int(found.hung.sum()),
         "walls_stray": found.stray,
         "bridged_gap_m": bridged,
@@ -115,6 +117,8 @@ class _Topology:
     """The wall data: cells near the top, and the other tall cells along the kept lines."""
     share: Any
     """share(segments) -> (P,) support of segments by `binary`."""
+    through: int = 0
+    """Lines seen through a gap in another wall of the room (`evidence.seen_through_gaps`), dropped."""
     refused: int = 0
     """Lines whose regularization was refused (it would move them beyond their data's noise)."""
     stray: int = 0
@@ -168,6 +172,18 @@ def _topology(
         reg = np.where(refused[:, None], lines, reg)
     refined = reg if xy is None else refine_offsets(reg, xy, proj.cell, grid, cfg.refine_band_m)
     refined = extend_to_data(refined, wall_data, grid, cfg.end_tol_m, cfg.end_gap_m, lcfg.extend_m)
+    # walls of the next rooms, seen through a door in one of this room's walls, go before they shape its corners
+    through = seen_through_gaps(
+        refined,
+        wall_data,
+        grid,
+        _centre(refined),
+        cfg.thin_wall_max_m,
+        cfg.through_gap_share,
+        cfg.support_tol_m,
+    )
+    if through.any():
+        refined, rotation, chain = refined[~through], rotation[~through], chain[~through]
     centres = 0.5 * (refined[:, :2] + refined[:, 2:])
 
     def support_fn(pieces: NDArray, parent: NDArray) -> NDArray:
@@ -179,8 +195,7 @@ def _topology(
         return share(rotate_segments(pieces, rot, c))
 
     # the room's interior, for the joins across unseen walls: the walls' length-weighted centre
-    weight = lengths(refined)
-    interior = (centres * weight[:, None]).sum(axis=0) / weight.sum() if weight.sum() > 0 else None
+    interior = _centre(refined)
     conn = connect_detailed(refined, lcfg, support_fn, interior, step_chain=chain)
     conn = place_steps(conn, refined, proj.counts, grid, lcfg.offset_tol_m)
     walls, origin = _drop_short_stubs(conn.segments, conn.origin, cfg.min_wall_length_m)
@@ -218,6 +233,7 @@ def _topology(
         below_top,
         wall_data,
         share,
+        int(through.sum()),
         int(refused.sum()),
         int(stray.sum()),
     )
@@ -356,6 +372,14 @@ def line_noise(hough: NDArray, labels: NDArray, lines: NDArray, floor_m: float) 
     n = np.bincount(j, minlength=len(lines)) * 2
     rms = np.sqrt(sq / np.maximum(n, 1))
     return np.maximum(out, rms)
+
+
+def _centre(lines: NDArray) -> NDArray | None:
+    """The lines' length-weighted centre (None without length): where the room's interior is taken to be."""
+    weight = lengths(lines)
+    if len(lines) == 0 or weight.sum() <= 0:
+        return None
+    return (0.5 * (lines[:, :2] + lines[:, 2:]) * weight[:, None]).sum(axis=0) / weight.sum()
 
 
 def _lines_away_from(lines: NDArray, polygon: Any, tol_m: float) -> NDArray[np.bool_]:
