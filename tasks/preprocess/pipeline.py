@@ -255,9 +255,10 @@ def _vertical_surface(
     """(N,) points whose local fit is a smooth surface (not an edge, not unfit) with a normal within
     `max_z` (its levelled z component) of horizontal: walls and the faces of furniture, not the loose
     cloud of a plant nor a table top."""
-    n = surfaces.normals @ rotation.T
+    n = surfaces.normals
+    z = n[:, 0] * rotation[2, 0] + n[:, 1] * rotation[2, 1] + n[:, 2] * rotation[2, 2]  # no threaded BLAS
     with np.errstate(invalid="ignore"):
-        return ~surfaces.edge & (np.abs(n[:, 2]) <= max_z)
+        return ~surfaces.edge & (np.abs(z) <= max_z)
 
 
 def _slice_band(
