@@ -192,10 +192,10 @@ def statistical_outliers(
     # a chain from another point reaches its first anchor through links that all touch a non-anchor, and
     # the graph shrinks to the sparse parts of the cloud (a few per cent of the links on a room).
     anchor = dense & regular
-    entry = (~anchor)[:, None] | (~anchor)[idx]  # (n, K)
-    rows = np.nonzero(entry)[0]
-    cols = idx[entry].astype(np.intp)
-    short = link[entry] <= _LINK_RATIO * np.minimum(mean_dist[rows], mean_dist[cols])
+    entry = np.flatnonzero((~anchor)[:, None] | (~anchor)[idx])  # flat (n, K) positions
+    rows = entry // neighbours
+    cols = idx.ravel()[entry].astype(np.intp)
+    short = link.ravel()[entry] <= _LINK_RATIO * np.minimum(mean_dist[rows], mean_dist[cols])
     ok = short & regular[rows] & regular[cols]
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
