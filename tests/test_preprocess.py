@@ -111,6 +111,7 @@ def test_tilted_room_slice_and_outputs(room):
     assert m["points_in"] == len(cloud) and m["points_out"] == len(result.cloud)
     assert m["points_after_outliers"] == m["points_after_voxel"] - m["outliers_removed"]
     assert set(m["timings_s"]) >= {"voxel", "outliers", "mls", "level", "histogram", "slice", "total"}
+    assert set(m["cpu_timings_s"]) == set(m["timings_s"])  # CPU seconds beside wall seconds, per step
     json.dumps(m)  # the manifest takes it as it is
 
 
