@@ -57,15 +57,20 @@ def _cell_centroids(
         raise DegenerateInputError(f"cloud extent {extent:.3g} m is too large for a {cell_m} m grid")
     key = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
     inverse, cells = _dense_ranks(key, int(dims[0]) * int(dims[1]) * int(dims[2]))
-    totals = np.bincount(inverse, weights=weights, minlength=cells).astype(np.float64)
-
-    def mean_of(values: NDArray[Any]) -> NDArray[np.float64]:
-        columns = values if weights is None else values * weights[:, None]
-        sums = [np.bincount(inverse, weights=columns[:, i], minlength=cells) for i in range(3)]
-        return np.stack(sums, axis=1) / totals[:, None]
-
-    centroids = mean_of(points)
-    mean_colors = None if colors is None else np.rint(mean_of(colors)).astype(np.uint8)
+    # the cells' sums of the weights, then of each weighted coordinate and colour: one bincount each,
+    # shared among the threads (each sum is the same whichever thread makes it)
+    sources: list[NDArray[Any] | None] = [weights]
+    for values in (points,) if colors is None else (points, colors):
+        sources += [values[:, i] if weights is None else values[:, i] * weights for i in range(3)]
+    sums = _map_chunks(
+        lambda i: np.bincount(inverse, weights=sources[i], minlength=cells).astype(np.float64),
+        range(len(sources)),
+    )
+    totals = sums[0]
+    centroids = np.stack(sums[1:4], axis=1) / totals[:, None]
+    mean_colors = (
+        None if colors is None else np.rint(np.stack(sums[4:7], axis=1) / totals[:, None]).astype(np.uint8)
+    )
     return centroids, totals, mean_colors
 
 
@@ -302,8 +307,8 @@ def mls_smooth(
 
 
 def _map_chunks(work: Callable[[int], _T], starts: Iterable[int]) -> list[_T]:
-    """`work` on every chunk start, in order, on up to `_THREADS` threads (numpy and the KD-tree release
-    the GIL); each chunk's work must touch only its own rows."""
+    """`work` on every chunk start (or item), results in order, on up to `_THREADS` threads (numpy and the
+    KD-tree release the GIL); each call must touch only its own rows."""
     starts = list(starts)
     threads = min(_THREADS, len(starts))
     if threads <= 1:
