@@ -4,6 +4,7 @@ preprocess tests' room, scaled up).
     python -m bench.preprocess                      # 5 M points: points/s per step and overall, peak memory
     python -m bench.preprocess --points 1000000 --order-study --level-study --voxel-study
     python -m bench.preprocess --profile 25          # and the stage's top 25 functions by cumulative time
+    python -m bench.preprocess --threads-check       # and again on one thread: the same bytes?
 
 Run from the repository root. Wall-clock figures depend on what else runs on the machine: CPU seconds are
 printed beside them.
@@ -23,6 +24,7 @@ from dataclasses import replace
 import numpy as np
 
 from tasks.cloud import Cloud
+from tasks.preprocess import filters
 from tasks.preprocess.config import PreprocessConfig
 from tasks.preprocess.filters import mls_smooth, statistical_outliers, voxel_grid
 from tasks.preprocess.levelling import level_by_normals
@@ -68,7 +70,7 @@ class PeakRSS:
         self.peak = max(self.peak, self._rss())
 
 
-def whole_stage(n_points: int, cfg: PreprocessConfig, profile: int = 0) -> None:
+def whole_stage(n_points: int, cfg: PreprocessConfig, profile: int = 0, threads_check: bool = False) -> None:
     t = time.perf_counter()
     cloud, truth = tilted_box_room(n_points, seed=11, size=ROOM)
     print(
@@ -88,7 +90,7 @@ def whole_stage(n_points: int, cfg: PreprocessConfig, profile: int = 0) -> None:
     if prof:
         pstats.Stats(prof).sort_stats("cumulative").print_stats(profile)
     m = result.metrics
-    timings = m["timings_s"]
+    timings, cpu_timings = m["timings_s"], m["cpu_timings_s"]
     step_inputs = {
         "check": m["points_in"],
         "voxel": m["points_in"],
@@ -99,12 +101,13 @@ def whole_stage(n_points: int, cfg: PreprocessConfig, profile: int = 0) -> None:
         "slice": m["points_out"],
         "render": m["points_out"],
     }
-    print(f"\n{'step':<10} {'points in':>11} {'seconds':>8} {'points/s':>12}")
-    for step, points in step_inputs.items():
-        seconds = timings[step]
-        print(f"{step:<10} {points:>11,} {seconds:>8.2f} {points / max(seconds, 1e-9):>12,.0f}")
-    total = timings["total"]
-    print(f"{'total':<10} {m['points_in']:>11,} {total:>8.2f} {m['points_in'] / total:>12,.0f}")
+    print(f"\n{'step':<10} {'points in':>11} {'seconds':>8} {'CPU s':>7} {'points/s':>12} {'per CPU s':>12}")
+    for step, points in [*step_inputs.items(), ("total", m["points_in"])]:
+        seconds, cpu_s = timings[step], cpu_timings[step]
+        print(
+            f"{step:<10} {points:>11,} {seconds:>8.2f} {cpu_s:>7.2f} {points / max(seconds, 1e-9):>12,.0f} "
+            f"{points / max(cpu_s, 1e-9):>12,.0f}"
+        )
     print(f"\nCPU time {cpu:.1f} s (both cores); load average after: {os.getloadavg()[0]:.1f}")
     print(
         f"peak RSS {memory.peak / 2**30:.2f} GiB; above the input cloud and its generator: "
@@ -118,6 +121,24 @@ def whole_stage(n_points: int, cfg: PreprocessConfig, profile: int = 0) -> None:
         f"distance to truth median {1000 * np.median(distance):.2f} mm, "
         f"p99 {1000 * np.percentile(distance, 99):.1f} mm"
     )
+    if threads_check:
+        # the same bytes with the work on one thread: the chunks are fixed, whatever shares them
+        default_threads = filters._THREADS
+        filters._THREADS = 1
+        try:
+            single = preprocess(cloud, cfg)
+        finally:
+            filters._THREADS = default_threads
+        same = all(
+            np.array_equal(a, b)
+            for a, b in (
+                (single.cloud.points, result.cloud.points),
+                (single.cloud.colors, result.cloud.colors),
+                (single.slice.points, result.slice.points),
+                (single.levelling, result.levelling),
+            )
+        )
+        print(f"one thread against {default_threads}: {'the same bytes' if same else 'DIFFERENT output'}")
     print(
         f"points: in {m['points_in']:,}, voxels {m['points_after_voxel']:,}, after outliers "
         f"{m['points_after_outliers']:,}, slice {m['slice_points']:,}; "
@@ -227,10 +248,13 @@ def main() -> None:
     parser.add_argument("--voxel-study", action="store_true", help="the stage at voxel sizes 1-3 cm")
     parser.add_argument("--skip-main", action="store_true", help="only the studies")
     parser.add_argument("--profile", type=int, default=0, help="print the stage's top-N functions (cProfile)")
+    parser.add_argument(
+        "--threads-check", action="store_true", help="run the stage again on one thread: the same bytes?"
+    )
     args = parser.parse_args()
     cfg = PreprocessConfig()
     if not args.skip_main:
-        whole_stage(args.points, cfg, args.profile)
+        whole_stage(args.points, cfg, args.profile, args.threads_check)
     if args.order_study:
         order_study(args.study_points, cfg)
     if args.level_study:

@@ -111,6 +111,7 @@ def test_tilted_room_slice_and_outputs(room):
     assert m["points_in"] == len(cloud) and m["points_out"] == len(result.cloud)
     assert m["points_after_outliers"] == m["points_after_voxel"] - m["outliers_removed"]
     assert set(m["timings_s"]) >= {"voxel", "outliers", "mls", "level", "histogram", "slice", "total"}
+    assert set(m["cpu_timings_s"]) == set(m["timings_s"])  # CPU seconds beside wall seconds, per step
     json.dumps(m)  # the manifest takes it as it is
 
 
@@ -326,6 +327,45 @@ def test_mls_support_grid_matches_the_full_neighbourhood_fit(rng):
     assert diff.mean() < 0.1 * noise_removed and diff.max() < 1e-3
 
 
+def test_mls_is_the_same_bytes_whatever_the_threads_and_chunks_and_is_the_direct_fit(rng, monkeypatch):
+    """The fits are shared among threads in fixed chunks: one thread or two, the same bytes; smaller
+    chunks change nothing either; and each fit is the weighted plane fit written out per point."""
+    points, _ = _noisy_plane(rng, n=6_000, sigma=0.004, size=1.0)
+    points = np.concatenate([points, rng.uniform(0, 1, (300, 3))])  # a few points with a loose support
+    weights = rng.integers(1, 6, len(points)).astype(np.float64)
+    results = []
+    for threads, entries in ((1, 1_000_000), (2, 1_000_000), (2, 20_000), (3, 7_000)):
+        monkeypatch.setattr(filters, "_THREADS", threads)
+        monkeypatch.setattr(filters, "_CHUNK_ENTRIES", entries)
+        results.append(mls_smooth(points, 0.10, 1, 10.0, weights))
+    for other in results[1:]:
+        for name in ("points", "normals", "curvature", "edge"):
+            assert np.array_equal(getattr(other, name), getattr(results[0], name), equal_nan=True), name
+        assert other.stats == results[0].stats
+    # the direct fit on the same support cells (cell centroids, their total weights, the 64 nearest in r)
+    result = results[0]
+    local = points - points.mean(axis=0)
+    support, totals, _ = filters._cell_centroids(local, 0.10 / 3, weights=weights)
+    tree = cKDTree(support)
+    for i in rng.choice(np.flatnonzero(~result.edge), 50, replace=False):
+        dist, idx = tree.query(local[i], k=64, distance_upper_bound=0.10)
+        idx = idx[np.isfinite(dist)]
+        w = totals[idx] * np.exp(-np.sum((support[idx] - local[i]) ** 2, axis=1) / 0.10**2)
+        mean = (w[:, None] * support[idx]).sum(0) / w.sum()
+        cov = ((support[idx] - mean) * w[:, None]).T @ (support[idx] - mean) / w.sum()
+        evals, evecs = np.linalg.eigh(cov)
+        n = evecs[:, 0]
+        assert abs(abs(result.normals[i] @ n) - 1) < 1e-9
+        assert np.allclose(result.points[i], points[i] - ((local[i] - mean) @ n) * n, atol=1e-12)
+        assert result.curvature[i] == pytest.approx(evals[0] / evals.sum(), rel=1e-6, abs=1e-12)
+
+
+def test_row_median_is_numpys(rng):
+    for k in (1, 2, 5, 20, 21):
+        values = rng.random((500, k))
+        assert np.array_equal(filters._row_median(values), np.median(values, axis=1))
+
+
 def test_mls_with_voxel_counts_sees_the_raw_surface(rng):
     """Voxel centroids of a dense, noisy, tilted plane form terraces along the grid (a voxel holding a few
     points of the noise's tail counts as much as a full one). Fitting with the voxel counts as weights
@@ -391,6 +431,20 @@ def test_levelling_recovers_a_known_tilt(rng, mode, tilt_deg):
     assert stats["level_tilt_deg"] == pytest.approx(true_tilt, abs=0.02)
     assert stats["level_converged"]
     assert stats["level_tilt_per_iteration_deg"][0] == pytest.approx(true_tilt, abs=0.02)
+
+
+@pytest.mark.parametrize("mode", ["horizontal", "vertical", "both"])
+def test_levelling_is_the_matrix_form_of_eq_5_4(rng, mode):
+    """The column-wise sums give the up vector of Σ_h n nᵀ + Σ_v (I - n nᵀ) written with matrices."""
+    normals = _tilted_normals(rng, Rotation.from_rotvec([0.05, -0.03, 0.4]))
+    cfg = replace(PreprocessConfig(), level_normals=mode, level_max_iterations=1)
+    rotation, _ = level_by_normals(normals, cfg)
+    horizontal = np.abs(normals[:, 2]) >= math.cos(math.radians(cfg.level_split_deg))
+    h, v = normals[horizontal], normals[~horizontal]
+    scatter = {"horizontal": h.T @ h, "vertical": len(v) * np.eye(3) - v.T @ v}
+    scatter["both"] = scatter["horizontal"] + scatter["vertical"]
+    up = np.linalg.eigh(scatter[mode])[1][:, 2]
+    assert abs(abs(rotation[2] @ up) - 1) < 1e-12
 
 
 def test_levelling_of_a_single_wall_is_an_error(rng):

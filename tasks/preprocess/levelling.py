@@ -46,18 +46,22 @@ def level_by_normals(
     tilts: list[float] = []
     z = np.array([0.0, 0.0, 1.0])
     n_horizontal = n_vertical = 0
+    use_h = 1.0 if cfg.level_normals in ("horizontal", "both") else 0.0
+    use_v = 1.0 if cfg.level_normals in ("vertical", "both") else 0.0
     for _ in range(cfg.level_max_iterations):
-        current = n @ rotation.T
-        horizontal = np.abs(current[:, 2]) >= cos_split
+        current = _rotated_columns(n, rotation)
+        horizontal = np.abs(current[2]) >= cos_split
         n_horizontal = int(horizontal.sum())
-        n_vertical = len(current) - n_horizontal
-        scatter = np.zeros((3, 3))
-        if cfg.level_normals in ("horizontal", "both"):
-            h = current[horizontal]
-            scatter += h.T @ h
-        if cfg.level_normals in ("vertical", "both"):
-            v = current[~horizontal]
-            scatter += len(v) * np.eye(3) - v.T @ v
+        n_vertical = len(n) - n_horizontal
+        # Σ_h n nᵀ + Σ_v (I - n nᵀ) as one signed sum over the columns (no BLAS: its threads spin for CPU
+        # on a loaded machine, and the sums are the same whatever the thread count)
+        sign = np.where(horizontal, use_h, -use_v)
+        scatter = use_v * n_vertical * np.eye(3)
+        for a in range(3):
+            signed = sign * current[a]
+            for b in range(a, 3):
+                scatter[a, b] += float((signed * current[b]).sum())
+                scatter[b, a] = scatter[a, b]
         evals, evecs = np.linalg.eigh(scatter)
         # the up direction must stand out: a single wall (or nothing usable) leaves two equal eigenvalues
         if evals[2] <= 0 or (evals[2] - evals[1]) / evals[2] < 0.05:
@@ -72,9 +76,9 @@ def level_by_normals(
         if tilt < cfg.level_tol_deg:
             break
     total = math.degrees(math.acos(min(1.0, float(rotation[2, 2]))))
-    final = n @ rotation.T
-    horizontal = np.abs(final[:, 2]) >= cos_split
-    spread = np.degrees(np.arccos(np.clip(np.abs(final[horizontal, 2]), 0, 1))) if horizontal.any() else []
+    final_z = _rotated_columns(n, rotation)[2]
+    horizontal = np.abs(final_z) >= cos_split
+    spread = np.degrees(np.arccos(np.clip(np.abs(final_z[horizontal]), 0, 1))) if horizontal.any() else []
     stats = {
         "level_tilt_per_iteration_deg": [round(t, 6) for t in tilts],
         "level_tilt_deg": total,
@@ -91,6 +95,16 @@ def level_by_normals(
             f"levelling found a tilt of {total:.1f}°, beyond the {cfg.level_split_deg}° the method assumes"
         )
     return rotation, stats
+
+
+def _rotated_columns(
+    vectors: NDArray[np.float64], rotation: NDArray[np.float64]
+) -> list[NDArray[np.float64]]:
+    """The x, y and z columns (each (N,)) of vectors (N, 3) rotated by `rotation` (3, 3)."""
+    return [
+        vectors[:, 0] * rotation[i, 0] + vectors[:, 1] * rotation[i, 1] + vectors[:, 2] * rotation[i, 2]
+        for i in range(3)
+    ]
 
 
 class HeightHistogram(NamedTuple):
