@@ -48,7 +48,7 @@ from tasks.plan.rooms import (
     rooms_in_metres,
     to_metres,
 )
-from tasks.plan.sheet import find_sheet, read_scale_bar, sheet_homography
+from tasks.plan.sheet import direction_homography, find_sheet, read_scale_bar, sheet_homography
 from tasks.plan.vectorize import hough_lines, vector_walls
 
 
@@ -87,7 +87,7 @@ def parse_plan(
     and images without a floor plan."""
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
-    img, s, H_rect, scale_source = _scaled_image(_checked_image(image, name), scale, cfg, name)
+    img, s, H_rect, scale_source, rectified = _scaled_image(_checked_image(image, name), scale, cfg, name)
     f = max(1, math.ceil(max(img.shape[:2]) / cfg.max_side_px))
     img = min_pool(img, f)
     sp = s * f  # metres per working pixel
@@ -138,6 +138,7 @@ def parse_plan(
         "m_per_px": s,
         "scale_source": scale_source,
         "rectification": H_rect.tolist(),
+        "rectified_by": rectified,
         "plan_region_px": [u0 * f, v0 * f, u1 * f, v1 * f],
         "walls_heavy_pen": raster.heavy_pen,
         "dark_share": dark_share,
@@ -184,14 +185,17 @@ def _checked_image(image: NDArray[np.uint8], name: str) -> NDArray[np.uint8]:
 
 def _scaled_image(
     img: NDArray[np.uint8], scale: PlanScale, cfg: PlanConfig, name: str
-) -> tuple[NDArray[np.uint8], float, NDArray[np.float64], str]:
+) -> tuple[NDArray[np.uint8], float, NDArray[np.float64], str, str | None]:
     """The image (rectified when four outline corners are given, or when no scale is given and a
-    photographed sheet's border shows), its metres per pixel, the (3, 3) homography from input to
-    rectified pixels and where the scale came from, checked to make the image a plausible size."""
+    photographed sheet's border shows, or else its plan's two orthogonal directions show a perspective),
+    its metres per pixel, the (3, 3) homography from input to rectified pixels, where the scale came
+    from and what rectified it (None: nothing), checked to make the image a plausible size."""
     s_rect = None
     H = np.eye(3)
+    rectified = None
     if scale.corners_px is not None:
         img, s_rect, H = rectify(img, np.asarray(scale.corners_px), scale.outline_size_m)
+        rectified = "corners_px"
     elif scale.m_per_px is None and cfg.sheet_aspect > 0:
         corners = find_sheet(img, cfg.sheet_min_area_share)
         if corners is not None:  # a photo of the sheet: rectified to the sheet's side ratio
@@ -201,6 +205,20 @@ def _scaled_image(
             # the sheet's edge, a sliver of what is around it and the drawing's frame are no plan
             b = max(1, round(cfg.sheet_edge_share * min(img.shape[:2])))
             img[:b], img[-b:], img[:, :b], img[:, -b:] = 255, 255, 255, 255
+            rectified = "sheet border"
+        elif cfg.rectify_directions:
+            found = direction_homography(img)
+            if found is not None:  # a photo inside the sheet: from the plan's orthogonal directions
+                H, size = found
+                inside = np.full(img.shape[:2], 255, np.uint8)
+                img = cv2.warpPerspective(img, H, size, flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255))
+                img = flat_field(img, cfg.flat_field_share)
+                # the photo's edge and what it cut (a legend's frame) are no plan: a band inside it blanked
+                inside = cv2.warpPerspective(inside, H, size, flags=cv2.INTER_NEAREST, borderValue=0)
+                b = max(1, round(cfg.sheet_edge_share * min(img.shape[:2])))
+                inside = cv2.erode(inside, np.ones((2 * b + 1, 2 * b + 1), np.uint8), borderValue=0)
+                img[inside == 0] = 255
+                rectified = "dominant directions"
     if s_rect is not None:
         s, source = s_rect, "outline_size_m"
     elif scale.m_per_px is not None:
@@ -229,7 +247,7 @@ def _scaled_image(
             f"{name}: scale {s:.4g} m/px makes the image {extent_m:.3g} m across, outside the plausible "
             f"{cfg.min_extent_m:g}-{cfg.max_extent_m:g} m (wrong units?)"
         )
-    return img, s, H, source
+    return img, s, H, source, rectified
 
 
 def flat_field(img: NDArray[np.uint8], share: float) -> NDArray[np.uint8]:
