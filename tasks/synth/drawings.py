@@ -488,10 +488,8 @@ def _closeup(
     best = None
     # the aim (the sheet point on the camera's axis): the sheet's middle, else the nearest point of a
     # grid whose view holds the plan and its scale bar
-    grid = [(0.0, 0.0)] + sorted(
-        ((du, dv) for du in np.linspace(-0.1, 0.1, 5) for dv in np.linspace(-0.1, 0.1, 5)),
-        key=lambda t: abs(t[0]) + abs(t[1]),
-    )
+    steps = np.linspace(-0.1, 0.1, 5)
+    grid = sorted(((du, dv) for du in steps for dv in steps), key=lambda t: abs(t[0]) + abs(t[1]))
     for du, dv in grid:
         aim = np.array([W * (0.5 + du), H * (0.5 + dv), 0.0])
         t = np.array([0.0, 0.0, f]) - R @ aim
