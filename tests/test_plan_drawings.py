@@ -185,8 +185,8 @@ def _pinhole_view(image: np.ndarray, tilt_deg: tuple[float, float], f_share: flo
 def test_rectified_from_orthogonal_directions():
     """Known answer: a grid of rooms (axis-parallel lines) seen by a pinhole camera tilted 10 and -8
     degrees. Rectified from its two directions, the map from the drawing to the result is a similarity:
-    equal scales along both axes within 0.5 % and no perspective left (a 1000 px picture's far corner
-    moved by under a pixel). A drawing seen square on needs no rectification (None)."""
+    equal scales along both axes within 0.5 % and no perspective left (the scale varies by under 0.2 %
+    across 1000 px). A drawing seen square on needs no rectification (None)."""
     img = np.full((700, 1000, 3), 255, np.uint8)
     for u in range(100, 901, 160):
         cv2.line(img, (u, 80), (u, 620), (20, 20, 20), 5)
@@ -204,7 +204,7 @@ def test_rectified_from_orthogonal_directions():
     full /= full[2, 2]
     sv = np.linalg.svd(full[:2, :2], compute_uv=False)
     assert sv[0] / sv[1] == pytest.approx(1.0, abs=0.005)
-    assert np.abs(full[2, :2]).max() * 1000 < 1e-3 * 1000 / sv.mean()
+    assert np.abs(full[2, :2]).max() * 1000 < 2e-3  # the projective scale varies < 0.2 % over 1000 px
 
 
 @pytest.mark.slow
