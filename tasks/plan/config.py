@@ -166,7 +166,7 @@ class PlanConfig:
 @dataclass(frozen=True)
 class PlanScale:
     """How pixels become metres: at most one of `m_per_px`, `known_distance`, `outline_length_m`,
-    `outline_size_m`; with none, the printed scale bar is read."""
+    `outline_size_m`; with none, the printed scale bar is read, else the dimension lines."""
 
     m_per_px: float | None = None
     """Metres per pixel of the (rectified) image."""

@@ -10,8 +10,9 @@ vectors in `tasks.plan.vectorize` (straight walls from the line code shared with
 `tasks.plan.rooms`.
 
 Plans drawn for people are never only walls. A photo of a posted sheet is rectified from the sheet's
-border and its light evened out; without a given scale, the printed scale bar is read
-(`tasks.plan.sheet`). Architects' drawings draw the cut walls in a heavier pen than furniture, fixtures,
+border (or, when none shows, from the plan's two orthogonal directions) and its light evened out;
+without a given scale, the printed scale bar is read (`tasks.plan.sheet`), else the dimension lines
+(`tasks.plan.dimensions`). Architects' drawings draw the cut walls in a heavier pen than furniture, fixtures,
 stairs and dimensions: when thin line work is present and the heavy strokes span the plan, only they are
 walls (windows drawn thinly across their openings included), a door is a gap whose swing is drawn (a table
 or a stub beside a wall leaves gaps too, and must not open or close a room), and a window or bay left as
@@ -38,6 +39,7 @@ from shapely.geometry import Polygon
 
 from tasks import lines
 from tasks.plan.config import PlanConfig, PlanScale
+from tasks.plan.dimensions import read_dimension_scale
 from tasks.plan.doors import doors_and_windows
 from tasks.plan.raster import clean_ink, enhance, min_pool, wall_raster
 from tasks.plan.rooms import (
@@ -235,12 +237,16 @@ def _scaled_image(
         darkness = (255 - enhanced.min(axis=2)).astype(np.uint8)
         _thr, dark = cv2.threshold(darkness, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
         bar = read_scale_bar(enhanced, dark > 0)
-        if bar is None:
+        dims = None if bar is not None else read_dimension_scale(cv2.cvtColor(enhanced, cv2.COLOR_RGB2GRAY))
+        if bar is not None:
+            s, source = bar[0], "scale bar"
+        elif dims is not None:
+            s, source = dims[0], "dimension line"
+        else:
             raise ValueError(
                 f"{name}: no scale given (m_per_px, known_distance or outline_length_m) and no printed "
-                "scale bar read in the image"
+                "scale bar or dimension line read in the image"
             )
-        s, source = bar[0], "scale bar"
     extent_m = max(img.shape[:2]) * s
     if not cfg.min_extent_m <= extent_m <= cfg.max_extent_m * 1.5:
         raise ValueError(
