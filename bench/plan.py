@@ -13,7 +13,8 @@ paper scans, phone photos of the whole sheet and close-up phone photos whose vie
 is parsed at no given scale (the printed scale bar is read; when it is not, the bar's ends are given as
 known_distance and `scale_bar_read` says so); `scale_err` is the scale's error against the true one in
 the parse's frame, `rooms_found` the plan rooms matched with IoU >= 0.8, `rectified_by` what took the
-perspective out (sheet border, dominant directions, or nothing).
+perspective out (sheet border, dominant directions, or nothing). With --no-scale-bar the sheets carry
+no scale bar and a photo's scale is read from the dimension lines (`scale_source`).
 """
 
 from __future__ import annotations
@@ -152,7 +153,7 @@ def run_generator_seed(seed: int, cfg: PlanConfig) -> dict:
 DRAWING_STYLES = ("hatched", "filled", "double")
 
 
-def run_drawing_seed(seed: int, degrade: str, cfg: PlanConfig) -> dict:
+def run_drawing_seed(seed: int, degrade: str, cfg: PlanConfig, scale_bar: bool = True) -> dict:
     """The generator's architect's drawing of building `seed` (wall style by seed), degraded as a scan or
     a photo, against the as-planned walls and rooms carried into the parse's frame. A scan is parsed at
     its known resolution; a photo at no given scale (the sheet's border and the printed scale bar), or,
@@ -163,7 +164,8 @@ def run_drawing_seed(seed: int, degrade: str, cfg: PlanConfig) -> dict:
 
     building = generate_building(seed)
     style = DRAWING_STYLES[seed % len(DRAWING_STYLES)]
-    drawing = render_drawing(building, DrawingConfig(wall_style=style, degrade=degrade), seed)
+    dcfg = DrawingConfig(wall_style=style, degrade=degrade, scale_bar_m=5.0 if scale_bar else 0.0)
+    drawing = render_drawing(building, dcfg, seed)
     truth, _, rooms = planned_truth(building)
     photo = degrade in ("photo", "closeup")
     scale = PlanScale(m_per_px=drawing.image_m_per_px) if not photo else PlanScale()
@@ -171,9 +173,9 @@ def run_drawing_seed(seed: int, degrade: str, cfg: PlanConfig) -> dict:
     scale_bar_read = None
     try:
         res = parse_plan(drawing.image, scale, cfg, name=f"seed {seed} {degrade}")
-        scale_bar_read = True if photo else None
+        scale_bar_read = res.metrics["scale_source"] == "scale bar" if photo else None
     except ValueError as exc:
-        if not photo or "no printed scale bar read" not in str(exc):
+        if not photo or not scale_bar or "no printed scale bar" not in str(exc):
             return {"seed": seed, "degrade": degrade, "style": style, "error": str(exc)}
         # the scale bar was not read: the user gives its two ends and length (known_distance)
         scale_bar_read = False
@@ -205,6 +207,7 @@ def run_drawing_seed(seed: int, degrade: str, cfg: PlanConfig) -> dict:
         "rooms_found": int(sum(v >= 0.8 for v in ious)),
         "room_iou_min": min(ious, default=0.0),
         "scale_source": res.metrics.get("scale_source"),
+        "scale_bar_printed": scale_bar,
         "scale_bar_read": scale_bar_read,
         "rectified_by": res.metrics.get("rectified_by"),
         # the true scale in the parse's frame: the plan's, over the plan-to-frame mapping's mean scale
@@ -245,11 +248,19 @@ def main() -> None:
         help="which renderings of --drawing-seeds: scan, photo (the whole sheet), closeup (a photo inside "
         "the sheet: no border)",
     )
+    ap.add_argument(
+        "--no-scale-bar",
+        action="store_true",
+        help="drawings printed without a scale bar: a photo's scale comes from its dimension lines",
+    )
     args = ap.parse_args()
     if args.drawing_seeds:
         for seed in _seeds(args.drawing_seeds):
             for degrade in args.degrade.split(","):
-                print(json.dumps(run_drawing_seed(seed, degrade, PlanConfig())), flush=True)
+                print(
+                    json.dumps(run_drawing_seed(seed, degrade, PlanConfig(), not args.no_scale_bar)),
+                    flush=True,
+                )
         return
     if args.generator_seeds:
         for seed in _seeds(args.generator_seeds):

@@ -55,7 +55,7 @@ class DrawingConfig:
     jpeg_quality: int = 55
     """JPEG quality of the delivered image (blocks)."""
     scale_bar_m: float = 5.0
-    """Length of the printed scale bar."""
+    """Length of the printed scale bar; 0 prints none (the dimension lines carry the scale)."""
     max_tilt_deg: float = 12.0
     """Largest tilt of a close-up's camera about either of the sheet's axes (a pinhole camera, principal
     point in the middle, square pixels)."""
@@ -358,13 +358,14 @@ def _sheet_extras(img: NDArray, plan_box: tuple[int, int, int, int], s: float, b
     # scale bar: alternating 1 m blocks, ends labelled
     n = round(bar_m / s)
     bx0, by = u0, H - 70
-    cv2.rectangle(img, (bx0, by - 8), (bx0 + n, by), _INK, 1)
-    for k in range(round(bar_m)):
-        if k % 2 == 0:
-            a = bx0 + round(k / s)
-            cv2.rectangle(img, (a, by - 8), (a + round(1 / s), by), _INK, -1)
-    _text(img, "0", (bx0, by + 16), 0, 0.45)
-    _text(img, f"{bar_m:g} m", (bx0 + n + 5, by + 16), 0, 0.45)
+    if bar_m > 0:  # 0: a sheet without a scale bar (its scale is in the dimension lines)
+        cv2.rectangle(img, (bx0, by - 8), (bx0 + n, by), _INK, 1)
+        for k in range(round(bar_m)):
+            if k % 2 == 0:
+                a = bx0 + round(k / s)
+                cv2.rectangle(img, (a, by - 8), (a + round(1 / s), by), _INK, -1)
+        _text(img, "0", (bx0, by + 16), 0, 0.45)
+        _text(img, f"{bar_m:g} m", (bx0 + n + 5, by + 16), 0, 0.45)
     return (float(bx0), float(by - 4), float(bx0 + n), float(by - 4))
 
 
