@@ -210,12 +210,8 @@ def test_rectified_from_orthogonal_directions():
 @pytest.mark.slow
 def test_closeup_photo_without_border():
     """A close-up phone photo (held-out seed 301: no sheet edge, no drawn frame) parsed with no scale
-    given: rectified from the plan's directions, the scale bar read within 1 %, walls complete and
-    correct at 0.10 m to at least 0.9."""
-    from tasks.evaluate import evaluate_walls
-    from tasks.synth.drawings import map_walls
-    from tasks.synth.survey import planned_truth
-
+    given: rectified from the plan's directions, the scale bar read within 1 %, every room found with
+    IoU >= 0.8."""
     building, d = _drawing(301, "filled", "closeup")
     res = parse_plan(d.image, PlanScale(), PlanConfig(), name="seed 301 closeup")
     assert res.metrics["rectified_by"] == "dominant directions"
@@ -224,5 +220,43 @@ def test_closeup_photo_without_border():
     full = frame @ d.to_image
     true_s = d.m_per_px / math.sqrt(abs(np.linalg.det(full[:2, :2] / full[2, 2])))
     assert res.m_per_px == pytest.approx(true_s, rel=0.01)
-    ev = evaluate_walls(res.walls, map_walls(planned_truth(building)[0], d, frame), tol_m=0.10)
-    assert ev["completeness"] >= 0.9 and ev["correctness"] >= 0.9, ev
+    ious = _rooms_found(res, building, d, frame)
+    assert min(ious) >= 0.8, ious
+
+
+def _dimension_sheet(m_per_px: float) -> np.ndarray:
+    """A sheet with one horizontal dimension line (stretches 3.45 m and 5.20 m between ticked extension
+    lines, their lengths printed under it, in the generator's font) and one vertical (4.10 m), at
+    m_per_px."""
+    img = np.full((700, 900, 3), 255, np.uint8)
+    k = 1.0 / m_per_px
+    xs = [100.0, 100 + 3.45 * k, 100 + (3.45 + 5.20) * k]
+    v = 560
+    cv2.line(img, (90, v), (round(xs[-1]) + 10, v), (60, 60, 60), 1, cv2.LINE_AA)
+    for x in xs:
+        cv2.line(img, (round(x), v - 40), (round(x), v + 10), (60, 60, 60), 1, cv2.LINE_AA)
+        cv2.line(img, (round(x) - 5, v + 5), (round(x) + 5, v - 5), (20, 20, 20), 2, cv2.LINE_AA)
+    for a, b, t in ((xs[0], xs[1], "3.45"), (xs[1], xs[2], "5.20")):
+        cv2.putText(img, t, (round((a + b) / 2) - 15, v + 18), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (20, 20, 20), 1)
+    ys = [80.0, 80 + 4.10 * k]
+    u = 850
+    cv2.line(img, (u, 70), (u, round(ys[-1]) + 10), (60, 60, 60), 1, cv2.LINE_AA)
+    for y in ys:
+        cv2.line(img, (u - 40, round(y)), (u + 10, round(y)), (60, 60, 60), 1, cv2.LINE_AA)
+        cv2.line(img, (u - 5, round(y) + 5), (u + 5, round(y) - 5), (20, 20, 20), 2, cv2.LINE_AA)
+    return img
+
+
+def test_scale_from_dimension_lines():
+    """Known answer: 0.02 m/px; two stretches of a horizontal dimension line are read (3.45 m and 5.20 m
+    over their crossings) and agree: the scale within 0.5 %. One stretch alone is not enough (None)."""
+    from tasks.plan.dimensions import read_dimension_scale
+
+    grey = cv2.cvtColor(_dimension_sheet(0.02), cv2.COLOR_RGB2GRAY)
+    found = read_dimension_scale(grey)
+    assert found is not None
+    assert found[0] == pytest.approx(0.02, rel=0.005)
+    assert found[1] >= 2
+    one = grey.copy()
+    one[500:620, 300:] = 255  # the second stretch and its number gone
+    assert read_dimension_scale(one) is None

@@ -151,7 +151,8 @@ def _read_lines(grey: NDArray[np.uint8], tess) -> list[float]:
 
 def _read_number(crop: NDArray[np.uint8], tess) -> float | None:
     """A length like "5.38" read in a small grey crop: its ink (half-way between paper and the darkest
-    ink) boxed, enlarged to about 40 px high, binarized and read as one line."""
+    ink) boxed, contrast stretched, enlarged to about 40 px high and read as one line (in grey, then
+    binarized)."""
     lo, hi = int(crop.min()), int(crop.max())
     if hi - lo < 30:
         return None
@@ -161,9 +162,12 @@ def _read_number(crop: NDArray[np.uint8], tess) -> float | None:
         return None
     v0, v1, u0, u1 = vs.min(), vs.max() + 1, us.min(), us.max() + 1
     box = crop[max(0, v0 - 2) : v1 + 2, max(0, u0 - 2) : u1 + 2]
-    for zoom in sorted({max(3, round(40 / max(v1 - v0, 1))), 4}):
-        big = cv2.resize(box, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_CUBIC)
-        big = np.where(big < (lo + hi) // 2, 0, 255).astype(np.uint8)
+    # contrast stretched and enlarged, in grey first (binarizing a small "5" can make a "9" of it)
+    stretched = ((box.astype(np.float32) - lo) * (255.0 / (hi - lo))).clip(0, 255).astype(np.uint8)
+    for binarize, zoom in itertools.product((False, True), sorted({max(3, round(40 / max(v1 - v0, 1))), 4})):
+        big = cv2.resize(stretched, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_CUBIC)
+        if binarize:
+            big = np.where(big < 128, 0, 255).astype(np.uint8)
         big = cv2.copyMakeBorder(big, 20, 20, 20, 20, cv2.BORDER_CONSTANT, value=255)
         text = tess.image_to_string(big, config="--psm 7 -c tessedit_char_whitelist=0123456789.,").strip()
         m = _LENGTH.match(text.replace(" ", ""))
