@@ -8,10 +8,13 @@ error and run time per plan; with --generator-seeds, on the survey generator's e
 
 The drawing split (`--drawing-seeds`): the generator's architect's drawings (furniture, fixtures, stairs,
 door swings, hatched / filled / double-line walls, dimensions, turned text, legend and title block) as
-paper scans and phone photos. Seeds 0-99 were used while developing; report on seeds from 100 up. A photo
+paper scans, phone photos of the whole sheet and close-up phone photos whose view ends inside the sheet
+(`closeup`: rectified from the plan's own orthogonal directions, there is no border). Seeds 0-99 were used while developing; report on seeds from 100 up. A photo
 is parsed at no given scale (the printed scale bar is read; when it is not, the bar's ends are given as
 known_distance and `scale_bar_read` says so); `scale_err` is the scale's error against the true one in
-the parse's frame, `rooms_found` the plan rooms matched with IoU >= 0.8.
+the parse's frame, `rooms_found` the plan rooms matched with IoU >= 0.8, `rectified_by` what took the
+perspective out (sheet border, dominant directions, or nothing). With --no-scale-bar the sheets carry
+no scale bar and a photo's scale is read from the dimension lines (`scale_source`).
 """
 
 from __future__ import annotations
@@ -150,7 +153,7 @@ def run_generator_seed(seed: int, cfg: PlanConfig) -> dict:
 DRAWING_STYLES = ("hatched", "filled", "double")
 
 
-def run_drawing_seed(seed: int, degrade: str, cfg: PlanConfig) -> dict:
+def run_drawing_seed(seed: int, degrade: str, cfg: PlanConfig, scale_bar: bool = True) -> dict:
     """The generator's architect's drawing of building `seed` (wall style by seed), degraded as a scan or
     a photo, against the as-planned walls and rooms carried into the parse's frame. A scan is parsed at
     its known resolution; a photo at no given scale (the sheet's border and the printed scale bar), or,
@@ -161,16 +164,18 @@ def run_drawing_seed(seed: int, degrade: str, cfg: PlanConfig) -> dict:
 
     building = generate_building(seed)
     style = DRAWING_STYLES[seed % len(DRAWING_STYLES)]
-    drawing = render_drawing(building, DrawingConfig(wall_style=style, degrade=degrade), seed)
+    dcfg = DrawingConfig(wall_style=style, degrade=degrade, scale_bar_m=5.0 if scale_bar else 0.0)
+    drawing = render_drawing(building, dcfg, seed)
     truth, _, rooms = planned_truth(building)
-    scale = PlanScale(m_per_px=drawing.image_m_per_px) if degrade != "photo" else PlanScale()
+    photo = degrade in ("photo", "closeup")
+    scale = PlanScale(m_per_px=drawing.image_m_per_px) if not photo else PlanScale()
     t0 = time.perf_counter()
     scale_bar_read = None
     try:
         res = parse_plan(drawing.image, scale, cfg, name=f"seed {seed} {degrade}")
-        scale_bar_read = True if degrade == "photo" else None
+        scale_bar_read = res.metrics["scale_source"] == "scale bar" if photo else None
     except ValueError as exc:
-        if degrade != "photo" or "no printed scale bar read" not in str(exc):
+        if not photo or not scale_bar or "no printed scale bar" not in str(exc):
             return {"seed": seed, "degrade": degrade, "style": style, "error": str(exc)}
         # the scale bar was not read: the user gives its two ends and length (known_distance)
         scale_bar_read = False
@@ -202,7 +207,9 @@ def run_drawing_seed(seed: int, degrade: str, cfg: PlanConfig) -> dict:
         "rooms_found": int(sum(v >= 0.8 for v in ious)),
         "room_iou_min": min(ious, default=0.0),
         "scale_source": res.metrics.get("scale_source"),
+        "scale_bar_printed": scale_bar,
         "scale_bar_read": scale_bar_read,
+        "rectified_by": res.metrics.get("rectified_by"),
         # the true scale in the parse's frame: the plan's, over the plan-to-frame mapping's mean scale
         "scale_err": res.m_per_px / _frame_m_per_px(drawing, frame) - 1.0,
         "plan_region_px": res.metrics.get("plan_region_px"),
@@ -231,14 +238,29 @@ def main() -> None:
     ap.add_argument("--floors", default="")
     ap.add_argument("--generator-seeds", default="", help="e.g. 0-20 or 3,12: generator plans instead")
     ap.add_argument(
-        "--drawing-seeds", default="", help="e.g. 100-105: the degraded architect's drawings (scan, photo)"
+        "--drawing-seeds",
+        default="",
+        help="e.g. 100-105: the degraded architect's drawings (scan, photo, closeup)",
     )
-    ap.add_argument("--degrade", default="scan,photo", help="which renderings of --drawing-seeds")
+    ap.add_argument(
+        "--degrade",
+        default="scan,photo",
+        help="which renderings of --drawing-seeds: scan, photo (the whole sheet), closeup (a photo inside "
+        "the sheet: no border)",
+    )
+    ap.add_argument(
+        "--no-scale-bar",
+        action="store_true",
+        help="drawings printed without a scale bar: a photo's scale comes from its dimension lines",
+    )
     args = ap.parse_args()
     if args.drawing_seeds:
         for seed in _seeds(args.drawing_seeds):
             for degrade in args.degrade.split(","):
-                print(json.dumps(run_drawing_seed(seed, degrade, PlanConfig())), flush=True)
+                print(
+                    json.dumps(run_drawing_seed(seed, degrade, PlanConfig(), not args.no_scale_bar)),
+                    flush=True,
+                )
         return
     if args.generator_seeds:
         for seed in _seeds(args.generator_seeds):

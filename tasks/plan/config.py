@@ -96,6 +96,9 @@ class PlanConfig:
     at least this long (or a column); shorter pieces are furniture drawn in double lines."""
     bridge_max_m: float = 2.0
     """Longest wall stretch hidden under a symbol that is bridged (only across symbol pixels)."""
+    end_follow_max_m: float = 1.5
+    """A free wall end is moved along its line to where its ink ends (or into the wall the ink runs into),
+    at most this far: the skeleton stops short of a wall's end, and Hough can miss a short wall's ends."""
     hough_min_length_m: float = 0.15
     """Minimum skeleton segment length for the probabilistic Hough transform."""
     hough_max_gap_m: float = 0.05
@@ -141,6 +144,9 @@ class PlanConfig:
     sheet_aspect: float = 1.41421356
     """Side ratio (long / short) of the paper sheet: when no scale is given and a photo shows the sheet's
     border, the sheet is rectified to it (ISO 216: A4, A3, ...). 0 disables."""
+    rectify_directions: bool = True
+    """When no scale is given and no sheet border shows, a photo's perspective is taken out from the
+    plan's two dominant orthogonal directions (their vanishing points; thesis 4.2.3)."""
     sheet_min_area_share: float = 0.2
     """The sheet found in a photo covers at least this share of it."""
     flat_field_share: float = 0.04
@@ -160,7 +166,7 @@ class PlanConfig:
 @dataclass(frozen=True)
 class PlanScale:
     """How pixels become metres: at most one of `m_per_px`, `known_distance`, `outline_length_m`,
-    `outline_size_m`; with none, the printed scale bar is read."""
+    `outline_size_m`; with none, the printed scale bar is read, else the dimension lines."""
 
     m_per_px: float | None = None
     """Metres per pixel of the (rectified) image."""

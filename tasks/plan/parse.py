@@ -10,8 +10,9 @@ vectors in `tasks.plan.vectorize` (straight walls from the line code shared with
 `tasks.plan.rooms`.
 
 Plans drawn for people are never only walls. A photo of a posted sheet is rectified from the sheet's
-border and its light evened out; without a given scale, the printed scale bar is read
-(`tasks.plan.sheet`). Architects' drawings draw the cut walls in a heavier pen than furniture, fixtures,
+border (or, when none shows, from the plan's two orthogonal directions) and its light evened out;
+without a given scale, the printed scale bar is read (`tasks.plan.sheet`), else the dimension lines
+(`tasks.plan.dimensions`). Architects' drawings draw the cut walls in a heavier pen than furniture, fixtures,
 stairs and dimensions: when thin line work is present and the heavy strokes span the plan, only they are
 walls (windows drawn thinly across their openings included), a door is a gap whose swing is drawn (a table
 or a stub beside a wall leaves gaps too, and must not open or close a room), and a window or bay left as
@@ -38,6 +39,7 @@ from shapely.geometry import Polygon
 
 from tasks import lines
 from tasks.plan.config import PlanConfig, PlanScale
+from tasks.plan.dimensions import read_dimension_scale
 from tasks.plan.doors import doors_and_windows
 from tasks.plan.raster import clean_ink, enhance, min_pool, wall_raster
 from tasks.plan.rooms import (
@@ -48,7 +50,7 @@ from tasks.plan.rooms import (
     rooms_in_metres,
     to_metres,
 )
-from tasks.plan.sheet import find_sheet, read_scale_bar, sheet_homography
+from tasks.plan.sheet import direction_homography, find_sheet, read_scale_bar, sheet_homography
 from tasks.plan.vectorize import hough_lines, vector_walls
 
 
@@ -87,7 +89,7 @@ def parse_plan(
     and images without a floor plan."""
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
-    img, s, H_rect, scale_source = _scaled_image(_checked_image(image, name), scale, cfg, name)
+    img, s, H_rect, scale_source, rectified = _scaled_image(_checked_image(image, name), scale, cfg, name)
     f = max(1, math.ceil(max(img.shape[:2]) / cfg.max_side_px))
     img = min_pool(img, f)
     sp = s * f  # metres per working pixel
@@ -138,6 +140,7 @@ def parse_plan(
         "m_per_px": s,
         "scale_source": scale_source,
         "rectification": H_rect.tolist(),
+        "rectified_by": rectified,
         "plan_region_px": [u0 * f, v0 * f, u1 * f, v1 * f],
         "walls_heavy_pen": raster.heavy_pen,
         "dark_share": dark_share,
@@ -184,14 +187,17 @@ def _checked_image(image: NDArray[np.uint8], name: str) -> NDArray[np.uint8]:
 
 def _scaled_image(
     img: NDArray[np.uint8], scale: PlanScale, cfg: PlanConfig, name: str
-) -> tuple[NDArray[np.uint8], float, NDArray[np.float64], str]:
+) -> tuple[NDArray[np.uint8], float, NDArray[np.float64], str, str | None]:
     """The image (rectified when four outline corners are given, or when no scale is given and a
-    photographed sheet's border shows), its metres per pixel, the (3, 3) homography from input to
-    rectified pixels and where the scale came from, checked to make the image a plausible size."""
+    photographed sheet's border shows, or else its plan's two orthogonal directions show a perspective),
+    its metres per pixel, the (3, 3) homography from input to rectified pixels, where the scale came
+    from and what rectified it (None: nothing), checked to make the image a plausible size."""
     s_rect = None
     H = np.eye(3)
+    rectified = None
     if scale.corners_px is not None:
         img, s_rect, H = rectify(img, np.asarray(scale.corners_px), scale.outline_size_m)
+        rectified = "corners_px"
     elif scale.m_per_px is None and cfg.sheet_aspect > 0:
         corners = find_sheet(img, cfg.sheet_min_area_share)
         if corners is not None:  # a photo of the sheet: rectified to the sheet's side ratio
@@ -201,6 +207,20 @@ def _scaled_image(
             # the sheet's edge, a sliver of what is around it and the drawing's frame are no plan
             b = max(1, round(cfg.sheet_edge_share * min(img.shape[:2])))
             img[:b], img[-b:], img[:, :b], img[:, -b:] = 255, 255, 255, 255
+            rectified = "sheet border"
+        elif cfg.rectify_directions:
+            found = direction_homography(img)
+            if found is not None:  # a photo inside the sheet: from the plan's orthogonal directions
+                H, size = found
+                inside = np.full(img.shape[:2], 255, np.uint8)
+                img = cv2.warpPerspective(img, H, size, flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255))
+                img = flat_field(img, cfg.flat_field_share)
+                # the photo's edge and what it cut (a legend's frame) are no plan: a band inside it blanked
+                inside = cv2.warpPerspective(inside, H, size, flags=cv2.INTER_NEAREST, borderValue=0)
+                b = max(1, round(cfg.sheet_edge_share * min(img.shape[:2])))
+                inside = cv2.erode(inside, np.ones((2 * b + 1, 2 * b + 1), np.uint8), borderValue=0)
+                img[inside == 0] = 255
+                rectified = "dominant directions"
     if s_rect is not None:
         s, source = s_rect, "outline_size_m"
     elif scale.m_per_px is not None:
@@ -217,19 +237,23 @@ def _scaled_image(
         darkness = (255 - enhanced.min(axis=2)).astype(np.uint8)
         _thr, dark = cv2.threshold(darkness, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
         bar = read_scale_bar(enhanced, dark > 0)
-        if bar is None:
+        dims = None if bar is not None else read_dimension_scale(cv2.cvtColor(enhanced, cv2.COLOR_RGB2GRAY))
+        if bar is not None:
+            s, source = bar[0], "scale bar"
+        elif dims is not None:
+            s, source = dims[0], "dimension line"
+        else:
             raise ValueError(
                 f"{name}: no scale given (m_per_px, known_distance or outline_length_m) and no printed "
-                "scale bar read in the image"
+                "scale bar or dimension line read in the image"
             )
-        s, source = bar[0], "scale bar"
     extent_m = max(img.shape[:2]) * s
     if not cfg.min_extent_m <= extent_m <= cfg.max_extent_m * 1.5:
         raise ValueError(
             f"{name}: scale {s:.4g} m/px makes the image {extent_m:.3g} m across, outside the plausible "
             f"{cfg.min_extent_m:g}-{cfg.max_extent_m:g} m (wrong units?)"
         )
-    return img, s, H, source
+    return img, s, H, source, rectified
 
 
 def flat_field(img: NDArray[np.uint8], share: float) -> NDArray[np.uint8]:

@@ -105,6 +105,122 @@ def sheet_homography(
     return H, (round(w), round(h))
 
 
+def direction_homography(
+    image: NDArray[np.uint8], min_shift_px: float = 1.5, max_tilt_deg: float = 35.0
+) -> tuple[NDArray[np.float64], tuple[int, int]] | None:
+    """Perspective rectification of a photo from the plan's two dominant orthogonal directions (thesis
+    4.2.3), for a photo whose sheet border does not show: the long straight edges of the ink (walls,
+    frames, furniture) fall into two families, each family's vanishing point is the least-squares meet of
+    its lines, and a pinhole camera (principal point in the middle, square pixels) whose two vanishing
+    directions are orthogonal gives the focal length and the camera's rotation; the image is turned back
+    to face the plane, at the photo's mean scale. When the two vanishing points leave the focal length
+    unknown (one or both at infinity, weak perspective) the image's diagonal stands for it. Returns the
+    (3, 3) homography from image to rectified pixels and the rectified (width, height), or None when the
+    rectification moves no corner of the image more than min_shift_px from a similarity (a scan, a
+    plan rendered square on) or when fewer than two families of lines are found."""
+    grey = cv2.GaussianBlur(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), (0, 0), 1.5)
+    h, w = grey.shape
+    diag = math.hypot(w, h)
+    min_len = max(20.0, 0.04 * min(h, w))
+    found = cv2.createLineSegmentDetector().detect(grey)[0]  # sub-pixel line segments
+    if found is None:
+        return None
+    segs = found.reshape(-1, 4).astype(np.float64)
+    d = segs[:, 2:] - segs[:, :2]
+    length = np.hypot(d[:, 0], d[:, 1])
+    segs, d, length = segs[length >= min_len], d[length >= min_len], length[length >= min_len]
+    if len(segs) < 8:
+        return None
+    ang = np.degrees(np.arctan2(d[:, 1], d[:, 0])) % 180.0
+    # the dominant direction (length-weighted, 1 degree bins, smoothed) and the one about 90 degrees off
+    hist = np.bincount(np.round(ang).astype(int) % 180, weights=length, minlength=180)
+    smooth = np.convolve(np.concatenate([hist[-2:], hist, hist[:2]]), np.ones(5), "valid")
+    a1 = float(np.argmax(smooth))
+    near = (np.arange(180) - a1 - 90.0 + 90.0) % 180.0 - 90.0  # signed distance from a1 + 90
+    a2 = float(np.argmax(np.where(np.abs(near) <= max_tilt_deg, smooth, -1.0)))
+    c = np.array([w / 2, h / 2])
+    vps = []
+    for a in (a1, a2):
+        sel = np.abs((ang - a + 90.0) % 180.0 - 90.0) <= 12.0
+        if sel.sum() < 4:
+            return None
+        v = _vanishing_point(segs[sel], length[sel], c, diag)
+        if v is None:
+            return None
+        vps.append(v)
+    v1, v2 = vps  # homogeneous, in coordinates centred on the image's middle and divided by its diagonal
+    # which is the horizontal family: the one whose direction is nearer the image's u axis
+    if abs(math.cos(math.radians(a1))) < abs(math.cos(math.radians(a2))):
+        v1, v2 = v2, v1
+    f2 = -(v1[0] * v2[0] + v1[1] * v2[1]) / (v1[2] * v2[2]) if abs(v1[2] * v2[2]) > 1e-12 else -1.0
+    f = math.sqrt(f2) if 0.25 <= f2 <= 16.0 else 1.0  # in diagonals
+    K_inv = np.diag([1.0, 1.0, f])  # K^-1 up to scale in the normalised coordinates
+    d1, d2 = K_inv @ v1, K_inv @ v2
+    d1 *= np.sign(d1[0]) or 1.0  # the first axis points right, the second down
+    d2 *= np.sign(d2[1]) or 1.0
+    # the nearest rotation whose first two columns are d1, d2 (polar factor of the 3 x 2 pair)
+    U, _S, Vt = np.linalg.svd(
+        np.column_stack([d1 / np.linalg.norm(d1), d2 / np.linalg.norm(d2)]), full_matrices=False
+    )
+    r12 = U @ Vt
+    R = np.column_stack([r12, np.cross(r12[:, 0], r12[:, 1])])
+    N = np.array([[1 / diag, 0, -c[0] / diag], [0, 1 / diag, -c[1] / diag], [0, 0, 1.0]])
+    H = R.T @ K_inv @ N
+    corners = np.array([[0, 0, 1], [w, 0, 1], [w, h, 1], [0, h, 1]], np.float64)
+    q = corners @ H.T
+    if (q[:, 2] <= 0).any():
+        return None
+    q = q[:, :2] / q[:, 2:]
+    # at the photo's mean scale, upright, from the origin
+    k = math.sqrt(w * h / max(abs(cv2.contourArea(q.astype(np.float32))), 1e-12))
+    q *= k
+    lo = q.min(axis=0)
+    S = np.array([[k, 0, -lo[0]], [0, k, -lo[1]], [0, 0, 1.0]])
+    H = S @ H
+    H /= H[2, 2]
+    q -= lo
+    # how far it is from a similarity: corners against their best similarity fit
+    A = np.zeros((8, 4))
+    A[0::2] = np.column_stack([corners[:, 0], -corners[:, 1], np.ones(4), np.zeros(4)])
+    A[1::2] = np.column_stack([corners[:, 1], corners[:, 0], np.zeros(4), np.ones(4)])
+    sol, *_ = np.linalg.lstsq(A, q.reshape(-1), rcond=None)
+    if float(np.abs(A @ sol - q.reshape(-1)).max()) <= min_shift_px:
+        return None
+    size = (math.ceil(q[:, 0].max()), math.ceil(q[:, 1].max()))
+    if max(size) > 2 * max(w, h):
+        return None
+    return H, size
+
+
+def _vanishing_point(
+    segs: NDArray[np.float64], length: NDArray[np.float64], c: NDArray, diag: float
+) -> NDArray[np.float64] | None:
+    """The vanishing point (3,) of a family of segments (K, 4) pixels, homogeneous in coordinates centred
+    on c and divided by diag: the unit vector nearest to lying on every segment's line (length-weighted
+    least squares), again with the lines that miss it by more than 3, 1.5, 0.75 and 0.5 degrees left out."""
+    p = np.column_stack([(segs[:, :2] - c) / diag, np.ones(len(segs))])
+    q = np.column_stack([(segs[:, 2:] - c) / diag, np.ones(len(segs))])
+    lines_h = np.cross(p, q)
+    lines_h /= np.maximum(np.linalg.norm(lines_h[:, :2], axis=1), 1e-12)[:, None]
+    keep = np.ones(len(segs), bool)
+    v = None
+    for tol_deg in (3.0, 1.5, 0.75, 0.5, 0.5):
+        if keep.sum() < 3:
+            return v
+        L = lines_h[keep] * np.sqrt(length[keep])[:, None]
+        _u, _s, vt = np.linalg.svd(L, full_matrices=False)
+        v = vt[-1]
+        # angle between each segment and the direction from its middle to the vanishing point
+        mid = (p + q) / 2
+        seg_d = q[:, :2] - p[:, :2]
+        to_v = v[:2][None, :] - mid[:, :2] * v[2]
+        cos = np.abs((seg_d * to_v).sum(axis=1)) / np.maximum(
+            np.linalg.norm(seg_d, axis=1) * np.linalg.norm(to_v, axis=1), 1e-12
+        )
+        keep = cos >= math.cos(math.radians(tol_deg))
+    return v
+
+
 _NUMBER = re.compile(r"^(\d+(?:[.,]\d+)?)(m)?$")
 
 

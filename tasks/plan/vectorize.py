@@ -157,6 +157,50 @@ def _regularize(segs: NDArray, band_px: NDArray, lcfg: lines.LinesConfig) -> NDA
     return out
 
 
+def follow_ink_to_ends(
+    segs: NDArray, thick: NDArray, mask_f: NDArray[np.float32], max_px: float
+) -> NDArray[np.float64]:
+    """Free wall ends (M, 4) (thickness (M,) px) moved along their wall's line to where its ink ends (the wall's face) or to
+    the first other wall's centreline the ink runs into (a junction), at most max_px; never shortened.
+
+    A skeleton stops about half a thickness short of a wall's free end, and the Hough transform can
+    leave only the middle of a short wall (a jamb between a corner and a door) when its skeleton steps
+    by a pixel (a photo's residual perspective): the wall's own ink says where it ends."""
+    out = segs.copy()
+    step = 0.5
+    ts = np.arange(step, max_px + step, step)
+    ang = lines.angles(segs) if len(segs) else np.zeros(0)
+    for i, e in free_ends(segs, 1.0):
+        a, b = segs[i, :2], segs[i, 2:]
+        p, q = (b, a) if e else (a, b)
+        u = (p - q) / max(float(np.hypot(*(p - q))), 1e-9)
+        pts = p + ts[:, None] * u
+        off_ink = sample_mask(mask_f, pts) <= 0.5
+        stop = off_ink.copy()
+        if len(segs) > 1:
+            others = np.delete(np.arange(len(segs)), i)
+            turn = np.abs(np.sin(np.asarray(lines.angle_difference(ang[others], ang[i]))))
+            parallel = turn < math.sin(math.radians(10.0))
+            # into a crossing wall up to its centreline, lengthened by both half thicknesses (a corner
+            # whose other wall's skeleton also stops short); a parallel wall's ink (the same wall's
+            # other piece, or the wall whose face a stray piece lies on) is not this wall's to follow
+            o = segs[others]
+            d = o[:, 2:] - o[:, :2]
+            d /= np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)[:, None]
+            ext = np.where(parallel, 0.0, (thick[others] + thick[i]) / 2)[:, None]
+            o = np.hstack([o[:, :2] - ext * d, o[:, 2:] + ext * d])
+            dist = lines.point_segment_distances(pts, o)  # (T, M - 1)
+            reach = np.where(parallel, thick[others] / 2 + 1.0, 1.0)
+            stop |= (dist <= reach[None, :]).any(axis=1)
+        if not stop.any():
+            out[i, 2 * e : 2 * e + 2] = p + ts[-1] * u
+            continue
+        k = int(np.argmax(stop))
+        # the ink's end lies between the last sample on ink and the first off it
+        out[i, 2 * e : 2 * e + 2] = p + (ts[k] - (step / 2 if off_ink[k] else 0.0)) * u
+    return out
+
+
 def _join_hidden_junctions(
     segs: NDArray, thick: NDArray, support: NDArray[np.float32], door_min_px: float
 ) -> NDArray[np.float64]:
@@ -260,13 +304,6 @@ def vector_walls(
     )
     keep &= _spur_free(segs, keep, cfg.short_wall_length_ratio * thick)
     segs, thick, thick_faces = segs[keep], thick[keep], thick_faces[keep]
-    # skeletons stop half a thickness short of a free wall end: prolong free ends to the wall face
-    for i, e in free_ends(segs, 1.0):
-        a, b = segs[i, :2], segs[i, 2:]
-        u = (b - a) / max(float(np.hypot(*(b - a))), 1e-9)
-        if e:
-            segs[i, 2:] = b + u * thick[i] / 2
-        else:
-            segs[i, :2] = a - u * thick[i] / 2
+    segs = follow_ink_to_ends(segs, thick, mask_f, cfg.end_follow_max_m * px)
     segs = _join_hidden_junctions(segs, thick, support, cfg.door_min_m * px)
     return segs, thick, thick_faces

@@ -1,8 +1,9 @@
 """Plans as people have them: an architect's drawing of the generator's AS-PLANNED floor (furniture and
 sanitary symbols, stairs, door swings, hatched / filled / double-line walls, dimension lines, level marks,
 text at any angle, a legend panel, a title block and a scale bar on the sheet), rendered as a paper scan
-(paper tone, noise, pen marks, blur, slight rotation, JPEG blocks) or as a phone photo of the posted sheet
-(perspective, glare, background around the sheet).
+(paper tone, noise, pen marks, blur, slight rotation, JPEG blocks), as a phone photo of the posted sheet
+(perspective, glare, background around the sheet) or as a close-up phone photo whose view ends inside the
+sheet (a pinhole camera's perspective, no sheet border to rectify from).
 
 The truth stays known: `Drawing.to_image` maps plan pixels (u, v) = (x / s, -y / s) of the plan frame
 (s = `Drawing.m_per_px`) to pixels of the delivered image, so the as-planned walls and rooms of
@@ -45,7 +46,8 @@ class DrawingConfig:
     """"filled" (solid black), "hatched" (outline and 45 degree hatching), "double" (two face lines with
     an empty core)."""
     degrade: str = "scan"
-    """"none", "scan" or "photo"."""
+    """"none", "scan", "photo" (the whole sheet on a wall) or "closeup" (a phone held closer: the view
+    ends inside the sheet, so neither its edge nor its drawn border shows)."""
     max_rotation_deg: float = 1.5
     """Largest skew of a scan."""
     max_corner_shift: float = 0.06
@@ -53,7 +55,15 @@ class DrawingConfig:
     jpeg_quality: int = 55
     """JPEG quality of the delivered image (blocks)."""
     scale_bar_m: float = 5.0
-    """Length of the printed scale bar."""
+    """Length of the printed scale bar; 0 prints none (the dimension lines carry the scale)."""
+    max_tilt_deg: float = 12.0
+    """Largest tilt of a close-up's camera about either of the sheet's axes (a pinhole camera, principal
+    point in the middle, square pixels)."""
+    closeup_margin_px: int = 14
+    """A close-up's view ends this far inside the paper's edges."""
+    closeup_paper_px: int = 80
+    """A close-up shows a print without the drawing's frame, whose paper reaches this much farther round
+    the drawing (so the view can hold the plan and its scale bar without showing an edge)."""
 
 
 @dataclass(frozen=True)
@@ -348,13 +358,14 @@ def _sheet_extras(img: NDArray, plan_box: tuple[int, int, int, int], s: float, b
     # scale bar: alternating 1 m blocks, ends labelled
     n = round(bar_m / s)
     bx0, by = u0, H - 70
-    cv2.rectangle(img, (bx0, by - 8), (bx0 + n, by), _INK, 1)
-    for k in range(round(bar_m)):
-        if k % 2 == 0:
-            a = bx0 + round(k / s)
-            cv2.rectangle(img, (a, by - 8), (a + round(1 / s), by), _INK, -1)
-    _text(img, "0", (bx0, by + 16), 0, 0.45)
-    _text(img, f"{bar_m:g} m", (bx0 + n + 5, by + 16), 0, 0.45)
+    if bar_m > 0:  # 0: a sheet without a scale bar (its scale is in the dimension lines)
+        cv2.rectangle(img, (bx0, by - 8), (bx0 + n, by), _INK, 1)
+        for k in range(round(bar_m)):
+            if k % 2 == 0:
+                a = bx0 + round(k / s)
+                cv2.rectangle(img, (a, by - 8), (a + round(1 / s), by), _INK, -1)
+        _text(img, "0", (bx0, by + 16), 0, 0.45)
+        _text(img, f"{bar_m:g} m", (bx0 + n + 5, by + 16), 0, 0.45)
     return (float(bx0), float(by - 4), float(bx0 + n), float(by - 4))
 
 
@@ -448,6 +459,74 @@ def _photo(sheet: NDArray[np.uint8], cfg: DrawingConfig, rng: np.random.Generato
     return _jpeg(img, cfg.jpeg_quality), Hm
 
 
+def _closeup(
+    sheet: NDArray[np.uint8], cfg: DrawingConfig, rng: np.random.Generator, keep: tuple[float, ...]
+) -> tuple:
+    """A phone photo of the sheet from closer up: a pinhole camera (focal length 0.9 to 1.3 times the
+    sheet's long side, principal point in the middle of the photo, square pixels) tilted about both of
+    the sheet's axes and turned a little, the view cut to what lies inside the paper's margin (a print
+    without the drawing's frame: no edge, no border) and aimed so that it holds the box `keep` (u0, v0, u1, v1 sheet pixels: the plan and its
+    scale bar) where it can; glare, shade, noise, blur and JPEG. Returns the image and the (3, 3)
+    sheet-to-image homography."""
+    # a print without the drawing's frame, on paper reaching farther round the plan
+    P = cfg.closeup_paper_px
+    sheet = sheet.copy()
+    cv2.rectangle(sheet, (8, 8), (sheet.shape[1] - 9, sheet.shape[0] - 9), (255, 255, 255), 4)
+    sheet = cv2.copyMakeBorder(sheet, P, P, P, P, cv2.BORDER_CONSTANT, value=(255, 255, 255))
+    keep = (keep[0] + P, keep[1] + P, keep[2] + P, keep[3] + P)
+    H, W = sheet.shape[:2]
+    f = float(rng.uniform(0.9, 1.3)) * max(W, H)
+    a, b = np.radians(rng.uniform(-1, 1, 2) * cfg.max_tilt_deg)
+    g = math.radians(float(rng.uniform(-3, 3)))
+    rx = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+    ry = np.array([[math.cos(b), 0, math.sin(b)], [0, 1, 0], [-math.sin(b), 0, math.cos(b)]])
+    rz = np.array([[math.cos(g), -math.sin(g), 0], [math.sin(g), math.cos(g), 0], [0, 0, 1]])
+    R = rz @ ry @ rx
+    K = np.array([[f, 0, 0], [0, f, 0], [0, 0, 1.0]])
+    m = cfg.closeup_margin_px
+    u0, v0, u1, v1 = keep
+    want = np.array([[u0, v0, 1], [u1, v0, 1], [u1, v1, 1], [u0, v1, 1]], np.float64)
+    best = None
+    # the aim (the sheet point on the camera's axis): the sheet's middle, else the nearest point of a
+    # grid whose view holds the plan and its scale bar
+    steps = np.linspace(-0.1, 0.1, 5)
+    grid = sorted(((du, dv) for du in steps for dv in steps), key=lambda t: abs(t[0]) + abs(t[1]))
+    for du, dv in grid:
+        aim = np.array([W * (0.5 + du), H * (0.5 + dv), 0.0])
+        t = np.array([0.0, 0.0, f]) - R @ aim
+        Hc = K @ np.column_stack([R[:, 0], R[:, 1], t])
+        inner = np.array([[m, m, 1], [W - m, m, 1], [W - m, H - m, 1], [m, H - m, 1]], np.float64) @ Hc.T
+        inner = inner[:, :2] / inner[:, 2:]
+        # the largest upright box inside the sheet's inner margin centred on the principal point
+        half_w = min(-max(inner[0, 0], inner[3, 0]), min(inner[1, 0], inner[2, 0]))
+        half_h = min(-max(inner[0, 1], inner[1, 1]), min(inner[2, 1], inner[3, 1]))
+        if half_w <= 0 or half_h <= 0:
+            continue
+        q = want @ Hc.T
+        q = q[:, :2] / q[:, 2:]
+        held = bool((np.abs(q[:, 0]) < half_w).all() and (np.abs(q[:, 1]) < half_h).all())
+        if best is None or held:
+            best = (Hc, half_w, half_h)
+        if held:
+            break
+    Hm, half_w, half_h = best
+    out_w, out_h = 2 * math.floor(half_w), 2 * math.floor(half_h)
+    Hm = np.array([[1.0, 0, out_w / 2], [0, 1.0, out_h / 2], [0, 0, 1]]) @ Hm
+    Hm /= Hm[2, 2]
+    img = cv2.warpPerspective(sheet, Hm, (out_w, out_h), flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255))
+    Hm = Hm @ np.array([[1.0, 0, P], [0, 1.0, P], [0, 0, 1]])  # from the unpadded sheet
+    img = img.astype(np.float32)
+    yy, xx = np.mgrid[0:out_h, 0:out_w].astype(np.float32)
+    gx, gy = rng.uniform(0.3, 0.7) * out_w, rng.uniform(0.3, 0.7) * out_h
+    r = 0.25 * max(out_w, out_h)
+    glare = np.exp(-((xx - gx) ** 2 + (yy - gy) ** 2) / (2 * r * r))
+    shade = 0.8 + 0.2 * (xx / out_w)
+    img = img * shade[..., None] * 0.92 + 110.0 * glare[..., None]
+    img += rng.normal(0, 4.0, img.shape).astype(np.float32)
+    img = cv2.GaussianBlur(np.clip(img, 0, 255).astype(np.uint8), (0, 0), 0.8)
+    return _jpeg(img, cfg.jpeg_quality), Hm
+
+
 def render_drawing(building: Building, cfg: DrawingConfig | None = None, seed: int = 0) -> Drawing:
     """The architect's drawing of ``building``'s plan, degraded as `cfg.degrade` says (pure; deterministic
     for a seed)."""
@@ -462,6 +541,17 @@ def render_drawing(building: Building, cfg: DrawingConfig | None = None, seed: i
         img, Hd = _scan(sheet, cfg, rng)
     elif cfg.degrade == "photo":
         img, Hd = _photo(sheet, cfg, rng)
+    elif cfg.degrade == "closeup":
+        # what the photo should hold: the plan's box and the scale bar with its labels
+        _x0, y_min, x_max, _y1 = building.extent
+        pw, ph = x_max / cfg.m_per_px, -y_min / cfg.m_per_px
+        keep = (
+            min(off[0], bar[0]) - 10,
+            off[1] - 10,
+            max(off[0] + pw + 10, bar[2] + 60),
+            max(off[1] + ph + 10, bar[1] + 25),
+        )
+        img, Hd = _closeup(sheet, cfg, rng, keep)
     else:
         raise ValueError(f"unknown degradation {cfg.degrade!r}")
 
