@@ -247,3 +247,19 @@ def test_server_start_settings_yield_to_the_environment(tmp_path, monkeypatch):
     assert seen[0]["PREFECT_API_BLOCKS_REGISTER_ON_START"] == "false"
     assert seen[0]["PY_KEY_VALUE_DISABLE_BEARTYPE"] == "false"  # the user's setting wins
     assert seen[0]["PREFECT_UI_ENABLED"] == "0"
+
+
+def test_bench_counts_a_shared_servers_cpu_seconds_as_the_commands(tmp_path):
+    """bench.run --prefect-server: the command is pointed at the shared server, and what that server
+    burns while the command runs counts as the command's CPU seconds."""
+    from bench.run import timed
+
+    busy = "import time\nt = time.process_time()\nwhile time.process_time() - t < 60: pass"
+    server = subprocess.Popen([sys.executable, "-c", busy])
+    check = "import os, time; assert os.environ['PREFECT_API_URL'] == 'http://x/api'; time.sleep(2)"
+    try:
+        result = timed([sys.executable, "-c", check], tmp_path / "log", ("http://x/api", server.pid))
+    finally:
+        server.kill()
+        server.wait()
+    assert 0.02 < result["shared_server_cpu_s"] < result["cpu_s"]
