@@ -26,11 +26,17 @@ time (the run summary's seconds per stage, summed over rooms); the peak resident
 process tree, sampled every 0.1 s with psutil, and how it splits between the run's own process, Prefect's
 server and the rest at that moment; and the largest over the smallest size's cold time. The machine's
 load average is printed with each run: the figures are wall-clock times.
+
+With `--prefect-server` every command uses one Prefect server that the benchmark starts first and that
+outlives them (as `PREFECT_API_URL` naming a running server, or a `serve`d schedule): no command starts
+its own, and the CPU seconds the shared server spends while a command runs (and its memory) count as
+that command's; the server's own start is printed apart.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
@@ -39,6 +45,7 @@ import sys
 import threading
 import time
 from collections import defaultdict
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -59,21 +66,24 @@ def _part(proc: Any) -> str:
     return "run" if "flows.cli" in cmdline else "other"
 
 
-def _peak_rss_sampler(pid: int, stop: threading.Event, out: dict[str, Any]) -> None:
-    """Sample the RSS of process `pid` and all its descendants until `stop`: the largest total goes to
-    out["peak"], its split by part (run, server, other) to out["parts"], its time after the start to
-    out["at_s"]."""
+def _peak_rss_sampler(
+    pid: int, stop: threading.Event, out: dict[str, Any], server_pid: int | None = None
+) -> None:
+    """Sample the RSS of process `pid` and all its descendants (and of the shared server `server_pid`)
+    until `stop`: the largest total goes to out["peak"], its split by part (run, server, other) to
+    out["parts"], its time after the start to out["at_s"]."""
     import psutil
 
     try:
         root = psutil.Process(pid)
+        shared = [psutil.Process(server_pid)] if server_pid else []
     except psutil.Error:
         return
     started = time.perf_counter()
     while not stop.is_set():
         parts: dict[str, int] = defaultdict(int)
         try:
-            procs = [root, *root.children(recursive=True)]
+            procs = [root, *root.children(recursive=True), *shared]
         except psutil.Error:
             break
         for proc in procs:
@@ -95,15 +105,26 @@ def _children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def timed(command: list[str], log: Path) -> dict[str, Any]:
+def process_cpu(pid: int) -> float:
+    """CPU seconds (user + system) that process `pid` has used so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def timed(command: list[str], log: Path, server: tuple[str, int] | None = None) -> dict[str, Any]:
     """Run `command` (output to `log`): wall and CPU seconds, peak RSS of its process tree (bytes) and
-    its split; a command that fails stops the benchmark."""
+    its split; a command that fails stops the benchmark. With `server` (the URL and pid of a Prefect
+    server that outlives the commands, see `shared_server`) the command uses it, and the CPU seconds it
+    spent meanwhile and its RSS count as the command's."""
     env = {
         # on a busy machine Prefect's server may take minutes to start: a benchmark waits for it
         "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "900",
         **os.environ,
         "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
     }
+    if server is not None:
+        env["PREFECT_API_URL"] = server[0]
+    server_cpu_start = process_cpu(server[1]) if server else 0.0
     peak: dict[str, Any] = {"peak": 0, "parts": {}, "at_s": None}
     stop = threading.Event()
     load = os.getloadavg()[0]
@@ -115,13 +136,18 @@ def timed(command: list[str], log: Path) -> dict[str, Any]:
         try:
             import psutil  # noqa: F401
 
-            sampler = threading.Thread(target=_peak_rss_sampler, args=(proc.pid, stop, peak), daemon=True)
+            sampler = threading.Thread(
+                target=_peak_rss_sampler,
+                args=(proc.pid, stop, peak, server[1] if server else None),
+                daemon=True,
+            )
             sampler.start()
         except ImportError:
             sampler = None
         code = proc.wait()
         seconds = time.perf_counter() - started
         cpu = _children_cpu() - cpu_start  # the whole tree: each process is reaped by its parent
+        server_cpu = process_cpu(server[1]) - server_cpu_start if server else 0.0
         stop.set()
         if sampler is not None:
             sampler.join()
@@ -133,7 +159,8 @@ def timed(command: list[str], log: Path) -> dict[str, Any]:
         raise SystemExit(f"{' '.join(command)} exited with {code}; see {log}")
     return {
         "seconds": seconds,
-        "cpu_s": cpu,
+        "cpu_s": cpu + server_cpu,
+        "shared_server_cpu_s": server_cpu,
         "peak_rss": peak["peak"],
         "peak_rss_parts": peak["parts"],
         "peak_at_s": peak["at_s"],
@@ -230,24 +257,59 @@ def compose_survey(cache: Path, rooms: int, out: Path, kind: str = "tls") -> Pat
     return out
 
 
-def bench_size(rooms: int, root: Path, sets: list[str], kind: str = "tls") -> dict[str, Any]:
+@contextlib.contextmanager
+def shared_server(root: Path) -> Iterator[tuple[str, int, dict[str, float]]]:
+    """One Prefect API server for every command of the benchmark, as when a server outlives the runs
+    (the server a run would start, with the same settings; it dies with the benchmark): its URL, its
+    pid and what its start cost (wall and CPU seconds until it answered)."""
+    from flows import prefect_env
+
+    if os.environ.get("PREFECT_API_URL"):
+        raise SystemExit("--prefect-server: PREFECT_API_URL is set already; unset it to time a shared server")
+    prefect_env.apply()
+    work = root / "prefect-server"
+    started = time.perf_counter()
+    with prefect_env.embedded_server(work) as url:
+        assert url is not None
+        pid = int(json.loads((work / prefect_env.SERVER_RECORD).read_text())["server_pid"])
+        start = {"seconds": time.perf_counter() - started, "cpu_s": process_cpu(pid)}
+        print(
+            f"shared Prefect server {url}: answered after {start['seconds']:.1f} s, {start['cpu_s']:.1f} CPU s"
+        )
+        yield url, pid, start
+
+
+def bench_size(
+    rooms: int,
+    root: Path,
+    sets: list[str],
+    kind: str = "tls",
+    server: tuple[str, int, dict[str, float]] | None = None,
+) -> dict[str, Any]:
     survey = compose_survey(root / "sources", rooms, root / f"survey-{kind}-{rooms}", kind)
     work = root / f"work-{kind}-{rooms}"
     if work.exists():
         shutil.rmtree(work)
+    api = server[:2] if server else None
     cli = [sys.executable, "-m", "flows.cli"]
     extra = [a for s in sets for a in ("--set", s)]
-    cold = timed([*cli, "run", str(survey), "--work", str(work), *extra], root / f"cold-{kind}-{rooms}.log")
-    noop = timed([*cli, "run", str(survey), "--work", str(work), *extra], root / f"noop-{kind}-{rooms}.log")
+    cold = timed(
+        [*cli, "run", str(survey), "--work", str(work), *extra], root / f"cold-{kind}-{rooms}.log", api
+    )
+    noop = timed(
+        [*cli, "run", str(survey), "--work", str(work), *extra], root / f"noop-{kind}-{rooms}.log", api
+    )
     walls = timed(
         [*cli, "rerun", str(survey), "--work", str(work), "--stage", "walls", *extra],
         root / f"walls-{kind}-{rooms}.log",
+        api,
     )
     # the users' other rerun: one stage of one room (after tuning it); its readers stay current when the
     # stage writes the same bytes, so this is the floor of any targeted rerun
     one = timed(
         [*cli, "rerun", str(survey), "--work", str(work), "--stage", "walls", "--room", "r1", *extra],
         root / f"walls-r1-{kind}-{rooms}.log",
+        api,
     )
     stages = stage_seconds(Path(cold["log"]))
     total = sum(stages.values()) or 1.0
@@ -256,6 +318,7 @@ def bench_size(rooms: int, root: Path, sets: list[str], kind: str = "tls") -> di
     return {
         "kind": kind,
         "rooms": rooms,
+        "shared_server": server[2] if server else None,
         "cold_s": cold["seconds"],
         "noop_s": noop["seconds"],
         "walls_s": walls["seconds"],
@@ -264,6 +327,7 @@ def bench_size(rooms: int, root: Path, sets: list[str], kind: str = "tls") -> di
         "one_room_walls_s": one["seconds"],
         "one_room_walls_ratio": one["seconds"] / cold["seconds"],
         "cpu_s": {name: r["cpu_s"] for name, r in runs.items()},
+        "shared_server_cpu_s": {name: r["shared_server_cpu_s"] for name, r in runs.items()},
         "stage_seconds": stages,
         "stage_share": {name: s / total for name, s in sorted(stages.items(), key=lambda kv: -kv[1])},
         "walls_stage_seconds": stage_seconds(Path(walls["log"])),
@@ -280,6 +344,32 @@ def bench_size(rooms: int, root: Path, sets: list[str], kind: str = "tls") -> di
 
 def _s(seconds: float | None) -> str:
     return "n/a" if seconds is None else f"{seconds:.0f} s"
+
+
+def _print(r: dict[str, Any]) -> None:
+    rooms = r["rooms"]
+    shares = ", ".join(f"{k} {100 * v:.0f}%" for k, v in r["stage_share"].items())
+    cpu = r["cpu_s"]
+    parts = ", ".join(f"{k} {v:.0f}" for k, v in r["peak_rss_parts_mb"].items())
+    load = ", ".join(f"{k} {a:.1f}-{b:.1f}" for k, (a, b) in r["load"].items())
+    print(
+        f"{rooms:3d} rooms: cold {r['cold_s']:6.1f} s | no-op {r['noop_s']:5.1f} s = "
+        f"{100 * r['noop_ratio']:4.1f}% | walls-only {r['walls_s']:5.1f} s = {100 * r['walls_ratio']:4.1f}% | "
+        f"r1's walls {r['one_room_walls_s']:5.1f} s = {100 * r['one_room_walls_ratio']:4.1f}% | "
+        f"peak RSS {r['peak_rss_mb']:.0f} MB\n"
+        f"           CPU s: cold {cpu['cold']:.1f}, no-op {cpu['noop']:.1f}, walls-only {cpu['walls']:.1f} "
+        f"= {100 * cpu['walls'] / cpu['cold']:.1f}%, r1's walls {cpu['one_room_walls']:.1f}\n"
+        f"           peak RSS in {r['peak_rss_command']} at {r['peak_rss_at_s'] or 0:.0f} s: {parts} MB\n"
+        f"           load average (start-end): {load}\n"
+        f"           stage shares: {shares}\n"
+        f"           start-up before the first stage: cold {_s(r['cold_first_stage_s'])}, "
+        f"walls-only {_s(r['walls_first_stage_s'])}; walls-only stage time "
+        f"{sum(r['walls_stage_seconds'].values()):.1f} s",
+        flush=True,
+    )
+    if r["shared_server"]:
+        used = ", ".join(f"{k} {v:.1f}" for k, v in r["shared_server_cpu_s"].items())
+        print(f"           of those CPU s, the shared Prefect server's: {used}", flush=True)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -300,6 +390,13 @@ def main(argv: list[str] | None = None) -> int:
         default="tls",
         help="the rooms: tls (registered clouds, the default) or rgbd (Kinect recordings, as data/mini)",
     )
+    parser.add_argument(
+        "--prefect-server",
+        action="store_true",
+        help="one Prefect server for every command (as a server that outlives the runs): each command "
+        "uses it instead of starting its own, and the CPU seconds it spends meanwhile count as the "
+        "command's; its own start is printed apart",
+    )
     parser.add_argument("--json", type=Path, default=None, help="also write the figures to this file")
     args = parser.parse_args(argv)
     try:
@@ -311,30 +408,13 @@ def main(argv: list[str] | None = None) -> int:
     args.root.mkdir(parents=True, exist_ok=True)
     print(f"{os.cpu_count()} cores; {args.kind} rooms; root {args.root}", flush=True)
     results = []
-    for rooms in sizes:
-        r = bench_size(rooms, args.root, args.set, args.kind)
-        results.append(r)
-        if args.json:  # after each size: a later size that fails keeps the earlier figures
-            args.json.write_text(json.dumps(results, indent=2))
-        shares = ", ".join(f"{k} {100 * v:.0f}%" for k, v in r["stage_share"].items())
-        cpu = r["cpu_s"]
-        parts = ", ".join(f"{k} {v:.0f}" for k, v in r["peak_rss_parts_mb"].items())
-        load = ", ".join(f"{k} {a:.1f}-{b:.1f}" for k, (a, b) in r["load"].items())
-        print(
-            f"{rooms:3d} rooms: cold {r['cold_s']:6.1f} s | no-op {r['noop_s']:5.1f} s = "
-            f"{100 * r['noop_ratio']:4.1f}% | walls-only {r['walls_s']:5.1f} s = {100 * r['walls_ratio']:4.1f}% | "
-            f"r1's walls {r['one_room_walls_s']:5.1f} s = {100 * r['one_room_walls_ratio']:4.1f}% | "
-            f"peak RSS {r['peak_rss_mb']:.0f} MB\n"
-            f"           CPU s: cold {cpu['cold']:.1f}, no-op {cpu['noop']:.1f}, walls-only {cpu['walls']:.1f} "
-            f"= {100 * cpu['walls'] / cpu['cold']:.1f}%, r1's walls {cpu['one_room_walls']:.1f}\n"
-            f"           peak RSS in {r['peak_rss_command']} at {r['peak_rss_at_s'] or 0:.0f} s: {parts} MB\n"
-            f"           load average (start-end): {load}\n"
-            f"           stage shares: {shares}\n"
-            f"           start-up before the first stage: cold {_s(r['cold_first_stage_s'])}, "
-            f"walls-only {_s(r['walls_first_stage_s'])}; walls-only stage time "
-            f"{sum(r['walls_stage_seconds'].values()):.1f} s",
-            flush=True,
-        )
+    with contextlib.ExitStack() as stack:
+        server = stack.enter_context(shared_server(args.root)) if args.prefect_server else None
+        for rooms in sizes:
+            results.append(bench_size(rooms, args.root, args.set, args.kind, server))
+            if args.json:  # after each size: a later size that fails keeps the earlier figures
+                args.json.write_text(json.dumps(results, indent=2))
+            _print(results[-1])
     if len(results) > 1:
         small, large = results[0], results[-1]
         print(

@@ -404,8 +404,10 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
 
         prefect_env.apply()
 
-        def import_flows() -> None:  # Prefect's import, while its server starts in another process
-            from flows import pipeline  # noqa: F401
+        def import_flows() -> None:  # while Prefect's server starts in another process
+            from flows import pipeline  # noqa: F401  (Prefect's import)
+
+            planning.read_code_versions()
 
         # Prefect's server lives and dies with this run
         with prefect_env.embedded_server(work, meanwhile=import_flows) as embedded:

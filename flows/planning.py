@@ -422,6 +422,13 @@ def plan_survey(
     return SurveyPlan(before, rooms, after, others, failed, dict.fromkeys(failed, first_stage))
 
 
+def read_code_versions() -> None:
+    """Every stage's code version, read now (once per process; see plan_survey): a run does it while
+    Prefect's server starts, instead of after, when it waits for nothing else."""
+    for stage in STAGES.values():
+        stage.code_version()
+
+
 def fan_in_for(
     item: PlannedStage,
     results: dict[tuple[str, str], StageResult],

@@ -9,6 +9,7 @@ import importlib.util
 import json
 import os
 import socket
+import sqlite3
 import subprocess
 import sys
 import time
@@ -58,6 +59,24 @@ os.execv(sys.executable, [sys.executable, *sys.argv[2:]])
 """
 
 
+def _prefect_home() -> Path:
+    return Path(os.environ.get("PREFECT_HOME", Path.home() / ".prefect")).expanduser()
+
+
+def _profile_settings() -> dict[str, object]:
+    """The settings of Prefect's active profile (PREFECT_HOME/profiles.toml), read without importing
+    Prefect; empty when there is none."""
+    try:
+        import tomllib
+
+        profiles = tomllib.loads((_prefect_home() / "profiles.toml").read_text())
+    except (OSError, ValueError):
+        return {}
+    active = os.environ.get("PREFECT_PROFILE") or profiles.get("active", "ephemeral")
+    settings = (profiles.get("profiles") or {}).get(active) or {}
+    return settings if isinstance(settings, dict) else {}
+
+
 def _api_url_configured() -> bool:
     """Whether Prefect is told to use a running server (the environment, an active profile, or a test
     harness' settings), in which case a run starts none."""
@@ -67,16 +86,86 @@ def _api_url_configured() -> bool:
         from prefect.settings import PREFECT_API_URL
 
         return bool(PREFECT_API_URL.value())
-    home = Path(os.environ.get("PREFECT_HOME", Path.home() / ".prefect")).expanduser()
-    try:
-        import tomllib
+    return bool(_profile_settings().get("PREFECT_API_URL"))
 
-        profiles = tomllib.loads((home / "profiles.toml").read_text())
+
+SERVER_SETTINGS = {
+    # Block types are registered into the database for the UI and the blocks API, which a run's server
+    # has none of and the run does not use (its result storage is a local path): about 1.3 CPU s of each
+    # start (importing every installed Prefect collection, prefect-dask and Dask among them).
+    "PREFECT_API_BLOCKS_REGISTER_ON_START": "false",
+    "PREFECT_MEMOIZE_BLOCK_AUTO_REGISTRATION": "false",
+    # py-key-value (under the server's task queue) wraps each of its modules in runtime type checks that
+    # only warn: about 0.8 CPU s of the server's imports.
+    "PY_KEY_VALUE_DISABLE_BEARTYPE": "true",
+}
+"""What the embedded server is started with, unless the environment says otherwise: settings that make
+its start cheaper without touching what a run or `serve` asks of it."""
+
+DB_RECORD = "indoor-survey-database.json"
+"""In PREFECT_HOME: the migration revision that the database had when a server last migrated it, and
+the Prefect version that did it: a later start skips the migrations while both still hold."""
+
+
+def _default_database() -> Path | None:
+    """The SQLite file of the server's database when it is Prefect's default one (PREFECT_HOME/prefect.db),
+    None when the environment or the profile sets any database setting (then migrations always run)."""
+    profile = _profile_settings()
+    for name in [*os.environ, *profile]:
+        if name.startswith(("PREFECT_API_DATABASE_", "PREFECT_SERVER_DATABASE_")):
+            return None
+    return _prefect_home() / "prefect.db"
+
+
+def _revision(database: Path) -> str | None:
+    """The database's migration revision (alembic_version), read-only; None when it has none."""
+    if not database.is_file():
+        return None
+    try:
+        with contextlib.closing(sqlite3.connect(f"file:{database}?mode=ro", uri=True, timeout=5)) as db:
+            rows = db.execute("SELECT version_num FROM alembic_version").fetchall()
+    except sqlite3.Error:
+        return None
+    return str(rows[0][0]) if len(rows) == 1 else None
+
+
+def _prefect_version() -> str:
+    from importlib.metadata import version
+
+    return version("prefect")
+
+
+def database_is_migrated(database: Path | None) -> bool:
+    """Whether `database` is at the revision this Prefect version last migrated it to (DB_RECORD)."""
+    if database is None:
+        return False
+    try:
+        record = json.loads((database.parent / DB_RECORD).read_text())
     except (OSError, ValueError):
         return False
-    active = os.environ.get("PREFECT_PROFILE") or profiles.get("active", "ephemeral")
-    settings = (profiles.get("profiles") or {}).get(active) or {}
-    return bool(settings.get("PREFECT_API_URL"))
+    return (
+        isinstance(record, dict)
+        and record.get("database") == str(database)
+        and record.get("prefect") == _prefect_version()
+        and record.get("revision") is not None
+        and record.get("revision") == _revision(database)
+    )
+
+
+def record_migrated(database: Path | None) -> None:
+    """After a server that ran the migrations answers: note the revision they left (atomically)."""
+    if database is None:
+        return
+    revision = _revision(database)
+    if revision is None:
+        return
+    record = {"database": str(database), "prefect": _prefect_version(), "revision": revision}
+    tmp = database.parent / f".{DB_RECORD}.{os.getpid()}"
+    try:
+        tmp.write_text(json.dumps(record))
+        os.replace(tmp, database.parent / DB_RECORD)
+    except OSError:
+        tmp.unlink(missing_ok=True)
 
 
 def _start_time(pid: int) -> int | None:
@@ -124,9 +213,10 @@ def _free_port() -> int:
         return int(sock.getsockname()[1])
 
 
-def _launch(port: int) -> subprocess.Popen[bytes]:
-    """Prefect's embedded server (the command and environment Prefect itself uses for it), through the
-    launcher that ties its life to this process."""
+def _launch(port: int, migrate: bool = True) -> subprocess.Popen[bytes]:
+    """Prefect's embedded server (the command and environment Prefect itself uses for it, and
+    SERVER_SETTINGS), through the launcher that ties its life to this process. `migrate=False`: the
+    database is known to be current, so its migrations are not checked again."""
     spec = importlib.util.find_spec("prefect")
     assert spec is not None and spec.submodule_search_locations
     app_dir = str(Path(next(iter(spec.submodule_search_locations))).parent)
@@ -147,6 +237,8 @@ def _launch(port: int) -> subprocess.Popen[bytes]:
         "on",
     ]
     env = {
+        **SERVER_SETTINGS,
+        **({} if migrate else {"PREFECT_API_DATABASE_MIGRATE_ON_START": "false"}),
         **os.environ,
         "PREFECT_UI_ENABLED": "0",
         "PREFECT__SERVER_EPHEMERAL": "1",
@@ -192,8 +284,10 @@ def _start(
     mostly its imports, a few CPU seconds in its own process, which the run's imports can overlap), and
     wait until the server answers; (process, API URL)."""
     deadline = time.monotonic() + timeout
+    database = _default_database()
+    migrate = not database_is_migrated(database)
     port = _free_port()
-    proc = _launch(port)
+    proc = _launch(port, migrate)
     _record(work, proc, port)
     if meanwhile is not None:
         try:
@@ -206,6 +300,8 @@ def _start(
             try:
                 with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/health", timeout=2) as reply:
                     if reply.status == 200:
+                        if migrate:
+                            record_migrated(database)
                         return proc, f"http://127.0.0.1:{port}/api"
             except (urllib.error.URLError, OSError):
                 pass
@@ -219,7 +315,7 @@ def _start(
         if proc.returncode != 3 or time.monotonic() > deadline:  # 3: the port was taken meanwhile
             raise RuntimeError(f"Prefect's embedded server exited with code {proc.returncode}")
         port = _free_port()
-        proc = _launch(port)
+        proc = _launch(port, migrate)
         _record(work, proc, port)
 
 

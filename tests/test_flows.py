@@ -194,3 +194,72 @@ def test_memory_freed_by_pool_threads_goes_back_to_the_system():
         thread.join()
         after.append(rss_mb())
     assert max(after) - after[0] < 30, after  # 0-18 MB here
+
+
+def _database(path: Path, revision: str) -> Path:
+    import sqlite3
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with sqlite3.connect(path) as db:
+        db.execute("CREATE TABLE IF NOT EXISTS alembic_version (version_num TEXT)")
+        db.execute("DELETE FROM alembic_version")
+        db.execute("INSERT INTO alembic_version VALUES (?)", (revision,))
+    return path
+
+
+def test_migrations_are_skipped_only_while_the_database_is_where_they_left_it(tmp_path, monkeypatch):
+    from flows import prefect_env
+
+    for name in list(os.environ):
+        if name.startswith(("PREFECT_API_DATABASE_", "PREFECT_SERVER_DATABASE_", "PREFECT_PROFILE")):
+            monkeypatch.delenv(name)
+    monkeypatch.setenv("PREFECT_HOME", str(tmp_path))
+    database = prefect_env._default_database()
+    assert database == tmp_path / "prefect.db"
+    assert not prefect_env.database_is_migrated(database)  # no database yet: migrate
+    _database(database, "aaa")
+    assert not prefect_env.database_is_migrated(database)  # never recorded: migrate
+    prefect_env.record_migrated(database)
+    assert prefect_env.database_is_migrated(database)
+    _database(database, "bbb")  # another Prefect migrated it since
+    assert not prefect_env.database_is_migrated(database)
+    prefect_env.record_migrated(database)
+    monkeypatch.setattr(prefect_env, "_prefect_version", lambda: "0.0.1")  # Prefect upgraded
+    assert not prefect_env.database_is_migrated(database)
+    monkeypatch.undo()
+    monkeypatch.setenv("PREFECT_HOME", str(tmp_path))
+    monkeypatch.setenv("PREFECT_API_DATABASE_CONNECTION_URL", "sqlite+aiosqlite:////elsewhere.db")
+    assert prefect_env._default_database() is None  # a database of the user's choice: always migrate
+    assert not prefect_env.database_is_migrated(None)
+
+
+def test_server_start_settings_yield_to_the_environment(tmp_path, monkeypatch):
+    from flows import prefect_env
+
+    seen: list[dict[str, str]] = []
+    monkeypatch.setattr(prefect_env.subprocess, "Popen", lambda cmd, env, stdin: seen.append(env))
+    monkeypatch.delenv("PREFECT_API_DATABASE_MIGRATE_ON_START", raising=False)
+    monkeypatch.setenv("PY_KEY_VALUE_DISABLE_BEARTYPE", "false")
+    prefect_env._launch(1, migrate=False)
+    prefect_env._launch(1, migrate=True)
+    assert seen[0]["PREFECT_API_DATABASE_MIGRATE_ON_START"] == "false"
+    assert "PREFECT_API_DATABASE_MIGRATE_ON_START" not in seen[1]
+    assert seen[0]["PREFECT_API_BLOCKS_REGISTER_ON_START"] == "false"
+    assert seen[0]["PY_KEY_VALUE_DISABLE_BEARTYPE"] == "false"  # the user's setting wins
+    assert seen[0]["PREFECT_UI_ENABLED"] == "0"
+
+
+def test_bench_counts_a_shared_servers_cpu_seconds_as_the_commands(tmp_path):
+    """bench.run --prefect-server: the command is pointed at the shared server, and what that server
+    burns while the command runs counts as the command's CPU seconds."""
+    from bench.run import timed
+
+    busy = "import time\nt = time.process_time()\nwhile time.process_time() - t < 60: pass"
+    server = subprocess.Popen([sys.executable, "-c", busy])
+    check = "import os, time; assert os.environ['PREFECT_API_URL'] == 'http://x/api'; time.sleep(2)"
+    try:
+        result = timed([sys.executable, "-c", check], tmp_path / "log", ("http://x/api", server.pid))
+    finally:
+        server.kill()
+        server.wait()
+    assert 0.02 < result["shared_server_cpu_s"] < result["cpu_s"]
