@@ -298,10 +298,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", type=Path, required=True)
     _add_private_work(p)
-    # no scale given: the stage reads the scale bar printed on the plan (its metrics say which was used)
+    # no scale given: the stage reads the scale bar printed on the plan, else its dimension lines (its metrics say which was used)
     scale = p.add_mutually_exclusive_group()
     scale.add_argument(
-        "--m-per-px", type=float, help="metres per pixel (default: read the printed scale bar, else the dimension lines)"
+        "--m-per-px",
+        type=float,
+        help="metres per pixel (default: read the printed scale bar, else the dimension lines)",
     )
     scale.add_argument(
         "--known-distance", metavar="X0,Y0,X1,Y1,METRES", help="two pixels and their distance in metres"
