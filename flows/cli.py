@@ -298,7 +298,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", type=Path, required=True)
     _add_private_work(p)
-    # no scale given: the stage reads the scale bar printed on the plan, else its dimension lines (its metrics say which was used)
+    # no scale given: the stage reads the scale bar printed on the plan, else its dimension lines (its
+    # metrics say which was used)
     scale = p.add_mutually_exclusive_group()
     scale.add_argument(
         "--m-per-px",
