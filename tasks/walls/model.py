@@ -264,7 +264,17 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
         best = cands[0]
     else:
         # candidates are compared on the pixel-accurate model; the chosen one is refined on the points
-        cands = [model_for(proj, cfg, a, coarse=coarse) for a in alphas]
+        cands = [model_for(proj, cfg, a) for a in alphas]
+        wider = None
+        if coarse is not None and not any(c.closed for c in cands):
+            # no α closes the room on the fine grid: its sparsely seen stretches are looked for on the coarse
+            # one (a room some α closes keeps its model, whatever the coarse grid would add to the others),
+            # and kept only when they close it
+            wider = [model_for(proj, cfg, a, coarse=coarse) for a in alphas]
+        if wider is not None and any(c.closed for c in wider):
+            cands = wider
+        else:
+            coarse = None
         chosen, reason = choose_alpha(cands, cfg.stable_tol_m, cfg.thin_wall_max_m)
         best = model_for(proj, cfg, alphas[chosen], xy, coarse)
         if cands[chosen].closed and not best.closed:
