@@ -827,3 +827,30 @@ def test_a_rooms_own_walls_behind_another_walls_line_are_not_taken_for_walls_see
     ev = evaluate_walls(model.walls, truth)
     assert model.metrics["walls_seen_through_gaps"] == 0
     assert model.closed and ev["corner_f1"] == 1.0 and ev["completeness"] == 1.0, (ev, model.walls)
+
+
+def test_a_stretch_of_wall_seen_sparsely_is_found_on_the_coarser_grid(rng):
+    # a 6 m x 2 m corridor whose north wall the camera passed quickly between x 1.5 and 4.5 m: one point
+    # per ~8 cm x 8 cm there (elsewhere 1 cm apart); on the 1 cm grid those cells hold a voxel each, never
+    # a tall, full column, and the 3 m gap is beyond every bridge
+    from dataclasses import replace
+
+    truth = np.array([[0, 0, 6, 0], [6, 0, 6, 2], [6, 2, 0, 2], [0, 2, 0, 0]], float)
+    dense = [wall_points(t[:2], t[2:], 1.5, 2.5, rng, noise=0.005) for t in truth[[0, 1, 3]]]
+    north = wall_points(truth[2, :2], truth[2, 2:], 1.5, 2.5, rng, noise=0.005)
+    quick = (north[:, 0] > 1.5) & (north[:, 0] < 4.5)
+    north = north[~quick | (rng.random(len(north)) < 1 / 64)]
+    pts = np.concatenate([*dense, north])
+    model = model_walls(pts, 0.0, 2.7, CFG)
+    ev = evaluate_walls(model.walls, truth)
+    assert model.closed and ev["completeness"] >= 0.99 and ev["correctness"] == 1.0, (ev, model.walls)
+    assert ev["accuracy_mean_m"] < 0.01 and model.metrics["sparse_px"] > 0
+    off = model_walls(pts, 0.0, 2.7, replace(CFG, sparse_grid_ratio=0))
+    assert not off.closed  # the fine grid alone does not see it
+
+
+def test_the_coarser_grid_is_not_used_when_the_fine_one_closes_the_room(rng):
+    truth = np.array([[0, 0, 4, 0], [4, 0, 4, 3], [4, 3, 0, 3], [0, 3, 0, 0]], float)
+    pts = np.concatenate([wall_points(t[:2], t[2:], 1.5, 2.5, rng, noise=0.005) for t in truth])
+    model = model_walls(pts, 0.0, 2.7, CFG)
+    assert model.closed and model.metrics["sparse_px"] == 0

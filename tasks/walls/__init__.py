@@ -10,7 +10,11 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    metrics with the spacing);
 2. binarization (5.2.2, `image`): eq 5.5 keeps the cells whose column is at least α = H_noise / H_filter
    full, so clutter shorter than α of the slice disappears (eq 5.4, μ - 1.65σ, as the alternative). A
-   cell's data must also span `min_column_height_m`: table tops and ceiling patches are flat;
+   cell's data must also span `min_column_height_m`: table tops and ceiling patches are flat. Walls seen
+   too sparsely for the grid (a stretch the camera passed quickly) are binarized the same way on a grid
+   `sparse_grid_ratio` times coarser; when no α closes the room, those continuing the line of a wall found
+   are added as bands where the fine image holds no wall cell nearby (`image.sparse_cells`) and the steps
+   are made again (kept when that closes the room);
 3. 3×3 closing and Zhang-Suen skeleton (5.2.3, `image`);
 4. probabilistic Hough (5.2.4.1, `image`), β1 votes, β2 minimum length and β3 maximum gap given in metres;
 5. 3-level clustering and regression averaging (5.2.4.2, `tasks.lines.merge_segments`), then the

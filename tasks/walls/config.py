@@ -29,6 +29,15 @@ class WallsConfig:
     off."""
     noise_band_m: float = 0.1
     """...the points within this distance of a wall count for its spread."""
+    sparse_grid_ratio: float = 4.0
+    """Walls seen too sparsely for the grid (a stretch the camera passed quickly: points centimetres apart,
+    at most one voxel per cell) are looked for on a grid this many times coarser, where their points gather
+    into tall, full cells. Only when no α closes the room on the fine grid, and kept only when that closes
+    it: its wall cells within a wall's offset tolerance
+    (at least one coarse cell) of the line of a wall found, and further than two coarse cells from every
+    fine wall cell (`image.sparse_cells`: a band beside a densely seen wall would pull its line), are added
+    as bands and the steps made again. A stretch continues a wall: a wall seen sparsely along its whole
+    length, or clutter off the walls' lines, is not taken. Under 2 switches that off."""
     gray_levels: int = 255
     """G in eq 5.3 / 5.5."""
     binarization: Literal["alpha", "gaussian"] = "alpha"

@@ -160,3 +160,49 @@ def hough_segments(skel: NDArray[np.bool_], grid: Grid, cfg: WallsConfig) -> NDA
         return np.zeros((0, 4))
     px = found.reshape(-1, 4).astype(np.float64)
     return np.concatenate([grid.to_metres(px[:, :2]), grid.to_metres(px[:, 2:])], axis=1)
+
+
+@dataclass(frozen=True)
+class Coarse:
+    """A coarser projection of the same slice, for the walls seen too sparsely for the fine grid (a stretch
+    the camera passed quickly): on a 1 cm grid their points, centimetres apart, fill one voxel per cell at
+    most, so that no cell is tall or full enough; a cell `factor` times wider gathers them."""
+
+    proj: Projection
+    factor: int
+    rows: NDArray[np.int64]
+    """(H,) the coarse row of each fine row."""
+    cols: NDArray[np.int64]
+    """(W,) the coarse column of each fine column."""
+
+
+def coarse_projection(
+    points: NDArray, fine: Projection, cfg: WallsConfig, ceiling_z_m: float
+) -> Coarse | None:
+    """The slice projected on a grid `sparse_grid_ratio` times the fine one (None when that is off or the
+    ratio is under 2), with the map from fine to coarse cells."""
+    k = round(cfg.sparse_grid_ratio)
+    if k < 2:
+        return None
+    from dataclasses import replace
+
+    proj = projection_image(points, replace(cfg, grid_size_m=k * fine.grid.size), ceiling_z_m)
+    g = fine.grid
+    centres = g.to_metres(np.column_stack([np.arange(max(g.shape)), np.arange(max(g.shape))]))
+    px = np.floor((centres - proj.grid.origin) / proj.grid.size).astype(np.int64)
+    rows = np.clip(px[: g.shape[0], 1], 0, proj.grid.shape[0] - 1)
+    cols = np.clip(px[: g.shape[1], 0], 0, proj.grid.shape[1] - 1)
+    return Coarse(proj, k, rows, cols)
+
+
+def sparse_cells(binary: NDArray[np.bool_], coarse: Coarse, cfg: WallsConfig, alpha: float | None) -> NDArray:
+    """(H, W) fine cells of the coarse wall cells (binarized as the fine ones are, and with data near the
+    slice top) that lie further than two coarse cells from every fine wall cell: the sparsely seen walls, as
+    bands one coarse cell wide, added where the fine image has nothing (a densely seen wall keeps its
+    fine cells)."""
+    cb = binarize(coarse.proj.counts, coarse.proj.wall_like, cfg, alpha)
+    if not cb.any():
+        return np.zeros_like(binary)
+    k = coarse.factor
+    near = cv2.dilate(binary.astype(np.uint8), np.ones((4 * k + 1, 4 * k + 1), np.uint8)).astype(bool)
+    return cb[np.ix_(coarse.rows, coarse.cols)] & ~near

@@ -18,7 +18,7 @@ from tasks.lines import angles, is_closed, transform_segments, wall_graph
 from tasks.preview import Key, View, frame_picture
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import support_sampler
-from tasks.walls.image import Grid, projection_image
+from tasks.walls.image import Grid, coarse_projection, projection_image
 from tasks.walls.topology import choose_alpha, model_for
 
 
@@ -246,6 +246,7 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
     pts = _check_input(slice_points, floor_z_m, ceiling_z_m, cfg)
     cfg, grid_choice = grid_from_data(pts, cfg)
     proj = projection_image(pts, cfg, ceiling_z_m)
+    coarse = coarse_projection(pts, proj, cfg, ceiling_z_m)
     grid, counts = proj.grid, proj.counts
     xy = np.ascontiguousarray(pts[:, :2])
     timings["projection_s"] = time.perf_counter() - t0
@@ -258,14 +259,24 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
     else:
         alphas = sorted(float(a) for a in cfg.alpha_candidates)
     if len(alphas) == 1:
-        cands = [model_for(proj, cfg, alphas[0], xy)]
+        cands = [model_for(proj, cfg, alphas[0], xy, coarse)]
         chosen, reason = 0, ("eq 5.4 (mean - 1.65 sigma)" if alphas[0] is None else "alpha fixed in config")
         best = cands[0]
     else:
         # candidates are compared on the pixel-accurate model; the chosen one is refined on the points
         cands = [model_for(proj, cfg, a) for a in alphas]
+        wider = None
+        if coarse is not None and not any(c.closed for c in cands):
+            # no α closes the room on the fine grid: its sparsely seen stretches are looked for on the coarse
+            # one (a room some α closes keeps its model, whatever the coarse grid would add to the others),
+            # and kept only when they close it
+            wider = [model_for(proj, cfg, a, coarse=coarse) for a in alphas]
+        if wider is not None and any(c.closed for c in wider):
+            cands = wider
+        else:
+            coarse = None
         chosen, reason = choose_alpha(cands, cfg.stable_tol_m, cfg.thin_wall_max_m)
-        best = model_for(proj, cfg, alphas[chosen], xy)
+        best = model_for(proj, cfg, alphas[chosen], xy, coarse)
         if cands[chosen].closed and not best.closed:
             # the refinement moved a borderline corner out of reach: keep the pixel-accurate model
             best = cands[chosen]

@@ -35,7 +35,7 @@ from tasks.walls.evidence import (
     top_reach_shares,
     unshadowed_lines,
 )
-from tasks.walls.image import Grid, Projection, binarize, hough_segments, skeleton
+from tasks.walls.image import Coarse, Grid, Projection, binarize, hough_segments, skeleton, sparse_cells
 
 
 @dataclass(frozen=True)
@@ -56,9 +56,14 @@ class Candidate:
 
 
 def model_for(
-    proj: Projection, cfg: WallsConfig, alpha: float | None, xy: NDArray | None = None
+    proj: Projection,
+    cfg: WallsConfig,
+    alpha: float | None,
+    xy: NDArray | None = None,
+    coarse: Coarse | None = None,
 ) -> Candidate:
-    """Steps 2-7 for one α; the slice points `xy` (N, 2), when given, refine the wall offsets."""
+    """Steps 2-7 for one α; the slice points `xy` (N, 2), when given, refine the wall offsets; the `coarse`
+    projection, when given, adds the sparsely seen walls (`image.sparse_cells`)."""
     grid = proj.grid
     # the tall cells go through the image steps; the top-reach test is made on the lines (`_topology`)
     binary = binarize(proj.counts, proj.tall, cfg, alpha)
@@ -67,6 +72,19 @@ def model_for(
     low_share = support_sampler(proj.low, grid, cfg.support_tol_m)
     top = TopCells(binary & proj.top, grid)
     found = _topology(hough, cfg.lines, cfg, grid, binary, top, proj, low_share, xy)
+    sparse_px = 0
+    if found.polygon is None and coarse is not None and len(found.walls):
+        # an open room: the sparsely seen stretches that continue one of its walls' lines join the image
+        extra = sparse_cells(binary, coarse, cfg, alpha) & _along_lines(
+            found.walls, grid, binary.shape, max(cfg.lines.offset_tol_m, coarse.factor * grid.size)
+        )
+        sparse_px = int(extra.sum())
+        if sparse_px:
+            binary = binary | extra
+            skel = skeleton(binary, cfg)
+            hough = hough_segments(skel, grid, cfg)
+            top = TopCells(binary & proj.top, grid)
+            found = _topology(hough, cfg.lines, cfg, grid, binary, top, proj, low_share, xy)
     bridged = None
     for gap in cfg.bridge_gaps_m if found.polygon is None else ():
         # the unseen span may be a corner as well as a stretch of one wall: ends reach as far
@@ -97,6 +115,7 @@ def model_for(
         "walls_hung_from_ceiling": int(found.hung.sum()),
         "walls_stray": found.stray,
         "bridged_gap_m": bridged,
+        "sparse_px": sparse_px,
         "walls": len(found.walls),
     }
     return Candidate(alpha, found.walls, found.origin, stats, found.binary, found.polygon)
@@ -123,6 +142,24 @@ class _Topology:
     """Lines whose regularization was refused (it would move them beyond their data's noise)."""
     stray: int = 0
     """Walls dropped because no orientation cluster and too little data supported them (`stray_walls`)."""
+
+
+def _along_lines(walls: NDArray, grid: Grid, shape: tuple[int, ...], tol_m: float) -> NDArray:
+    """(H, W) the cells within `tol_m` of the lines through `walls` (M, 4), across the whole image: where a
+    sparsely seen stretch continues one of the walls found."""
+    band = np.zeros(shape[:2], dtype=np.uint8)
+    reach = grid.size * (shape[0] + shape[1])
+    d = walls[:, 2:] - walls[:, :2]
+    d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    ends = np.concatenate([walls[:, :2] - reach * d, walls[:, 2:] + reach * d], axis=1)
+    px = grid.to_pixels(ends.reshape(-1, 2)).reshape(-1, 4)
+    thick = 2 * math.ceil(tol_m / grid.size) + 1
+    for s in px:
+        a, b = (round(s[0]), round(s[1])), (round(s[2]), round(s[3]))
+        ok, a, b = cv2.clipLine((0, 0, shape[1], shape[0]), a, b)
+        if ok:
+            cv2.line(band, a, b, 1, thick)
+    return band.astype(bool)
 
 
 def _wall_data(binary: NDArray, top: NDArray, lines: NDArray, grid: Grid, tol_m: float) -> NDArray:
