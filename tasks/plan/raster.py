@@ -549,8 +549,11 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
     dropped = (ink_all & ~ink) | (walls_r & ~walls_big)
     walls_r = walls_big
     text_px = np.concatenate([text_px, more_text])
+    # only where the symbols are pictograms drawn over the walls (an evacuation plan): in a drawing in
+    # coloured layers the "symbols" are other layers' line work, and a jamb beside them is no wall piece
+    pieces = np.zeros_like(walls_r) if layer_evidence else _pieces_between_symbols(dropped, sym_any, box)
     walls_r = _bridge_symbols(
-        walls_r | _pieces_between_symbols(dropped, sym_any, box),
+        walls_r | pieces,
         sym_any,
         int(cfg.bridge_max_m * px),
         int(cfg.max_outline_width_m * px) + 2,
