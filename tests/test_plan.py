@@ -529,3 +529,46 @@ def test_photographed_drawing():
     ev = evaluate_walls(res.walls, map_walls(truth, d, frame), tol_m=0.10)
     assert ev["completeness"] >= 0.85, ev
     assert ev["correctness"] >= 0.9, ev
+
+
+def _two_room_plan() -> np.ndarray:
+    """A 14 m x 12 m plan at 2 cm/px: an outer box (2..12, 2..10 page metres), a corridor wall at y = 6
+    with a door at x 7..8, and a partition at x = 7 north of it, ending at the door's jamb (an L corner)."""
+    img = np.full((_px(12), _px(14), 3), 255, np.uint8)
+    for seg in [(2, 2, 12, 2), (12, 2, 12, 10), (12, 10, 2, 10), (2, 10, 2, 2)]:
+        _wall(img, seg, OUTER_T, extend=True)
+    for seg in [(2, 6, 7, 6), (8, 6, 12, 6), (7, 2, 7, 6)]:
+        _wall(img, seg, INNER_T)
+    h = (_px(INNER_T) - 1) // 2  # the corner's square: the partition runs to the corridor wall's face
+    cv2.rectangle(img, (_px(7) - h, _px(6) - h), (_px(7) + h, _px(6) + h), (0, 0, 0), -1)
+    return img
+
+
+def test_corner_hidden_under_a_symbol():
+    """A fire extinguisher drawn on an L corner (partition meeting a wall that ends at a door) hides the
+    corner from both walls: they are prolonged to it, and the two rooms stay apart (survey 814)."""
+    img = _two_room_plan()
+    cv2.rectangle(img, (_px(6.9), _px(5.85)), (_px(7.45), _px(6.4)), (220, 20, 30), -1)
+    res = parse_plan(img, PlanScale(m_per_px=S), PlanConfig())
+    part = res.walls[(np.abs(res.walls[:, 0] - 7) < 0.05) & (np.abs(res.walls[:, 2] - 7) < 0.05)]
+    corr = res.walls[(np.abs(res.walls[:, 1] + 6) < 0.05) & (np.abs(res.walls[:, 3] + 6) < 0.05)]
+    assert len(part) == 1 and abs(part[:, [1, 3]].min() + 6) < 0.05
+    west = corr[np.minimum(corr[:, 0], corr[:, 2]) < 3]
+    assert len(west) == 1 and abs(west[:, [0, 2]].max() - 7) < 0.05
+    # the door right of the corner stays open
+    assert not ((np.minimum(corr[:, 0], corr[:, 2]) < 7.5) & (np.maximum(corr[:, 0], corr[:, 2]) > 7.5)).any()
+    north = [p for p, _ in res.rooms if p.centroid.y > -6]
+    assert len(north) == 2
+
+
+def test_wall_piece_between_two_symbols_is_kept():
+    """A short piece of wall left between an arrow tip and a fire extinguisher drawn on the wall is not a
+    letter: the wall is bridged across both symbols (survey 812)."""
+    img = _two_room_plan()
+    green, red = (0, 150, 70), (220, 20, 30)
+    tip = np.array([[4.6, 5.3], [5.4, 5.3], [5.0, 6.2]])  # an escape arrow pointing into the corridor
+    cv2.fillPoly(img, [np.round(tip / S).astype(np.int32)], green, cv2.LINE_AA)
+    cv2.rectangle(img, (_px(5.5), _px(5.8)), (_px(6.05), _px(6.35)), red, -1)
+    res = parse_plan(img, PlanScale(m_per_px=S), PlanConfig())
+    truth = np.array([[2.0, -6.0, 7.0, -6.0]])
+    assert evaluate_walls(res.walls, truth, tol_m=0.05)["completeness"] > 0.97

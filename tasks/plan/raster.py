@@ -245,6 +245,22 @@ def _drop_framed(walls: NDArray[np.bool_], frames: list[tuple[int, ...]]) -> NDA
     return walls & ~drop[lab]
 
 
+def _pieces_between_symbols(
+    small: NDArray[np.bool_], symbols: NDArray[np.bool_], box: NDArray[np.uint8]
+) -> NDArray[np.bool_]:
+    """The solid parts (at least a wall's thickness across: `box` opens letter strokes away) of the small
+    ink components `small` (taken for letters) that touch a symbol: a piece of wall left between two
+    symbols drawn on it (an arrow tip and a fire extinguisher) is as small as a letter. They are offered
+    to the bridge under the symbols, and dropped again when it does not join them to a wall."""
+    if not symbols.any() or not small.any():
+        return np.zeros(small.shape, bool)
+    solid = cv2.morphologyEx(small.astype(np.uint8), cv2.MORPH_OPEN, box)
+    _n, lab = cv2.connectedComponents(solid, connectivity=8)
+    touch = cv2.dilate(symbols.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    hit = np.unique(lab[touch & (solid > 0)])
+    return np.isin(lab, hit[hit > 0])
+
+
 def _bridge_symbols(
     walls: NDArray[np.bool_], symbols: NDArray[np.bool_], length_px: int, run_px: int
 ) -> NDArray:
@@ -479,6 +495,7 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
     rim_other, sym_any = found.rim_other, found.symbols_any
     # letters first, while they are still separate components; then outline walls are filled and thin
     # strokes (hatching, furniture, dimension lines) are opened away
+    ink_all = ink
     ink, text_px = _remove_small_components(ink, cfg.text_max_size_m * px)
     layers = _ink_layers(img, ink, cfg)
     wall_layers, layer_evidence = _wall_layers(ink, layers, px, cfg)
@@ -528,11 +545,21 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
             _fill_outline_walls(heavy, cfg.max_outline_width_m * px).astype(np.uint8), cv2.MORPH_OPEN, box
         ).astype(bool)
         walls_r = _thin_line_openings(walls_h, ink, round(cfg.door_max_m * px), max(1, round(0.04 * px)))
-    walls_r, more_text = _remove_small_components(walls_r, cfg.text_max_size_m * px)
+    walls_big, more_text = _remove_small_components(walls_r, cfg.text_max_size_m * px)
+    dropped = (ink_all & ~ink) | (walls_r & ~walls_big)
+    walls_r = walls_big
     text_px = np.concatenate([text_px, more_text])
+    # only where the symbols are pictograms drawn over the walls (an evacuation plan): in a drawing in
+    # coloured layers the "symbols" are other layers' line work, and a jamb beside them is no wall piece
+    pieces = np.zeros_like(walls_r) if layer_evidence else _pieces_between_symbols(dropped, sym_any, box)
     walls_r = _bridge_symbols(
-        walls_r, sym_any, int(cfg.bridge_max_m * px), int(cfg.max_outline_width_m * px) + 2
+        walls_r | pieces,
+        sym_any,
+        int(cfg.bridge_max_m * px),
+        int(cfg.max_outline_width_m * px) + 2,
     )
+    # a piece that the bridge did not join to a wall was a letter after all
+    walls_r = _remove_small_components(walls_r, cfg.text_max_size_m * px)[0]
     if cfg.drop_outside_shell:
         walls_r = _inside_shell(walls_r)
     if cfg.legend_frame_min_m > 0:

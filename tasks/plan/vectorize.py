@@ -218,6 +218,49 @@ def _join_hidden_junctions(
         pts = p + np.linspace(0, r, max(2, int(r) + 1))[:, None] * u
         if float((sample_mask(support, pts) > 0.5).mean()) >= 0.99:
             out[i, 2 * e : 2 * e + 2] = p + r * u
+    return _close_hidden_corners(out, thick, support, door_min_px)
+
+
+def _close_hidden_corners(
+    segs: NDArray, thick: NDArray, support: NDArray[np.float32], door_min_px: float
+) -> NDArray[np.float64]:
+    """Two free ends of crossing walls whose lines meet beyond both ends, each within the smallest door,
+    with ink or a removed symbol over both prolongations: a corner hidden under a symbol (a fire
+    extinguisher drawn on it), which neither wall's prolongation alone meets (the other wall stops short
+    of it too). Both walls are prolonged to the corner. A gap of paper stays open."""
+    out = segs.copy()
+    ends = free_ends(segs, 1.0, thick)
+    used: set[tuple[int, int]] = set()
+    for n, (i, e) in enumerate(ends):
+        for k, f in ends[n + 1 :]:
+            if k == i or (i, e) in used or (k, f) in used:
+                continue
+            turn = abs(
+                math.sin(
+                    float(lines.angle_difference(lines.angles(segs[[i]])[0], lines.angles(segs[[k]])[0]))
+                )
+            )
+            hit = lines.line_intersection(segs[i], segs[k])
+            if hit is None or turn < math.sin(math.radians(10.0)):  # a corner, not a wall's two pieces
+                continue
+            x = np.asarray(hit[0], dtype=np.float64)
+            ok = True
+            for j, g in ((i, e), (k, f)):
+                p, q = (segs[j, 2:], segs[j, :2]) if g else (segs[j, :2], segs[j, 2:])
+                u = (p - q) / max(float(np.hypot(*(p - q))), 1e-9)
+                r = float(np.dot(x - p, u))
+                # beyond the end (or inside its own ink), short of a door, and on the line
+                if not (-thick[j] / 2 <= r < door_min_px):
+                    ok = False
+                    break
+                pts = p + np.linspace(0, max(r, 0.0), max(2, int(r) + 1))[:, None] * u
+                ok = float((sample_mask(support, pts) > 0.5).mean()) >= 0.99
+                if not ok:
+                    break
+            if ok:
+                out[i, 2 * e : 2 * e + 2] = x
+                out[k, 2 * f : 2 * f + 2] = x
+                used |= {(i, e), (k, f)}
     return out
 
 
