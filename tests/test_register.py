@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.spatial.transform import Rotation
 
+import tasks.register.room as reg
 from tasks.artefacts import BUILDING, ArtefactStore, StageResult, read_cloud, read_json
 from tasks.camera import Calibration, RigidPose
 from tasks.cloud import DegenerateInputError
@@ -19,6 +21,7 @@ from tasks.register.config import RegisterConfig, SfmConfig
 from tasks.register.fusion import VoxelAccumulator, estimate_radial_depth_error, frame_points, fuse_frames
 from tasks.register.plan_icp import icp_to_plan, plan_faces
 from tasks.register.room import calibration_from_camera_info, register_room
+from tasks.register.scale import ScaleReport
 from tasks.register.track_fallback import (
     level_by_ceiling,
     level_by_walls,
@@ -367,25 +370,22 @@ def test_register_room_without_overlap_falls_back_or_fails(tmp_path, rng):
     assert set(res.poses["method"]) == {"track"}
 
 
-def test_register_room_maps_again_when_the_per_frame_scales_drift(tmp_path, rng, monkeypatch):
-    """A reconstruction whose per-frame scales drift along the capture (a bent map) is made again with the
-    next seed, and the straightest one is kept; a straight one is kept at once."""
-    import tasks.register.room as reg
-    from tasks.register.scale import ScaleReport
-
-    cam = small_camera()
-    poses, track = corridor_walk(4)
-    grey = np.full((120, 160, 3), 128, np.uint8)
-    frames = [(int(track[k, 0]), box_hits(cam, T, CORRIDOR)[0], grey) for k, T in enumerate(poses)]
-    path = write_rendered_frames(tmp_path / "frames.parquet", frames)
-    trends = {0: -0.05, 1: 0.002}
+def _fake_sfm(
+    monkeypatch: pytest.MonkeyPatch,
+    n: int,
+    trend: Callable[[int], float],
+    poses: Callable[[int], dict[str, np.ndarray]],
+) -> list[int]:
+    """Stand-ins for SfM, its scale and its metric poses in `register_room`: every attempt registers all n
+    frames, its per-frame scales drift by trend(seed) and its poses are poses(seed). Returns the list the
+    seeds of the attempts are appended to."""
     seeds: list[int] = []
 
     class FakeSfm:
         def __init__(self, seed: int) -> None:
             self.seed = seed
-            self.names = [f"{k:06d}.png" for k in range(4)]
-            self.registered = np.ones(4, bool)
+            self.names = [f"{k:06d}.png" for k in range(n)]
+            self.registered = np.ones(n, bool)
             self.metrics = {"seed": seed}
 
     def fake_sfm(images, camera, cfg, workdir):
@@ -395,14 +395,29 @@ def test_register_room_maps_again_when_the_per_frame_scales_drift(tmp_path, rng,
     def fake_scale(sfm, depths, calib, cfg, radial_k=0.0):
         for _ in depths:
             pass
-        return ScaleReport(1.0, 0.01, 0.01, 0.01, [], relative_trend=trends[sfm.seed])
-
-    def fake_apply(sfm, scale, calib):
-        return {f"{k:06d}.png": T for k, T in enumerate(poses)}
+        return ScaleReport(1.0, 0.01, 0.01, 0.01, [], relative_trend=trend(sfm.seed))
 
     monkeypatch.setattr(reg, "run_sfm", fake_sfm)
     monkeypatch.setattr(reg, "estimate_scale", fake_scale)
-    monkeypatch.setattr(reg, "apply_scale", fake_apply)
+    monkeypatch.setattr(reg, "apply_scale", lambda sfm, scale, calib: poses(sfm.seed))
+    return seeds
+
+
+def test_register_room_maps_again_when_the_per_frame_scales_drift(tmp_path, rng, monkeypatch):
+    """A reconstruction whose per-frame scales drift along the capture (a bent map) is made again with the
+    next seed, and the straightest one is kept; a straight one is kept at once."""
+    cam = small_camera()
+    poses, track = corridor_walk(4)
+    grey = np.full((120, 160, 3), 128, np.uint8)
+    frames = [(int(track[k, 0]), box_hits(cam, T, CORRIDOR)[0], grey) for k, T in enumerate(poses)]
+    path = write_rendered_frames(tmp_path / "frames.parquet", frames)
+    trends = {0: -0.05, 1: 0.002}
+    seeds = _fake_sfm(
+        monkeypatch,
+        4,
+        lambda seed: trends[seed],
+        lambda seed: {f"{k:06d}.png": T for k, T in enumerate(poses)},
+    )
     res = register_room(path, camera_info(cam), None, RegisterConfig(), SfmConfig(), tmp_path / "w")
     assert seeds == [0, 1]
     assert res.metrics["sfm"] == {"seed": 1}
@@ -476,9 +491,6 @@ def test_register_room_maps_again_when_a_frame_disagrees_with_the_depth(tmp_path
     """A map placing one frame 0.58 m off (what seed 0 did to survey 812's r1) is made again with the next
     seed and the consistent one kept; when every seed misplaces the frame, the map is kept without it (the
     frame unplaced, the verdict in the metrics)."""
-    import tasks.register.room as reg
-    from tasks.register.scale import ScaleReport
-
     cam = small_camera()
     poses = _ring_in_box(12)
     frames = [
@@ -487,33 +499,14 @@ def test_register_room_maps_again_when_a_frame_disagrees_with_the_depth(tmp_path
     ]
     path = write_rendered_frames(tmp_path / "frames.parquet", frames)
     bad_seeds: set[int] = {0}
-    seeds: list[int] = []
 
-    class FakeSfm:
-        def __init__(self, seed: int) -> None:
-            self.seed = seed
-            self.names = [f"{k:06d}.png" for k in range(12)]
-            self.registered = np.ones(12, bool)
-            self.metrics = {"seed": seed}
-
-    def fake_sfm(images, camera, cfg, workdir):
-        seeds.append(cfg.random_seed)
-        return FakeSfm(cfg.random_seed)
-
-    def fake_scale(sfm, depths, calib, cfg, radial_k=0.0):
-        for _ in depths:
-            pass
-        return ScaleReport(1.0, 0.01, 0.01, 0.01, [], relative_trend=0.001)
-
-    def fake_apply(sfm, scale, calib):
+    def placed(seed: int) -> dict[str, np.ndarray]:
         out = {f"{k:06d}.png": T for k, T in enumerate(poses)}
-        if sfm.seed in bad_seeds:
+        if seed in bad_seeds:
             out["000003.png"] = _moved(out["000003.png"], (0.5, -0.3, 0.0), 12.0)
         return out
 
-    monkeypatch.setattr(reg, "run_sfm", fake_sfm)
-    monkeypatch.setattr(reg, "estimate_scale", fake_scale)
-    monkeypatch.setattr(reg, "apply_scale", fake_apply)
+    seeds = _fake_sfm(monkeypatch, 12, lambda seed: 0.001, placed)
     res = register_room(path, camera_info(cam), None, RegisterConfig(), SfmConfig(), tmp_path / "w")
     assert seeds == [0, 1]
     assert [a["inconsistent_frames"] for a in res.metrics["sfm_attempts"]] == [["000003.png"], []]

@@ -430,6 +430,20 @@ def _scan(sheet: NDArray[np.uint8], cfg: DrawingConfig, rng: np.random.Generator
     return _jpeg(img, cfg.jpeg_quality), np.vstack([M, [0, 0, 1]])
 
 
+def _light_and_glare(img: NDArray[np.float32], rng: np.random.Generator) -> NDArray[np.uint8]:
+    """A photo's light on an (h, w, 3) float image: it falls off across the sheet, and glare is a bright
+    blob that washes the ink out; then sensor noise and a slight blur."""
+    out_h, out_w = img.shape[:2]
+    yy, xx = np.mgrid[0:out_h, 0:out_w].astype(np.float32)
+    gx, gy = rng.uniform(0.3, 0.7) * out_w, rng.uniform(0.3, 0.7) * out_h
+    r = 0.25 * max(out_w, out_h)
+    glare = np.exp(-((xx - gx) ** 2 + (yy - gy) ** 2) / (2 * r * r))
+    shade = 0.8 + 0.2 * (xx / out_w)
+    img = img * shade[..., None] * 0.92 + 110.0 * glare[..., None]
+    img += rng.normal(0, 4.0, img.shape).astype(np.float32)
+    return cv2.GaussianBlur(np.clip(img, 0, 255).astype(np.uint8), (0, 0), 0.8)
+
+
 def _photo(sheet: NDArray[np.uint8], cfg: DrawingConfig, rng: np.random.Generator) -> tuple:
     H, W = sheet.shape[:2]
     pad = 0.12 * max(W, H)
@@ -448,15 +462,7 @@ def _photo(sheet: NDArray[np.uint8], cfg: DrawingConfig, rng: np.random.Generato
     inside = cv2.warpPerspective(np.full((H, W), 255, np.uint8), Hm, (out_w, out_h), flags=cv2.INTER_LINEAR)
     a = (inside.astype(np.float32) / 255.0)[..., None]
     img = bg * (1 - a) + warped.astype(np.float32) * a
-    # light falls off across the sheet, glare is a bright blob that washes the ink out
-    gx, gy = rng.uniform(0.3, 0.7) * out_w, rng.uniform(0.3, 0.7) * out_h
-    r = 0.25 * max(out_w, out_h)
-    glare = np.exp(-((xx - gx) ** 2 + (yy - gy) ** 2) / (2 * r * r))
-    shade = 0.8 + 0.2 * (xx / out_w)
-    img = img * shade[..., None] * 0.92 + 110.0 * glare[..., None]
-    img += rng.normal(0, 4.0, img.shape).astype(np.float32)
-    img = cv2.GaussianBlur(np.clip(img, 0, 255).astype(np.uint8), (0, 0), 0.8)
-    return _jpeg(img, cfg.jpeg_quality), Hm
+    return _jpeg(_light_and_glare(img, rng), cfg.jpeg_quality), Hm
 
 
 def _closeup(
@@ -516,15 +522,7 @@ def _closeup(
     img = cv2.warpPerspective(sheet, Hm, (out_w, out_h), flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255))
     Hm = Hm @ np.array([[1.0, 0, P], [0, 1.0, P], [0, 0, 1]])  # from the unpadded sheet
     img = img.astype(np.float32)
-    yy, xx = np.mgrid[0:out_h, 0:out_w].astype(np.float32)
-    gx, gy = rng.uniform(0.3, 0.7) * out_w, rng.uniform(0.3, 0.7) * out_h
-    r = 0.25 * max(out_w, out_h)
-    glare = np.exp(-((xx - gx) ** 2 + (yy - gy) ** 2) / (2 * r * r))
-    shade = 0.8 + 0.2 * (xx / out_w)
-    img = img * shade[..., None] * 0.92 + 110.0 * glare[..., None]
-    img += rng.normal(0, 4.0, img.shape).astype(np.float32)
-    img = cv2.GaussianBlur(np.clip(img, 0, 255).astype(np.uint8), (0, 0), 0.8)
-    return _jpeg(img, cfg.jpeg_quality), Hm
+    return _jpeg(_light_and_glare(img, rng), cfg.jpeg_quality), Hm
 
 
 def render_drawing(building: Building, cfg: DrawingConfig | None = None, seed: int = 0) -> Drawing:
