@@ -137,6 +137,19 @@ class CameraModel:
         uv[:, 1] = self.K[1, 1] * xd[:, 1] + self.K[1, 2]
         return uv, z
 
+    def pixels(
+        self, points: NDArray[np.float64]
+    ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64]]:
+        """(N, 3) points in this camera's frame → the column u, row v (rounded to the nearest pixel) and depth z
+        of those that land inside the image in front of the camera, in their order."""
+        uv, z = self.project(points)
+        ok = np.isfinite(uv).all(axis=1) & (np.abs(uv) < 1e6).all(axis=1) & (z > 0)
+        ui = np.rint(uv[ok, 0]).astype(np.intp)
+        vi = np.rint(uv[ok, 1]).astype(np.intp)
+        w, h = self.size
+        inside = (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+        return ui[inside], vi[inside], z[ok][inside]
+
     def undistort_pixels(self, uv: NDArray[np.float64], iterations: int = 20) -> NDArray[np.float64]:
         """(N, 2) distorted pixels → (N, 2) ideal normalized coordinates (Newton's method on the Brown
         model). Pixels where the model does not invert (far outside its fitted domain) get NaN."""

@@ -98,15 +98,8 @@ def _project_into(
 ) -> tuple[int, int]:
     """(agree, in_front) of frame a's points seen from frame b."""
     p = pts_a @ b_from_a[:3, :3].T + b_from_a[:3, 3]
-    uv, z = camera.project(p)
-    ok = np.isfinite(uv).all(axis=1) & (np.abs(uv) < 1e6).all(axis=1) & (z > 0)
-    ui = np.rint(uv[ok, 0]).astype(np.intp)
-    vi = np.rint(uv[ok, 1]).astype(np.intp)
-    z = z[ok]
-    w, h = camera.size
-    inside = (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
-    zb = np.asarray(depth_b, dtype=np.float64)[vi[inside], ui[inside]]
-    z = z[inside]
+    ui, vi, z = camera.pixels(p)
+    zb = np.asarray(depth_b, dtype=np.float64)[vi, ui]
     measured = np.isfinite(zb) & (zb >= min_depth_m) & (zb <= max_depth_m)
     zb, z = zb[measured], z[measured]
     tol = tol_m + tol_rel * zb

@@ -221,14 +221,8 @@ def depth_in_rgb(
         pts = remove_radial_error(pts, calib.ir, radial_k)
     pose = calib.ir_to_rgb
     p_rgb = pts if pose is None else pose.apply(pts)
-    uv, z = rgb_camera.project(p_rgb)
+    ui, vi, zz = rgb_camera.pixels(p_rgb)
     w, h = rgb_camera.size
-    ok = np.isfinite(uv).all(axis=1) & (z > 0)
-    ui = np.rint(uv[ok, 0]).astype(np.intp)
-    vi = np.rint(uv[ok, 1]).astype(np.intp)
-    zz = z[ok]
-    inside = (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
-    ui, vi, zz = ui[inside], vi[inside], zz[inside]
     nearest = np.full((h, w), np.inf)
     np.minimum.at(nearest, (vi, ui), zz)
     same = zz <= nearest[vi, ui] + cfg.max_depth_step_m
