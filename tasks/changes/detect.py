@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from shapely.geometry import LineString, Polygon
 
 from tasks.changes.config import ChangesConfig
-from tasks.lines import Segments, as_segments, lengths, room_polygons
+from tasks.lines import Segments, as_segments, lengths, room_polygons, share_along
 
 ADDED, REMOVED, UNKNOWN = "added", "removed", "unknown"
 
@@ -193,16 +193,7 @@ def _standing_share(
     """Share of a piece's length along which the cloud shows something standing within margin_m (default
     face_margin_m)."""
     margin = cfg.face_margin_m if margin_m is None else margin_m
-    a, b = piece[:2], piece[2:]
-    length = float(np.hypot(*(b - a)))
-    u = (b - a) / max(length, 1e-12)
-    n = np.array([-u[1], u[0]])
-    s = np.arange(step_m / 2, length, step_m)
-    pts = a + s[:, None] * u
-    hit = np.zeros(len(s), dtype=bool)
-    for o in np.arange(-margin, margin + 1e-9, 0.025):
-        hit |= surfaces.at(pts + o * n)
-    return float(hit.mean()) if len(hit) else 0.0
+    return share_along(piece, surfaces.at, margin, step_m)
 
 
 def _door_thickness(plan_doors: Segments, centrelines: Segments, thickness_m: NDArray) -> NDArray:

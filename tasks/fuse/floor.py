@@ -18,7 +18,7 @@ from tasks.fuse.gaps import GAP_FILLED, GapFill, fill_gaps, shell_polygon
 from tasks.fuse.openings import SpanState, span_state, wall_columns
 from tasks.fuse.place import Placed, RoomInput, RoomModel, place_rooms
 from tasks.fuse.thickness import PlacedWalls, WallThickness, both_sides_thickness, residual_thickness
-from tasks.lines import Segments, as_segments, lengths
+from tasks.lines import Segments, as_segments, lengths, share_along
 
 
 @dataclass(frozen=True)
@@ -262,28 +262,13 @@ def furniture_walls(walls: Segments, model: RoomModel, placed: Placed, cfg: Fuse
     shell = np.flatnonzero(model.shell)
     if len(fit.matched) != len(shell):
         return out
-    top = np.array([_share(w, model.tops, 0.10) for w in walls[shell]])
+    top = np.array([share_along(w, model.tops.at, 0.10) for w in walls[shell]])
     matched = fit.matched >= 0
     w = lengths(walls[shell])
     if not matched.any() or np.average(top[matched], weights=w[matched]) < cfg.furniture_top_share:
         return out
     out[shell[~matched & (top < cfg.furniture_top_share)]] = True
     return out
-
-
-def _share(wall: NDArray, grid, margin_m: float, step_m: float = 0.05) -> float:
-    """Share of a wall's length along which the grid (room frame) holds something within margin_m."""
-    a, b = wall[:2], wall[2:]
-    length = float(np.hypot(*(b - a)))
-    if length <= 0:
-        return 0.0
-    u = (b - a) / length
-    n = np.array([-u[1], u[0]])
-    pts = a + np.arange(step_m / 2, length, step_m)[:, None] * u
-    hit = np.zeros(len(pts), dtype=bool)
-    for o in np.arange(-margin_m, margin_m + 1e-9, 0.025):
-        hit |= grid.at(pts + o * n)
-    return float(hit.mean()) if len(hit) else 0.0
 
 
 def _filled_inward(walls: Segments, polygon: Polygon | None) -> NDArray:
