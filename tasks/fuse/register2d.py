@@ -407,7 +407,9 @@ def optimal_fit(
         placement = placement.then(d_theta, c, np.zeros(2))
         # the walls that agree on one translation (a wall modelled on a wardrobe's front has no face
         # of its own and must not pull the ones that have)
-        matched = consensus(midpoints(placement.segments(shell)), w, faces, matched, cfg.consensus_tol_m)
+        moved = placement.segments(shell)
+        options = collinear_faces(moved, faces, matched, cfg.max_residual_m)
+        matched = consensus(midpoints(moved), w, faces, matched, cfg.consensus_tol_m, options)
         shift = np.zeros(2)
         for _ in range(5):  # Gauss-Newton (eq 7.9, 7.10); linear in t, so it settles at once
             moved = placement.segments(shell)
@@ -425,39 +427,97 @@ def optimal_fit(
     return _finish(shell, inward, centre, faces, placement, cfg, it, converged, used)
 
 
+def collinear_faces(
+    walls: Segments,
+    faces: Faces,
+    matched: NDArray[np.intp],
+    max_offset_m: float,
+    min_overlap_m: float = 0.25,
+    angle_tol_deg: float = 5.0,
+) -> list[NDArray[np.intp]]:
+    """(N,) for every (plan-frame) wall, the faces it may stand for: its matched face first, then every
+    other face of the same orientation (within angle_tol_deg) and inward normal whose line lies within
+    max_offset_m of the matched face's and which the wall runs beside over at least min_overlap_m. A
+    straight wall along a plan wall drawn in collinear pieces of different thickness (the vectorizer gave
+    one piece the thickness of the wall it runs into) has a face on each piece, a few centimetres apart;
+    which of them is right is for the room's other walls to say (`consensus`). Unmatched walls: empty."""
+    walls = as_segments(walls)
+    out: list[NDArray[np.intp]] = []
+    if len(faces) == 0:
+        return [np.zeros(0, dtype=np.intp) for _ in range(len(walls))]
+    fa = angles(faces.segments)
+    a, d = faces.segments[:, :2], faces.segments[:, 2:] - faces.segments[:, :2]
+    length = np.maximum(lengths(faces.segments), 1e-12)
+    u = d / length[:, None]
+    for i, k in enumerate(matched):
+        if k < 0:
+            out.append(np.zeros(0, dtype=np.intp))
+            continue
+        par = np.abs(angle_difference(fa, fa[k])) <= math.radians(angle_tol_deg)
+        par &= (faces.inward @ faces.inward[k]) > 0.0
+        offset = np.abs(((a - a[k]) * faces.inward[k]).sum(1))
+        s0 = ((walls[i, :2] - a) * u).sum(1)
+        s1 = ((walls[i, 2:] - a) * u).sum(1)
+        overlap = np.minimum(np.maximum(s0, s1), length) - np.maximum(np.minimum(s0, s1), 0.0)
+        ok = par & (offset <= max_offset_m) & (overlap >= min_overlap_m)
+        ok[k] = False
+        out.append(np.concatenate([[k], np.flatnonzero(ok)]).astype(np.intp))
+    return out
+
+
 def consensus(
-    mid: NDArray, w: NDArray, faces: Faces, matched: NDArray[np.intp], tol_m: float
+    mid: NDArray,
+    w: NDArray,
+    faces: Faces,
+    matched: NDArray[np.intp],
+    tol_m: float,
+    options: list[NDArray[np.intp]] | None = None,
 ) -> NDArray[np.intp]:
     """The correspondences that agree on one translation (the others set to -1): every translation that
     puts two non-parallel walls (or one wall, along its normal) on their faces is tried, and the one that
     brings the most wall length within tol_m of its face wins (ties: the smaller sum of squared
     residuals, then the smaller shift). A least-squares translation over every wall is pulled by a
     minority of walls without a plan counterpart (furniture modelled as a wall, a changed wall) until
-    the walls that do match drift out of the residual gate; the largest consistent set is not."""
+    the walls that do match drift out of the residual gate; the largest consistent set is not. With
+    `options` (collinear_faces) a wall may stand for any of its faces: at every translation tried it
+    counts with the one nearest to it, and the winner's choice is returned (a plan face drawn a few
+    centimetres off its collinear neighbour is not followed when the room's other walls disagree)."""
     m = np.flatnonzero(matched >= 0)
     if len(m) < 2 or not math.isfinite(tol_m):
         return matched
-    seg = faces.segments[matched[m]]
-    n = faces.inward[matched[m]]
-    f = ((mid[m] - seg[:, :2]) * n).sum(1)  # residual after a shift s: f + n . s
-    ww = w[m]
-    cands = [np.zeros(2)] + [-f[i] * n[i] for i in range(len(m))]
-    i, j = np.triu_indices(len(m), 1)
+    if options is None:
+        options = [np.array([k]) for k in matched]
+    wall = np.concatenate([np.full(len(options[i]), i) for i in m])  # the wall of every observation
+    face = np.concatenate([options[i] for i in m])
+    seg = faces.segments[face]
+    n = faces.inward[face]
+    f = ((mid[wall] - seg[:, :2]) * n).sum(1)  # residual after a shift s: f + n . s
+    cands = [np.zeros(2)] + [-f[i] * n[i] for i in range(len(face))]
+    i, j = np.triu_indices(len(face), 1)
     det = n[i, 0] * n[j, 1] - n[i, 1] * n[j, 0]
-    ok = np.abs(det) > math.sin(math.radians(30))
+    ok = (np.abs(det) > math.sin(math.radians(30))) & (wall[i] != wall[j])
     i, j, det = i[ok], j[ok], det[ok]
     # solve [n_i; n_j] s = [-f_i; -f_j]
     sx = (-f[i] * n[j, 1] + f[j] * n[i, 1]) / det
     sy = (-n[i, 0] * f[j] + n[j, 0] * f[i]) / det
     s = np.concatenate([np.array(cands), np.column_stack([sx, sy])])
-    r = f[None, :] + s @ n.T  # (C, M)
-    inl = np.abs(r) <= tol_m
+    r_obs = np.abs(f[None, :] + s @ n.T)  # (C, O)
+    # per wall, its nearest face (the first on ties: the matched one)
+    starts = np.concatenate([[0], np.cumsum([len(options[k]) for k in m])[:-1]])
+    r = np.minimum.reduceat(r_obs, starts, axis=1)  # (C, M)
+    ww = w[m]
+    inl = r <= tol_m
     weight = (inl * ww[None]).sum(1)
     ssr = (np.where(inl, r, 0.0) ** 2 * ww[None]).sum(1)
     order = np.lexsort((np.hypot(s[:, 0], s[:, 1]), ssr, -np.round(weight, 9)))
-    best = inl[order[0]]
+    win = order[0]
     out = matched.copy()
-    out[m[~best]] = -1
+    for q, k in enumerate(m):
+        if not inl[win, q]:
+            out[k] = -1
+            continue
+        own = r_obs[win, starts[q] : starts[q] + len(options[k])]
+        out[k] = options[k][int(np.argmin(own))]
     return out
 
 
@@ -522,6 +582,12 @@ def _finish(
     nin = inward @ placement.rotation.T
     matched = correspond(moved, nin, placement.points(centre)[0], faces, math.radians(cfg.angle_tol_deg))
     matched = _gate(moved, faces, matched, cfg.max_residual_m)
+    # a wall along collinear faces a few centimetres apart reports the one it stands on (as fitted)
+    mid = midpoints(moved)
+    for i, opts in enumerate(collinear_faces(moved, faces, matched, cfg.max_residual_m)):
+        if len(opts) > 1:
+            r = np.abs(((mid[i] - faces.segments[opts, :2]) * faces.inward[opts]).sum(1))
+            matched[i] = opts[int(np.argmin(r))]
     res = np.full(len(shell), np.nan)
     ang = np.full(len(shell), np.nan)
     m = matched >= 0
