@@ -21,6 +21,7 @@ from tasks.fuse.register2d import (
     Placement,
     best_fit,
     centroid_start,
+    collinear_faces,
     correspond,
     fine_register,
     inward_normals,
@@ -121,6 +122,31 @@ def test_a_plan_face_drawn_a_degree_off_does_not_turn_the_room() -> None:
     assert rot < 0.01 and shift < 0.01, (rot, shift)
     plain = fine_register(model, inward, centre, drawn, start, replace(CFG, rotation_outlier_deg=180.0))
     assert errors(plain.placement, TRUTH, centre)[0] > 0.15  # eq 7.4 over every wall
+
+
+def test_a_wall_along_collinear_faces_a_plan_drew_apart_follows_the_one_the_others_agree_with() -> None:
+    """814's r2: the plan vectorized the room's south wall in two collinear pieces of different thickness
+    (0.14 m beside the west corner, 0.30 m over the rest), so the plan room's south face jogs 8 cm at the
+    door between them while the room's south wall runs straight. The north, west and east faces put the
+    room where it is; the south wall stands for the short piece's face, not the long one's, and the room
+    is not pulled 4 cm north (as it is when the wall may only follow the face its midpoint is nearest to)."""
+    room = box(0.0, 0.0, 6.0, 5.0)
+    # the plan room's outline: the south face at y=0 over x<1 (true), at y=0.08 beyond the door (x>1.9)
+    drawn = Polygon([(0, 0), (1.0, 0), (1.0, 0.04), (1.9, 0.04), (1.9, 0.08), (6, 0.08), (6, 5), (0, 5)])
+    doors = np.array([[1.0, 0.04, 1.9, 0.04]])
+    faces = polygon_faces(drawn, doors=doors, simplify_m=0.0)
+    model = to_room_frame(ring_segments(room), TRUTH)
+    centre = np.array(Polygon(model[:, :2]).centroid.coords[0])
+    inward = inward_normals(model, Polygon(model[:, :2]), centre)
+    start = Placement(TRUTH.theta + math.radians(2.0), (TRUTH.t[0] + 0.3, TRUTH.t[1] - 0.2))
+    fit = fine_register(model, inward, centre, faces, start, CFG)
+    assert errors(fit.placement, TRUTH, centre) == pytest.approx((0.0, 0.0), abs=1e-6)
+    assert np.nanmax(np.abs(fit.residual_m)) < 1e-6  # the south wall reports the face it stands on
+    # the pieces' faces are 8 cm apart: one wall, two options; pixel jitter (under 4 cm) is one face
+    moved = fit.placement.segments(model)
+    options = collinear_faces(moved, faces, fit.matched, CFG.max_residual_m, 2 * CFG.plan_simplify_m)
+    assert sorted(len(o) for o in options) == [1, 1, 1, 2]
+    assert collinear_faces(moved, faces, fit.matched, CFG.max_residual_m, 0.09) == [o[:1] for o in options]
 
 
 CORRIDOR = box(0.0, 0.0, 15.0, 2.0)

@@ -408,7 +408,7 @@ def optimal_fit(
         # the walls that agree on one translation (a wall modelled on a wardrobe's front has no face
         # of its own and must not pull the ones that have)
         moved = placement.segments(shell)
-        options = collinear_faces(moved, faces, matched, cfg.max_residual_m)
+        options = collinear_faces(moved, faces, matched, cfg.max_residual_m, 2 * cfg.plan_simplify_m)
         matched = consensus(midpoints(moved), w, faces, matched, cfg.consensus_tol_m, options)
         shift = np.zeros(2)
         for _ in range(5):  # Gauss-Newton (eq 7.9, 7.10); linear in t, so it settles at once
@@ -432,12 +432,14 @@ def collinear_faces(
     faces: Faces,
     matched: NDArray[np.intp],
     max_offset_m: float,
+    min_offset_m: float = 0.04,
     min_overlap_m: float = 0.25,
     angle_tol_deg: float = 5.0,
 ) -> list[NDArray[np.intp]]:
     """(N,) for every (plan-frame) wall, the faces it may stand for: its matched face first, then every
-    other face of the same orientation (within angle_tol_deg) and inward normal whose line lies within
-    max_offset_m of the matched face's and which the wall runs beside over at least min_overlap_m. A
+    other face of the same orientation (within angle_tol_deg) and inward normal whose line lies between
+    min_offset_m (the plan raster's jitter: faces closer than that are the same face) and max_offset_m
+    of the matched face's, and which the wall runs beside over at least min_overlap_m. A
     straight wall along a plan wall drawn in collinear pieces of different thickness (the vectorizer gave
     one piece the thickness of the wall it runs into) has a face on each piece, a few centimetres apart;
     which of them is right is for the room's other walls to say (`consensus`). Unmatched walls: empty."""
@@ -459,7 +461,7 @@ def collinear_faces(
         s0 = ((walls[i, :2] - a) * u).sum(1)
         s1 = ((walls[i, 2:] - a) * u).sum(1)
         overlap = np.minimum(np.maximum(s0, s1), length) - np.maximum(np.minimum(s0, s1), 0.0)
-        ok = par & (offset <= max_offset_m) & (overlap >= min_overlap_m)
+        ok = par & (offset > min_offset_m) & (offset <= max_offset_m) & (overlap >= min_overlap_m)
         ok[k] = False
         out.append(np.concatenate([[k], np.flatnonzero(ok)]).astype(np.intp))
     return out
@@ -584,7 +586,9 @@ def _finish(
     matched = _gate(moved, faces, matched, cfg.max_residual_m)
     # a wall along collinear faces a few centimetres apart reports the one it stands on (as fitted)
     mid = midpoints(moved)
-    for i, opts in enumerate(collinear_faces(moved, faces, matched, cfg.max_residual_m)):
+    for i, opts in enumerate(
+        collinear_faces(moved, faces, matched, cfg.max_residual_m, 2 * cfg.plan_simplify_m)
+    ):
         if len(opts) > 1:
             r = np.abs(((mid[i] - faces.segments[opts, :2]) * faces.inward[opts]).sum(1))
             matched[i] = opts[int(np.argmin(r))]
