@@ -523,6 +523,25 @@ def test_wall_evidence_a_missed_wall_stands_a_removed_one_is_seen_through_an_uns
     assert covers(ev.standing, 2, *north) == 0.0 and covers(ev.seen_through, 2, *north) == 0.0
 
 
+def test_a_door_seen_through_only_at_its_jambs_is_open_across_its_width() -> None:
+    """815's new door in the corridor wall: its face empty over 0.8 m, points beyond it only in the
+    columns by its jambs (7 of 16; the corridor's far wall lies out of reach). The whole run is open, as
+    the door finder reads a door; so is nothing where too few columns were seen through (a stretch
+    never looked at), nor a run wider than a door (there only the columns seen through are open)."""
+    from tasks.fuse.floor import door_runs
+
+    empty = np.zeros(40, dtype=bool)
+    empty[10:26] = True  # 0.80 m
+    beyond = np.zeros(40, dtype=bool)
+    beyond[[10, 11, 12, 13, 22, 23, 24]] = True
+    assert np.array_equal(door_runs(empty, beyond, CFG), empty)
+    beyond[[11, 12, 13, 22, 23]] = False  # 2 of 16 columns: under door_through_share
+    assert not door_runs(empty, beyond, CFG).any()
+    wide = np.zeros(60, dtype=bool)
+    wide[5:45] = True  # 2.0 m: a removed wall, not a door
+    assert not door_runs(wide, wide, CFG).any()
+
+
 def test_a_gap_ending_at_a_junction_is_closed_along_the_shell() -> None:
     """The west wall stops where a partition meets it (a junction, no free end); the north wall's end
     is the gap's only free end: the gap is filled from it along the shell to where the west wall

@@ -129,7 +129,8 @@ def wall_evidence(
     along the plan wall's face on each placed room's side (its points' face found within 15 cm,
     tasks.fuse.openings.wall_columns), in 5 cm columns counted over each column and its neighbours as
     the door finder counts them. A column is open where its face is empty (at most empty_share of the
-    face's typical column; all of it when no face shows at all) and two points or more lie beyond it: a
+    face's typical column; all of it when no face shows at all) and two points or more lie beyond it, or
+    it lies in a door-wide empty run seen through as the door finder reads a door (`door_runs`): a
     removed wall, a door. It stands where its face shows, neither it nor a neighbour was seen through,
     and the capture is crisp (crisp_face_m: a smeared capture fills openings with the wall beside them):
     a wall the model missed still stands. A stretch never looked at is neither, and a room testifies only
@@ -174,6 +175,7 @@ def wall_evidence(
                 # nothing of the face (a stretch of the next room's wall), only the floor beyond it
                 # through a door, which is no opening there
                 mine = _beside(f.gaps.polygon, a, u, side * n, t, len(stands))
+                opened |= door_runs(empty & mine, beyond, cfg)
                 opened &= mine
                 stands &= mine
                 k = min(nbins, len(stands))
@@ -191,6 +193,20 @@ def wall_evidence(
             if runs:
                 out[i] = runs
     return WallEvidence(standing, through)
+
+
+def door_runs(empty: NDArray[np.bool_], beyond: NDArray[np.bool_], cfg: FuseConfig) -> NDArray[np.bool_]:
+    """(B,) the 5 cm columns of every door-wide run of empty face (door_min_m to door_max_m) seen through
+    in at least door_through_share of its columns, as the door finder reads a door
+    (tasks.fuse.openings.find_doors): all of it is open. Past a door in a corridor wall the capture often
+    sees only the jambs and the floor beside them (the far wall lies beyond reach), and the middle of the
+    door, empty but with nothing counted beyond it, is as open as its edges."""
+    out = np.zeros(len(empty), dtype=bool)
+    for i0, i1 in _bool_runs(empty):
+        width = (i1 - i0) * 0.05
+        if cfg.door_min_m <= width <= cfg.door_max_m and beyond[i0:i1].mean() >= cfg.door_through_share:
+            out[i0:i1] = True
+    return out
 
 
 def _beside(
