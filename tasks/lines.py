@@ -390,7 +390,13 @@ def _main_axis(scatter: NDArray) -> NDArray:
 
 
 def _step_cut(
-    segments: Segments, w: NDArray, t0: NDArray, t1: NDArray, quantum: float, sin_tol: float
+    segments: Segments,
+    w: NDArray,
+    t0: NDArray,
+    t1: NDArray,
+    quantum: float,
+    sin_tol: float,
+    window: float | None = None,
 ) -> int | None:
     """Where a chain of parallel pieces is two walls with a step between them: the cut (members sorted by
     start `t0` along the line, the first `cut` on one side) such that the two sides do not overlap along
@@ -399,10 +405,19 @@ def _step_cut(
     SPLIT_SEPARATION standard deviations of the data about them, each side's own direction within the
     parallel tolerance (sine `sin_tol`) of the common one; the deviation is at least the rounding
     noise of a position on a grid of `quantum`, quantum / sqrt(12). Returns the cut with the least
-    scatter about the two lines, or None. The data's noise decides, not a threshold on the step."""
+    scatter about the two lines, or None. The data's noise decides, not a threshold on the step.
+
+    With `window`, a cut the whole sides do not show is also looked for on the stretch of `window` either
+    side of it (`_local_step`): a long wall whose far part holds a second, doubled face (a drifting
+    registration) or a slow bend has a large spread about one line, which hides a jog of a few cm that
+    the data beside it show plainly."""
     n = len(segments)
     floor = quantum / math.sqrt(12.0)
     reach = np.maximum.accumulate(t1)
+    # the direction in which t grows (for cutting pieces at a position along the line)
+    u = _main_axis(_scatter(segments, np.ones(n))[2])
+    if float((midpoints(segments) @ u) @ (0.5 * (t0 + t1) - (t0 + t1).mean() / 2)) < 0:
+        u = -u
     best, best_ssw = None, np.inf
     for k in range(1, n):
         wa, ca, sa = _scatter(segments[:k], w[:k])
@@ -417,23 +432,99 @@ def _step_cut(
         if max(abs(float(_main_axis(sa) @ nrm)), abs(float(_main_axis(sb) @ nrm))) > sin_tol:
             continue  # a side is not parallel to the other (clutter of the cluster): no step to speak of
         sd = max(math.sqrt(max(ssw, 0.0) / (wa + wb)), floor)
-        if step > SPLIT_SEPARATION * sd and ssw < best_ssw:
+        if ssw >= best_ssw:
+            continue
+        if step <= STEP_MIN_CELLS * quantum:
+            continue  # a cell or two: the skeleton's rounding, not a step
+        if step > SPLIT_SEPARATION * sd or (
+            window is not None
+            and _local_step(segments, w, t0, t1, u, k, 0.5 * (reach[k - 1] + t0[k]), window, quantum, sin_tol)
+        ):
             best, best_ssw = k, ssw
     return best
 
 
+STEP_MIN_CELLS = 2.5
+"""A step must exceed this many grid cells (more than two): a skeleton's line lies on whole cells, so two pieces of one wall
+may sit a cell or two apart with almost no spread each (a side of one or two long pieces, or the few
+pieces beside a cut, hold too little to average that rounding out)."""
+
+
+def _clip_along(
+    segments: Segments, w: NDArray, t0: NDArray, t1: NDArray, u: NDArray, lo: float, hi: float
+) -> tuple[Segments, NDArray, float]:
+    """The parts of `segments` whose position along the line (`t0` to `t1`, growing along `u`) lies within
+    [lo, hi], their weights (`w` in proportion to the part kept) and their summed length along the line."""
+    span = np.maximum(t1 - t0, 1e-300)
+    a, b = np.clip((lo - t0) / span, 0.0, 1.0), np.clip((hi - t0) / span, 0.0, 1.0)
+    keep = b - a > 0
+    if not keep.any():
+        return np.zeros((0, 4)), np.zeros(0), 0.0
+    s, a, b = segments[keep], a[keep], b[keep]
+    # the end of each segment at t0: the one whose position along the line is the smaller
+    flip = ((s[:, 2:] - s[:, :2]) @ u) < 0
+    p0 = np.where(flip[:, None], s[:, 2:], s[:, :2])
+    p1 = np.where(flip[:, None], s[:, :2], s[:, 2:])
+    q = p1 - p0
+    parts = np.concatenate([p0 + a[:, None] * q, p0 + b[:, None] * q], axis=1)
+    frac = b - a
+    return parts, w[keep] * frac, float(((t1 - t0)[keep] * frac).sum())
+
+
+def _local_step(
+    segments: Segments,
+    w: NDArray,
+    t0: NDArray,
+    t1: NDArray,
+    u: NDArray,
+    k: int,
+    at: float,
+    window: float,
+    quantum: float,
+    sin_tol: float,
+) -> bool:
+    """Whether the pieces within `window` before the cut at `at` (the first `k` members) and within
+    `window` after it (the others) are two parallel lines further apart than SPLIT_SEPARATION standard
+    deviations of those pieces about them, each side backed over at least half the window (a jog between
+    two walls, each seen over a stretch beside it, not a short piece of clutter against a wall), and more
+    than STEP_MIN_CELLS cells of the grid `quantum` apart."""
+    floor = quantum / math.sqrt(12.0)
+    sa_seg, wa, la = _clip_along(segments[:k], w[:k], t0[:k], t1[:k], u, at - window, at)
+    sb_seg, wb, lb = _clip_along(segments[k:], w[k:], t0[k:], t1[k:], u, at, at + window)
+    if min(la, lb) < 0.5 * window or wa.sum() <= 0 or wb.sum() <= 0:
+        return False
+    wa_, ca, sa = _scatter(sa_seg, wa)
+    wb_, cb, sb = _scatter(sb_seg, wb)
+    evals, evecs = np.linalg.eigh(sa + sb)
+    ssw, nrm = float(evals[0]), evecs[:, 0]
+    if max(abs(float(_main_axis(sa) @ nrm)), abs(float(_main_axis(sb) @ nrm))) > sin_tol:
+        return False
+    sd = max(math.sqrt(max(ssw, 0.0) / (wa_ + wb_)), floor)
+    step = abs(float((cb - ca) @ nrm))
+    return step > SPLIT_SEPARATION * sd and step > STEP_MIN_CELLS * quantum
+
+
 def _split_steps(
-    segments: Segments, w: NDArray, t0: NDArray, t1: NDArray, quantum: float, sin_tol: float
+    segments: Segments,
+    w: NDArray,
+    t0: NDArray,
+    t1: NDArray,
+    quantum: float,
+    sin_tol: float,
+    window: float | None = None,
 ) -> list[NDArray]:
     """Positions into `segments` of each wall of a chain of parallel pieces split, recursively, at every
     step (`_step_cut`)."""
     order = np.argsort(t0, kind="stable")
-    cut = _step_cut(segments[order], w[order], t0[order], t1[order], quantum, sin_tol)
+    cut = _step_cut(segments[order], w[order], t0[order], t1[order], quantum, sin_tol, window)
     if cut is None:
         return [np.arange(len(segments))]
     out = []
     for side in (order[:cut], order[cut:]):
-        out += [side[p] for p in _split_steps(segments[side], w[side], t0[side], t1[side], quantum, sin_tol)]
+        out += [
+            side[p]
+            for p in _split_steps(segments[side], w[side], t0[side], t1[side], quantum, sin_tol, window)
+        ]
     return out
 
 
@@ -484,7 +575,10 @@ def merge_segments(
                 walls = [p]
                 if quantum is not None:
                     walls = [
-                        p[q] for q in _split_steps(seg[om[p]], wk[om[p]], t0[p], t1[p], quantum, sin_tol)
+                        p[q]
+                        for q in _split_steps(
+                            seg[om[p]], wk[om[p]], t0[p], t1[p], quantum, sin_tol, cfg.step_window_m
+                        )
                     ]
                 for cm in (om[q] for q in walls):
                     line = fit_line(seg[cm], wk[cm] / np.maximum(lengths(seg[cm]), 1e-300))

@@ -34,6 +34,11 @@ class LinesConfig:
     """Trimming threshold: an end is cut back to an intersection at most this far (None: `extend_m`, as in
     the thesis). Observed data past a partition's face is wall, not overshoot: a T-junction must not cut
     the wall it stands on back to it."""
+    step_window_m: float | None = 2.0
+    """A step between two parallel walls of one chain (a jog) is also judged on the pieces this far either
+    side of it, not only on the whole sides (`merge_segments`): a long wall's far stretch may hold a
+    doubled face or a slow bend (a drifting registration) whose spread hides a jog that the data beside
+    it show. None: the whole sides only."""
     min_length_m: float = 0.0
     """Merged lines shorter than this are dropped."""
     min_overlap: float = 0.5
@@ -47,4 +52,4 @@ class LinesConfig:
         return replace(self, **scaled)
 
 
-_LENGTH_FIELDS = ("offset_tol_m", "max_gap_m", "extend_m", "trim_m", "min_length_m")
+_LENGTH_FIELDS = ("offset_tol_m", "max_gap_m", "extend_m", "trim_m", "step_window_m", "min_length_m")

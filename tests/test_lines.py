@@ -101,6 +101,35 @@ def test_a_jog_of_a_few_cm_between_pieces_that_do_not_overlap_is_two_walls_and_a
     assert len(walls) == 3 and is_closed(wall_graph(walls)) is False  # a chain: two walls and the step
 
 
+def test_a_jog_beside_a_doubled_face_far_off_is_still_two_walls_and_a_step(rng):
+    # a 4 cm jog at x = 5; the first wall's far half (x < 2.5) holds its face twice, 4.5 cm apart (a drifting
+    # registration): its spread about one line hides the jog from the whole sides, not from the 2 m beside it
+    near = pieces_along((2.5, 0.0), (4.75, 0.0), 3, rng, 0.002)
+    far = pieces_along((0.0, 0.0), (2.5, 0.0), 3, rng, 0.002) + pieces_along(
+        (0.1, -0.045), (2.4, -0.045), 3, rng, 0.002
+    )
+    right = pieces_along((5.25, 0.04), (10.0, 0.04), 5, rng, 0.002)
+    hough = np.round(np.array(far + near + right), 2)
+    assert len(merge_segments(hough, replace(CFG, step_window_m=None), quantum=0.01).segments) == 1
+    merged = merge_segments(hough, CFG, quantum=0.01)
+    assert len(merged.segments) == 2 and merged.chain[0] == merged.chain[1], merged.segments
+    second = merged.segments[np.argmax(merged.segments[:, [0, 2]].max(axis=1))]
+    assert 0.5 * (second[1] + second[3]) == pytest.approx(0.04, abs=0.004)
+    assert min(second[0], second[2]) == pytest.approx(5.25 + 0.02 * 4.75, abs=0.03)
+
+
+def test_a_wall_whose_pieces_drift_a_cell_at_a_time_gets_no_step(rng):
+    # a wall seen in pieces that creep outward a cell (1 cm) every 0.6 m (a slow registration drift) and
+    # one long piece two cells off at the end: no step of a few cells stands out of that, whatever window
+    ramp = [[0.6 * k + 0.01, 0.01 * k, 0.6 * (k + 1) - 0.01, 0.01 * k] for k in range(6)]
+    hough = np.array([*ramp, [3.62, 0.07, 8.0, 0.07]])
+    merged = merge_segments(hough, CFG, quantum=0.01)
+    assert len(merged.segments) <= 2, merged.segments
+    # two pieces of one wall two cells apart with no spread each: the skeleton's rounding, not a step
+    two = np.array([[0.0, 0.0, 4.0, 0.0], [4.1, 0.02, 9.0, 0.02]])
+    assert len(merge_segments(two, CFG, quantum=0.01).segments) == 1
+
+
 def test_parallel_walls_overlapping_past_their_step_get_one_step():
     # two walls 3.5 cm apart whose data each ran 7.5 cm on into the step's corner (15 cm overlap)
     walls = np.array([[0.0, 0.0, 5.075, 0.0], [4.925, 0.035, 10.0, 0.035]])

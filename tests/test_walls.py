@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -690,6 +691,30 @@ def test_a_corridor_wall_with_a_4_cm_jog_is_two_walls_and_a_step(rng):
     step = model.walls[np.hypot(*(model.walls[:, 2:] - model.walls[:, :2]).T) < 0.5]
     assert len(step) == 1 and abs(step[0, 3] - step[0, 1]) == pytest.approx(0.04, abs=0.005)
     assert abs(step[0, 0] - 4.0) < 0.05 and ev["accuracy_mean_m"] < 0.003
+
+
+def test_a_corridor_jog_is_modelled_when_the_wall_s_far_end_holds_a_doubled_face(rng):
+    # the survey hallway's case: a 5 cm jog at x = 6 in a 12 m corridor, and the jogged wall's far end
+    # (x < 4) seen twice, 5 cm apart (the track-placed frames drifted): the spread of that far face about
+    # one line hid the jog, which the 2 m of wall either side of it show plainly
+    c = [(0, 0), (12, 0), (12, 2.05), (6, 2.05), (6, 2.0), (0, 2.0)]
+    truth = np.array([[*c[i], *c[(i + 1) % 6]] for i in range(6)], float)
+    faces = [wall_points(t[:2], t[2:], 1.5, 2.5, rng, noise=0.003) for t in truth]
+    doubled = wall_points((4.0, 2.05), (0.2, 2.05), 1.5, 2.5, rng, noise=0.003)
+    model = model_walls(np.concatenate([*faces, doubled]), 0.0, 2.7, CFG)
+    ev = evaluate_walls(model.walls, truth)
+    step = model.walls[np.hypot(*(model.walls[:, 2:] - model.walls[:, :2]).T) < 0.5]
+    assert model.closed and len(model.walls) == 6, model.walls
+    assert len(step) == 1 and abs(step[0, 0] - 6.0) < 0.05, step
+    # the doubled stretch pulls its wall off by a share of the 5 cm; the rest lies on its faces
+    assert ev["accuracy_mean_m"] < 0.010 and ev["corner_f1"] == 1.0, ev
+    old = model_walls(
+        np.concatenate([*faces, doubled]),
+        0.0,
+        2.7,
+        replace(CFG, lines=replace(CFG.lines, step_window_m=None)),
+    )
+    assert len(old.walls) == 4  # judged on the whole sides only, the jog is lost
 
 
 def test_a_step_goes_where_the_data_changes_wall_not_where_a_sparse_wall_is_first_found(rng):
