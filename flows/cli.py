@@ -398,6 +398,7 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     writable_folder(work, "--work")  # the last check: from here on the run writes
     _lock(args, work)
     planning.store_for(work).sweep_temporaries()  # what a killed run left half-written
+    planning.load_code_memo(work)
     started = time.perf_counter()
     # A rerun always has work (its forced stages); a run may be answered from the store alone
     rows = None if req.force else planning.all_current(req)
@@ -411,6 +412,7 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
             from flows import pipeline  # noqa: F401  (Prefect's import)
 
             planning.read_code_versions()
+            planning.save_code_memo(work)
 
         # Prefect's server lives and dies with this run
         with prefect_env.embedded_server(work, meanwhile=import_flows) as embedded:
@@ -418,6 +420,7 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
 
             rows = pipeline.run_survey(req, runner, address, heartbeats=embedded is None)
     else:
+        planning.save_code_memo(work)
         print("every stage is current: nothing to compute (Prefect not started)", file=sys.stderr)
     elapsed = time.perf_counter() - started
     print(f"{'room':<12} {'stage':<12} {'state':<9} {'seconds':>8}")

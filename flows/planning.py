@@ -21,6 +21,7 @@ from typing import Any
 
 from flows import memory
 from tasks import config as cfgmod
+from tasks import stages as stagesmod
 from tasks.artefacts import (
     BUILDING,
     ArtefactError,
@@ -429,6 +430,22 @@ def read_code_versions() -> None:
         stage.code_version()
 
 
+CODE_IMPORTS_MEMO = "_code_imports.json"
+"""In WORK/cache: which project modules each source imports (tasks.stages.IMPORTS_MEMO), so a run reads
+its stages' code versions without parsing every module again."""
+
+
+def load_code_memo(work: str | Path) -> None:
+    """Read the work dir's code-imports memo (before any code version is read)."""
+    stagesmod.load_imports_memo(store_for(work).cache / CODE_IMPORTS_MEMO)
+
+
+def save_code_memo(work: str | Path) -> None:
+    """Keep what this run found for the next (a memo that cannot be written is only a slower next run)."""
+    with contextlib.suppress(OSError):
+        stagesmod.save_imports_memo(store_for(work).cache / CODE_IMPORTS_MEMO)
+
+
 def fan_in_for(
     item: PlannedStage,
     results: dict[tuple[str, str], StageResult],
@@ -793,11 +810,11 @@ def all_current(req: RunRequest) -> list[StageOutcome] | None:
 
 def write_truth_metrics(req: RunRequest, rows: list[StageOutcome]) -> Path | None:
     """outputs/metrics.json: each room model against the survey's truth/, when it has one."""
-    from tasks.benchmark import RoomRun, evaluate_runs
-
     survey = cfgmod.load_survey(Path(req.survey))
     if survey.truth is None or not (survey.truth / "walls.parquet").is_file():
         return None
+    from tasks.benchmark import RoomRun, evaluate_runs  # only for a survey with truth/: 0.4 CPU s of imports
+
     results = {(r.room, r.stage): r.result for r in rows if r.result is not None}
     if any((room, "walls") not in results for room in survey.room_ids):  # rooms outside this run
         for state in survey_state(replace(req, rooms=(), force=())):

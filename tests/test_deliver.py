@@ -267,6 +267,19 @@ def test_voxel_reduce_keeps_one_mean_point_per_voxel():
     assert c.tolist() == [[50, 50, 50], [20, 30, 40]]
 
 
+def test_voxel_index_is_uniques_row_order_also_with_negative_and_huge_coordinates():
+    rng = np.random.default_rng(5)
+    keys = rng.integers(-40, 40, size=(5000, 3))
+    keys[:7] = [[-40, 39, -40], [39, -40, 39], [0, 0, 0], [0, 0, 0], [-1, 0, 0], [0, -1, 0], [0, 0, -1]]
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    got_inverse, got_counts = clouds.voxel_index(keys)
+    assert np.array_equal(got_inverse, inverse.reshape(-1)) and np.array_equal(got_counts, counts)
+    huge = np.array([[2**40, 0, 0], [-(2**40), 5, 0], [0, 2**40, -(2**40)], [2**40, 0, 0]])  # cannot pack
+    _, inverse, counts = np.unique(huge, axis=0, return_inverse=True, return_counts=True)
+    got_inverse, got_counts = clouds.voxel_index(huge)
+    assert np.array_equal(got_inverse, inverse.reshape(-1)) and list(got_counts) == [1, 1, 2]
+
+
 @pytest.mark.parametrize("source", ["register", "cloud"])
 def test_room_cloud_goes_into_the_plan_frame_with_the_floor_at_zero(tmp_path, source):
     levelled = np.array([[1.0, 0.0, -1.2], [0.0, 2.0, 1.3]])

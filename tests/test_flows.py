@@ -34,7 +34,7 @@ def run(capsys, *argv):
     return code, states, out
 
 
-def test_cache_rerun_and_targeted_recompute(tmp_path, capsys, prefect_home):
+def test_cache_rerun_and_targeted_recompute(tmp_path, capsys, prefect_home, monkeypatch):
     survey = tiny_survey(tmp_path / "s", np.random.default_rng(1))
     work = str(tmp_path / "w")
     code, states, _ = run(capsys, "run", str(survey), "--work", work)
@@ -57,10 +57,17 @@ def test_cache_rerun_and_targeted_recompute(tmp_path, capsys, prefect_home):
         ("b", "walls"): "computed",
     }
 
-    code, states, _ = run(
+    from flows import pipeline
+
+    submitted = []
+    submit = pipeline._submit
+    monkeypatch.setattr(pipeline, "_submit", lambda item, *a: submitted.append(item.ref) or submit(item, *a))
+    code, states, out = run(
         capsys, "rerun", str(survey), "--work", work, "--stage", "preprocess", "--room", "a"
     )
     assert code == 0
+    # nothing the building stages after the rooms read changed: they are read without a task run
+    assert submitted == [] and "_building    floor_index  cached" in out.out
     # preprocess writes the same bytes again, so walls (content-keyed) stays current
     assert states[("a", "ingest")] == "cached" and states[("a", "preprocess")] == "computed"
     assert states[("a", "walls")] in ("cached", "stored") and len(states) == 3

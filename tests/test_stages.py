@@ -58,6 +58,42 @@ def test_editing_a_helper_module_changes_the_versions_of_the_stages_that_use_it(
         cached.cache_clear()
 
 
+def test_the_imports_memo_gives_the_same_versions_and_never_a_stale_import_list(tmp_path, monkeypatch):
+    """A run keeps each source's import list in its work dir, keyed by the source's bytes: the next run
+    reads the same versions without parsing, and a source edited to import more is parsed again."""
+    _copy_project(tmp_path / "repo")
+    monkeypatch.setattr(stmod, "REPO_ROOT", tmp_path / "repo")
+    memo = tmp_path / "cache" / "_code_imports.json"
+
+    def fresh() -> None:
+        monkeypatch.setattr(stmod, "IMPORTS_MEMO", {})
+        monkeypatch.setattr(stmod, "_used", set())
+        for cached in (stmod.project_imports, stmod.code_version):
+            cached.cache_clear()
+
+    fresh()
+    parsed = {name: stage.code_version() for name, stage in STAGES.items()}
+    stmod.save_imports_memo(memo)
+    fresh()
+    stmod.load_imports_memo(memo)
+    monkeypatch.setattr(stmod, "_parse_imports", None)  # every list must come from the memo
+    assert {name: stage.code_version() for name, stage in STAGES.items()} == parsed
+    monkeypatch.undo()
+    monkeypatch.setattr(stmod, "REPO_ROOT", tmp_path / "repo")
+    fresh()
+    stmod.load_imports_memo(memo)
+    entry = tmp_path / "repo" / "tasks" / "ingest" / "stage.py"
+    entry.write_text(entry.read_text() + "\nfrom tasks import lines  # noqa\n")
+    assert "tasks.lines" in module_closure("tasks.ingest.stage")
+    assert STAGES["ingest"].code_version() != parsed["ingest"]
+    memo.write_text("not json")  # an unreadable memo is no memo
+    fresh()
+    stmod.load_imports_memo(memo)
+    assert STAGES["walls"].code_version() == parsed["walls"]
+    for cached in (stmod.project_imports, stmod.code_version):
+        cached.cache_clear()
+
+
 def test_a_changed_code_version_recomputes_that_stage_and_only_what_follows(tmp_path, monkeypatch):
     """Through the store: model-room's chain twice; the second time the walls stage's code 'changed'
     (its version patched), so walls recomputes while ingest and preprocess are served from the store."""

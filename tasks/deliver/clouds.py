@@ -46,6 +46,22 @@ def write_cloud(path: Path, points: NDArray[np.float64], colors: NDArray[np.uint
     return art.write_bytes(path, head.encode() + rec.tobytes())
 
 
+def voxel_index(keys: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Each row's index among the distinct rows of `keys` (n x 3 voxel coordinates) sorted in
+    lexicographic order, and each distinct row's count: `np.unique(keys, axis=0)`'s inverse and counts.
+    The rows are packed into one int64 each (offsets from the minimum, x most significant), whose order
+    is the rows' lexicographic order, so a 1-D sort does it: several times faster than sorting rows."""
+    low = keys.min(axis=0)
+    span = keys.max(axis=0) - low + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0**62:  # cannot pack: sort the rows
+        _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+        return inverse.reshape(-1), counts
+    shifted = keys - low
+    packed = (shifted[:, 0] * span[1] + shifted[:, 1]) * span[2] + shifted[:, 2]
+    _, inverse, counts = np.unique(packed, return_inverse=True, return_counts=True)
+    return inverse.reshape(-1), counts
+
+
 def voxel_reduce(
     points: NDArray[np.float64], colors: NDArray[np.uint8] | None, voxel_m: float
 ) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None]:
@@ -53,9 +69,7 @@ def voxel_reduce(
     integer coordinates (deterministic)."""
     if voxel_m <= 0 or len(points) == 0:
         return points, colors
-    keys = np.floor(points / voxel_m).astype(np.int64)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.reshape(-1)
+    inverse, counts = voxel_index(np.floor(points / voxel_m).astype(np.int64))
     out = np.zeros((len(counts), 3))
     for k in range(3):
         out[:, k] = np.bincount(inverse, weights=points[:, k], minlength=len(counts)) / counts
