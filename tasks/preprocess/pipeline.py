@@ -59,6 +59,12 @@ wall-clock seconds are indicative and CPU seconds are given too):
   matters: unweighted voxel centroids of a noisy tilted surface form terraces along the grid (a voxel with
   a few points of the noise's tail counts as much as a full one), which biased normals by 0.2° (1 M
   points) to 0.7° (5 M) towards the input's axes; with the counts the fits see the raw points' moments.
+- **One plane per support cell.** The plane is fitted once per support cell, centred on its centroid,
+  and every point of the cell is projected onto it (2.8 voxels share a cell on the bench room): MLS CPU
+  2.66 -> 1.12 s on 1 M points with the output as close to the true surfaces (median 0.241 -> 0.250 mm,
+  p99 7.45 -> 7.44 mm, tilt 0.003 -> 0.004°), and `bench.walls_survey`'s tuning buildings' walls the
+  same (completeness, correctness and corner F1 of all 30 rooms unchanged; Kinect v1 mean accuracy 2.01
+  -> 2.08 mm, rooms moving by up to 1.5 mm either way).
 - **Edges are not smoothed.** Near an edge the plane fit mixes both faces and MLS rounds the edge (99th
   percentile of distance to the true surfaces 18.8 mm, against 12.0 mm before MLS). Points whose surface
   variation λ0/Σλ exceeds `mls_edge_ratio` × its median (16 % of them) stay in place, and their normals
