@@ -82,6 +82,12 @@ wall-clock seconds are indicative and CPU seconds are given too):
   far outliers ~1 s. The MLS moments are sums along the contiguous axis of per-axis (M, K) arrays, the MLS
   chunks and the grid's per-cell sums are shared by two threads, levelling sums columns without BLAS: MLS
   4.2 -> 3.1 CPU s, levelling 0.53 -> 0.09 (load 9-17 on 2 cores, so wall seconds are 2-3x the CPU's).
+  Then one MLS plane per support cell (above) and the outlier test's KD-tree unbalanced and queried in its
+  leaf order (the same neighbours), measured back to back at load 11-12: 8.9 -> 6.5 CPU s in all (voxel
+  1.0 -> 1.3, outliers 4.4 -> 3.9, MLS 3.4 -> 1.2), 28.9 -> 20.9 s wall. What is left is the outlier
+  test's K-NN search (~3 CPU s; Open3D's search is no faster, a balanced tree or the voxels' own order
+  slower) and the voxel grid (~1 s, most of it hashing a grid that far outliers stretch past an
+  occupancy array: a dense box plus a sort of the points outside it was slower still).
   The output is the same bytes on one thread or two (`--threads-check`).
 - **Missing floor or ceiling.** A peak counts as the floor (ceiling) only within `surface_search_m` of
   where the walls end at the bottom (top): otherwise it is a table or a lamp and the surface was not
