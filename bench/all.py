@@ -154,7 +154,8 @@ def row_preprocess(size: dict[str, int], quick: bool, sets: list[str]) -> list[d
     why = _failed(run)
     if why:
         return [{"row": "preprocess", "error": why}]
-    total = _search(r"\ntotal\s+([\d,]+)\s+([\d.]+)\s+([\d,]+)", run["stdout"])
+    # the step table's total row: points in, seconds, CPU seconds, points/s, points per CPU second
+    total = _search(r"\ntotal\s+([\d,]+)\s+([\d.]+)\s+([\d.]+)\s+([\d,]+)", run["stdout"])
     cpu = re.search(r"CPU time ([\d.]+) s", run["stdout"])
     rss = re.search(r"peak RSS ([\d.]+) GiB", run["stdout"])
     tilt = re.search(r"residual tilt ([\d.]+)", run["stdout"])
@@ -162,7 +163,7 @@ def row_preprocess(size: dict[str, int], quick: bool, sets: list[str]) -> list[d
     return [
         {
             "row": "preprocess",
-            "figure": f"{int(total.group(3).replace(',', '')) / 1e3:.0f} k points/s ({float(total.group(2)):.1f} s"
+            "figure": f"{int(total.group(4).replace(',', '')) / 1e3:.0f} k points/s ({float(total.group(2)):.1f} s"
             + (f", {float(cpu.group(1)):.1f} s CPU" if cpu else "")
             + (f", peak {float(rss.group(1)):.2f} GiB)" if rss else ")"),
             "accuracy": (f"residual tilt {tilt.group(1)} deg" if tilt else "")
