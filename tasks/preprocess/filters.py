@@ -49,17 +49,6 @@ def _cell_centroids(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.uint8] | None]:
     """Weighted centroid (K, 3), total weight (K,) (the point count by default) and mean colour (K, 3) of
     every occupied cell of an origin-anchored grid of edge `cell_m`, cells in (x, y, z) index order."""
-    centroids, totals, mean_colors, _ = _cells(points, cell_m, colors, weights)
-    return centroids, totals, mean_colors
-
-
-def _cells(
-    points: NDArray[np.float64],
-    cell_m: float,
-    colors: NDArray[np.uint8] | None = None,
-    weights: NDArray[np.float64] | None = None,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.uint8] | None, NDArray[np.intp]]:
-    """`_cell_centroids` and each point's cell (N,), an index into them."""
     ijk = np.floor(points / cell_m).astype(np.int64)
     ijk -= ijk.min(axis=0)
     dims = ijk.max(axis=0) + 1
@@ -82,7 +71,7 @@ def _cells(
     mean_colors = (
         None if colors is None else np.rint(np.stack(sums[4:7], axis=1) / totals[:, None]).astype(np.uint8)
     )
-    return centroids, totals, mean_colors, inverse
+    return centroids, totals, mean_colors
 
 
 def _dense_ranks(key: NDArray[np.int64], extent: int) -> tuple[NDArray[np.intp], int]:
@@ -172,7 +161,8 @@ def statistical_outliers(
         )
     if reference not in ("global", "local"):
         raise ValueError(f"outlier reference must be 'global' or 'local', got {reference!r}")
-    tree = cKDTree(points)
+    # unbalanced (sliding-midpoint splits): the same neighbours from a cheaper build and query
+    tree = cKDTree(points, balanced_tree=False)
     n = len(points)
     mean_dist = np.empty(n)
     local = reference == "local"
@@ -265,55 +255,42 @@ def mls_smooth(
     weights: NDArray[np.float64] | None = None,
 ) -> LocalSurfaces:
     """Moving-least-squares projection (thesis 5.1.3, eq 5.2, as PCL's MLS with Gaussian weights
-    exp(-d²/r²) within r): a weighted plane (degree 1) or quadratic height field over that plane (degree
-    2) is fitted to the support points within `radius_m`, and the point is moved onto it. Support points
-    are the centroids of cells of r/3 weighted by their total `weights` (per point, default 1; pass the
-    voxel counts so the fits see the raw points' moments, see the module doc).
-
-    The plane (degree 1) is fitted once per support cell, centred on the cell's centroid, and each point of
-    the cell is projected onto its cell's plane and takes its normal and surface variation: a cell is at
-    most r/3 wide, so its points' Gaussian weights differ from its centroid's by little, and a room's 2 cm
-    voxels share ~2.8 fits per cell (5 M point bench room: 544 k points, ~200 k fits). The quadratic
-    (degree 2) is fitted per point, its height depending on where the point lies over the plane.
-
+    exp(-d²/r²) within r): for each point a weighted plane (degree 1) or quadratic height field over that
+    plane (degree 2) is fitted to the support points within `radius_m`, and the point is moved onto it.
+    Support points are the centroids of cells of r/3 weighted by their total `weights` (per point, default
+    1; pass the voxel counts so the fits see the raw points' moments, see the module doc).
     With `edge_ratio` > 0, points whose surface variation exceeds edge_ratio × the median stay in place:
     near an edge the plane fit mixes both faces and would round the edge. Vectorized over fixed chunks of
-    fits (bounded memory), the chunks shared among `_THREADS` threads: each chunk writes its own rows,
+    points (bounded memory), the chunks shared among `_THREADS` threads: each chunk writes its own rows,
     so the result is the same bytes whatever the number of threads."""
+    n = len(points)
     origin = points.mean(axis=0)  # local coordinates keep the moment sums well conditioned
     local = points - origin
-    support, counts, _, cell = _cells(local, radius_m / _MLS_CELLS_PER_RADIUS, weights=weights)
-    tree = cKDTree(support, balanced_tree=False)
+    support, counts, _ = _cell_centroids(local, radius_m / _MLS_CELLS_PER_RADIUS, weights=weights)
+    tree = cKDTree(support)
     k = min(_MLS_MAX_SUPPORT, len(support))
     # the support's coordinates as three contiguous columns: the fits gather and sum (M, K) arrays along
     # their contiguous last axis, three times faster than (M, K, 3) ones summed along the middle axis
     columns = [np.ascontiguousarray(support[:, i]) for i in range(3)]
-    centres = local if degree == 2 else support
-    fits = len(centres)
-    shifts = np.zeros((fits, 3))
-    normals = np.full((fits, 3), np.nan)
-    curvature = np.full(fits, np.nan)
+    shifts = np.zeros((n, 3))
+    normals = np.full((n, 3), np.nan)
+    curvature = np.full(n, np.nan)
     chunk = max(1, _CHUNK_ENTRIES // k)
 
-    def fit(lo: int) -> int:
-        hi = min(lo + chunk, fits)
-        capped, _, shift, normal, variation = _mls_chunk(
-            centres[lo:hi], tree, columns, support, counts, k, radius_m, degree
+    def fit(lo: int) -> tuple[int, int]:
+        hi = min(lo + chunk, n)
+        capped, unfit, shift, normal, variation = _mls_chunk(
+            local[lo:hi], tree, columns, support, counts, k, radius_m, degree
         )
         shifts[lo:hi] = shift
         normals[lo:hi] = normal
         curvature[lo:hi] = variation
-        return capped
+        return capped, unfit
 
-    capped = sum(_map_chunks(fit, range(0, fits, chunk)))
-    if degree != 2:
-        # each point onto its cell's plane: through the centroid's foot, along the cell's normal
-        foot = support + shifts
-        normals, curvature = normals[cell], curvature[cell]
-        offset = np.einsum("mj,mj->m", foot[cell] - local, normals)
-        shifts = np.where(np.isfinite(curvature)[:, None], offset[:, None] * normals, 0.0)
+    tallies = _map_chunks(fit, range(0, n, chunk))
+    capped = sum(c for c, _ in tallies)
+    unfit = sum(u for _, u in tallies)
     fitted = np.isfinite(curvature)
-    unfit = int((~fitted).sum())
     edge = ~fitted
     median = float(np.median(curvature[fitted])) if fitted.any() else math.nan
     if edge_ratio > 0 and fitted.any():
@@ -326,8 +303,7 @@ def mls_smooth(
         "mls_rms_shift_m": float(np.sqrt(np.mean(step**2))),
         "mls_max_shift_m": float(step.max()),
         "mls_support_points": len(support),
-        "mls_fits": fits,
-        "mls_capped_fraction": capped / fits,
+        "mls_capped_fraction": capped / n,
         "mls_unfit_points": unfit,
         "mls_median_surface_variation": median,
         "mls_edge_points": int(edge.sum()) - unfit,
