@@ -59,12 +59,6 @@ wall-clock seconds are indicative and CPU seconds are given too):
   matters: unweighted voxel centroids of a noisy tilted surface form terraces along the grid (a voxel with
   a few points of the noise's tail counts as much as a full one), which biased normals by 0.2° (1 M
   points) to 0.7° (5 M) towards the input's axes; with the counts the fits see the raw points' moments.
-- **One plane per support cell.** The plane is fitted once per support cell, centred on its centroid,
-  and every point of the cell is projected onto it (2.8 voxels share a cell on the bench room): MLS CPU
-  2.66 -> 1.12 s on 1 M points with the output as close to the true surfaces (median 0.241 -> 0.250 mm,
-  p99 7.45 -> 7.44 mm, tilt 0.003 -> 0.004°), and `bench.walls_survey`'s tuning buildings' walls the
-  same (completeness, correctness and corner F1 of all 30 rooms unchanged; Kinect v1 mean accuracy 2.01
-  -> 2.08 mm, rooms moving by up to 1.5 mm either way).
 - **Edges are not smoothed.** Near an edge the plane fit mixes both faces and MLS rounds the edge (99th
   percentile of distance to the true surfaces 18.8 mm, against 12.0 mm before MLS). Points whose surface
   variation λ0/Σλ exceeds `mls_edge_ratio` × its median (16 % of them) stay in place, and their normals
@@ -82,12 +76,16 @@ wall-clock seconds are indicative and CPU seconds are given too):
   far outliers ~1 s. The MLS moments are sums along the contiguous axis of per-axis (M, K) arrays, the MLS
   chunks and the grid's per-cell sums are shared by two threads, levelling sums columns without BLAS: MLS
   4.2 -> 3.1 CPU s, levelling 0.53 -> 0.09 (load 9-17 on 2 cores, so wall seconds are 2-3x the CPU's).
-  Then one MLS plane per support cell (above) and the outlier test's KD-tree unbalanced and queried in its
-  leaf order (the same neighbours), measured back to back at load 11-12: 8.9 -> 6.5 CPU s in all (voxel
-  1.0 -> 1.3, outliers 4.4 -> 3.9, MLS 3.4 -> 1.2), 28.9 -> 20.9 s wall. What is left is the outlier
-  test's K-NN search (~3 CPU s; Open3D's search is no faster, a balanced tree or the voxels' own order
-  slower) and the voxel grid (~1 s, most of it hashing a grid that far outliers stretch past an
-  occupancy array: a dense box plus a sort of the points outside it was slower still).
+  The outlier test's tree unbalanced and queried in its leaf order (the same neighbours, the same bytes
+  out): its CPU 3.9 -> 3.5 and 4.9 -> 3.8 s on 5 M points (two pairs), within the noise of a shared
+  machine. Tried and not kept: one MLS plane per support cell (each voxel projected onto its cell's
+  plane; 2.8 voxels a cell) cut MLS
+  3.4 -> 1.2 CPU s with the output as close to the truth (median 0.11 -> 0.12 mm, p99 8.3 mm) and
+  `bench.walls_survey`'s 60 rooms' completeness, correctness and corner F1 unchanged, but data/mini's
+  corridor got a 1.7 cm step in its smeared north face (corner F1 1.00 -> 0.86). What is left is the
+  outlier test's K-NN search (~3 CPU s; Open3D's search is no faster) and the voxel grid (~1 s, most
+  of it hashing a grid that far outliers stretch past an occupancy array: a dense box plus a sort of
+  the points outside it was slower still).
   The output is the same bytes on one thread or two (`--threads-check`).
 - **Missing floor or ceiling.** A peak counts as the floor (ceiling) only within `surface_search_m` of
   where the walls end at the bottom (top): otherwise it is a table or a lamp and the surface was not
