@@ -2,7 +2,7 @@
 child process, with its accuracy figure beside it.
 
     python -m bench.all                 # the whole table (long: the SfM row alone maps 100 frames three times)
-    python -m bench.all --quick         # smaller inputs, no data/mini run (a few minutes)
+    python -m bench.all --quick         # smaller inputs, no walls_survey or data/mini run (a few minutes)
     python -m bench.all --json table.json
 
 Run from the repository root. Rows:
@@ -11,7 +11,10 @@ Run from the repository root. Rows:
   yardstick: the whole register stage's time over plain pycolmap's on the same frames;
 - scale: seconds per frame of the metric scale (`bench.sfm`);
 - register: the whole register stage on a rendered walk, time and peak resident memory (`bench.register`);
-- preprocess: input points per second (`bench.preprocess`);
+- preprocess: input points per second (`bench.preprocess`), with the distance of its output to the true
+  surfaces;
+- walls_survey: the preprocess stage's accuracy where it counts, the wall figures of `bench.walls_survey`
+  (preprocess then walls on the generator's buildings), tuning and held-out means per sensor;
 - walls: the 10 m x 10 m room at a 1 cm grid (`bench.walls`);
 - data/mini: a cold `indoor-survey run` of the miniature survey into a fresh work dir, with the mean wall
   figures of its metrics.json.
@@ -151,21 +154,57 @@ def row_preprocess(size: dict[str, int], quick: bool, sets: list[str]) -> list[d
     why = _failed(run)
     if why:
         return [{"row": "preprocess", "error": why}]
-    total = _search(r"\ntotal\s+([\d,]+)\s+([\d.]+)\s+([\d,]+)", run["stdout"])
+    # the step table's total row: points in, seconds, CPU seconds, points/s, points per CPU second
+    total = _search(r"\ntotal\s+([\d,]+)\s+([\d.]+)\s+([\d.]+)\s+([\d,]+)", run["stdout"])
     cpu = re.search(r"CPU time ([\d.]+) s", run["stdout"])
     rss = re.search(r"peak RSS ([\d.]+) GiB", run["stdout"])
     tilt = re.search(r"residual tilt ([\d.]+)", run["stdout"])
+    dist = re.search(r"distance to truth median ([\d.]+) mm, p99 ([\d.]+) mm", run["stdout"])
     return [
         {
             "row": "preprocess",
-            "figure": f"{int(total.group(3).replace(',', '')) / 1e3:.0f} k points/s ({float(total.group(2)):.1f} s"
+            "figure": f"{int(total.group(4).replace(',', '')) / 1e3:.0f} k points/s ({float(total.group(2)):.1f} s"
             + (f", {float(cpu.group(1)):.1f} s CPU" if cpu else "")
             + (f", peak {float(rss.group(1)):.2f} GiB)" if rss else ")"),
-            "accuracy": f"residual tilt {tilt.group(1)} deg" if tilt else "",
+            "accuracy": (f"residual tilt {tilt.group(1)} deg" if tilt else "")
+            + (f", to the true surfaces median {dist.group(1)} mm, p99 {dist.group(2)} mm" if dist else ""),
             "input": f"{n:,} points",
             "load": run["load"],
         }
     ]
+
+
+def row_walls_survey(size: dict[str, int], quick: bool, sets: list[str]) -> list[dict[str, Any]]:
+    """The preprocess stage's accuracy figure: `bench.walls_survey` (preprocess then walls with the default
+    configuration on the generator's buildings) on the tuning and the held-out split, mean wall figures
+    per sensor."""
+    rows = []
+    for split in ("tune", "heldout"):
+        args = ["-m", "bench.walls_survey", "--split", split]
+        for s in sets:
+            args += ["--set", s]
+        run = child(args, 3600)
+        why = _failed(run)
+        if why:
+            rows.append({"row": f"walls_survey {split}", "error": why})
+            continue
+        for sensor in ("kinect_v1", "tls"):
+            m = _search(
+                rf"{sensor}\s+rooms\s+(\d+) \(errors (\d+)\): mean completeness ([\d.]+), correctness ([\d.]+), "
+                r"accuracy ([\d.]+) mm, corner F1 ([\d.]+).*?CPU ([\d.]+) s/room\); meet all targets: (\d+/\d+)",
+                run["stdout"],
+            )
+            rows.append(
+                {
+                    "row": f"walls_survey {split}",
+                    "figure": f"{float(m.group(7)):.2f} s CPU/room (preprocess + walls)",
+                    "accuracy": f"{sensor}: completeness {m.group(3)}, correctness {m.group(4)}, accuracy "
+                    f"{m.group(5)} mm, corner F1 {m.group(6)}, targets met {m.group(8)}",
+                    "input": f"{m.group(1)} rooms ({m.group(2)} errors), {split} buildings",
+                    "load": run["load"],
+                }
+            )
+    return rows
 
 
 def row_walls(size: dict[str, int], quick: bool, sets: list[str]) -> list[dict[str, Any]]:
@@ -234,6 +273,7 @@ ROWS: dict[str, Callable[[dict[str, int], bool, list[str]], list[dict[str, Any]]
     "sfm": row_sfm,
     "register": row_register,
     "preprocess": row_preprocess,
+    "walls_survey": row_walls_survey,
     "walls": row_walls,
     "mini": row_mini,
 }
@@ -241,7 +281,9 @@ ROWS: dict[str, Callable[[dict[str, int], bool, list[str]], list[dict[str, Any]]
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.all", description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="smaller inputs, no yardstick, no data/mini run")
+    ap.add_argument(
+        "--quick", action="store_true", help="smaller inputs, no yardstick, no walls_survey or data/mini run"
+    )
     ap.add_argument(
         "--only", default=",".join(ROWS), help=f"rows to run, comma separated (default all: {','.join(ROWS)})"
     )
@@ -259,8 +301,8 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [r for r in chosen if r not in ROWS]
     if unknown:
         ap.error(f"--only: unknown rows {unknown}; choose from {', '.join(ROWS)}")
-    if args.quick and "mini" in chosen and args.only == ",".join(ROWS):
-        chosen.remove("mini")
+    if args.quick and args.only == ",".join(ROWS):
+        chosen = [r for r in chosen if r not in ("mini", "walls_survey")]
     size = QUICK if args.quick else FULL
     print(f"{os.cpu_count()} cores; {'quick' if args.quick else 'full'} sizes {size}", flush=True)
     table: list[dict[str, Any]] = []

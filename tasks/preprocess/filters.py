@@ -161,19 +161,24 @@ def statistical_outliers(
         )
     if reference not in ("global", "local"):
         raise ValueError(f"outlier reference must be 'global' or 'local', got {reference!r}")
-    tree = cKDTree(points)
+    # unbalanced (sliding-midpoint splits): the same neighbours from a cheaper build and query
+    tree = cKDTree(points, balanced_tree=False)
     n = len(points)
     mean_dist = np.empty(n)
     local = reference == "local"
     idx = np.empty((n, neighbours), np.int32) if local else None
     link = np.empty((n, neighbours)) if local else None
     chunk = max(1, _CHUNK_ENTRIES // (neighbours + 1))
+    # queried in the tree's leaf order, so that consecutive queries walk the same nodes: the same answers;
+    # on the 1 M point bench room 5-15 % less CPU than the voxels' own order (already local; a random
+    # order costs 2.6x), within the noise of a shared machine
     for lo in range(0, n, chunk):
-        dist, near = tree.query(points[lo : lo + chunk], k=neighbours + 1, workers=-1)
-        mean_dist[lo : lo + chunk] = dist[:, 1:].mean(axis=1)  # column 0 is the point itself
+        rows = tree.indices[lo : lo + chunk]
+        dist, near = tree.query(points[rows], k=neighbours + 1, workers=-1)
+        mean_dist[rows] = dist[:, 1:].mean(axis=1)  # column 0 is the point itself
         if local:
-            idx[lo : lo + chunk] = near[:, 1:]
-            link[lo : lo + chunk] = dist[:, 1:]
+            idx[rows] = near[:, 1:]
+            link[rows] = dist[:, 1:]
     mu, sigma = _clipped_mean_std(mean_dist)
     threshold = mu + std_ratio * sigma
     dense = mean_dist <= threshold
