@@ -139,6 +139,14 @@ class RegisterConfig:
     (else the model's placement stands); also the robust scale of the model's residuals."""
     wall_band_m: tuple[float, float] = (0.3, 2.0)
     """Height band above the floor whose points form the projected wall image."""
+    track_joint_icp: bool = True
+    """After the fallback's placement, one joint ICP of all its frames (`joint_icp`, issue #15): every frame
+    moved so that the surfaces frames share coincide, each held near its own placement by a weak prior."""
+    track_joint_iterations: int = 10
+    """Joint ICP: iterations (each matches the frames again)."""
+    track_joint_max_dist_m: tuple[float, float] = (0.15, 0.04)
+    """Joint ICP: correspondence distance of the first and the last iteration (geometric steps between):
+    the first covers the fallback's placement error between frames, the last a depth camera's noise."""
 
 
 @dataclass(frozen=True)
