@@ -775,3 +775,40 @@ def test_the_radial_depth_error_is_estimated_on_the_capture_and_taken_out(k):
         corner_after = np.abs(after[:, 0] / after[:, 2]) > 0.5
         assert np.mean(before[corner] @ p[:3] - p[3]) < -0.005  # pulled towards the camera
         assert abs(np.mean(after[corner_after] @ p[:3] - p[3])) < 0.003
+
+
+def test_joint_icp_makes_the_walls_frames_share_one_surface():
+    """Four views of the box room's corner, three placed right and one 5 cm and 2 degrees off (as the track
+    fallback may leave a frame): the joint ICP puts the odd one back with the others (its move matches theirs within
+    1 cm and 0.3 degrees: the gauge is the priors' mean), and frames already consistent stay put."""
+    from tasks.register.joint_icp import JointIcpSettings, joint_icp
+    from tasks.register.track_fallback import _joint_view, depth_normals
+
+    cam = small_camera()
+    calib = Calibration(ir=cam, rgb=cam, ir_to_rgb=RigidPose(np.eye(3), np.zeros(3)))
+    cfg = RegisterConfig()
+    truth = {
+        k: look_pose(np.array([x, y, 1.3]), np.radians(yaw), -0.1)
+        for k, (x, y, yaw) in enumerate([(-0.6, -0.4, 35), (-0.2, -0.2, 45), (0.2, 0.0, 40), (0.6, 0.2, 50)])
+    }
+    views = {
+        k: _joint_view(depth_normals(box_hits(cam, T)[0], cam), calib, cfg, 0.0) for k, T in truth.items()
+    }
+    odd = truth[2].copy()
+    c, s = np.cos(np.radians(2.0)), np.sin(np.radians(2.0))
+    odd[:3, :3] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ odd[:3, :3]
+    odd[:2, 3] += [0.03, -0.04]
+    out, metrics = joint_icp(views, {**truth, 2: odd}, JointIcpSettings())
+    assert metrics["pairs"] >= 3 and metrics["wall_residual_spread_after_m"] < 0.005
+
+    def yaw(T: np.ndarray) -> float:
+        return float(np.degrees(np.arctan2(T[1, 0], T[0, 0])))
+
+    others = [k for k in truth if k != 2]
+    moved = np.mean([out[k][:2, 3] - truth[k][:2, 3] for k in others], axis=0)
+    turned = np.mean([yaw(out[k][:3, :3] @ truth[k][:3, :3].T) for k in others])
+    assert np.linalg.norm(out[2][:2, 3] - truth[2][:2, 3] - moved) < 0.01
+    assert abs(yaw(out[2][:3, :3] @ truth[2][:3, :3].T) - turned) < 0.3
+    # already consistent frames do not move
+    same, _ = joint_icp(views, truth, JointIcpSettings())
+    assert max(np.linalg.norm(same[k][:3, 3] - truth[k][:3, 3]) for k in truth) < 0.005

@@ -140,8 +140,9 @@ class RegisterConfig:
     wall_band_m: tuple[float, float] = (0.3, 2.0)
     """Height band above the floor whose points form the projected wall image."""
     track_joint_icp: bool = True
-    """After the fallback's placement, one joint ICP of all its frames (`joint_icp`, issue #15): every frame
-    moved so that the surfaces frames share coincide, each held near its own placement by a weak prior."""
+    """After the fallback's placement on the plan walls, one joint ICP of all its frames (`joint_icp`, issue
+    #15): every frame moved in x, y and heading so that the walls neighbouring frames share coincide, in the
+    directions each pair pins, each frame held near its plan placement by a prior."""
     track_joint_iterations: int = 10
     """Joint ICP: iterations (each matches the frames again)."""
     track_joint_max_dist_m: tuple[float, float] = (0.15, 0.04)

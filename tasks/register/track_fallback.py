@@ -249,12 +249,12 @@ def place_by_track(
         poses = {f: plan.fit[f].T for f in inside}
         angles = {f: plan.fit[f].angle + plan.starts[f] for f in inside}
     joint_metrics: dict[str, Any] = {}
-    if cfg.track_joint_icp:
+    if cfg.track_joint_icp and use_plan:
+        # without the plan the headings are the walk's (eq 3.17), tens of degrees off: beyond an ICP's reach
         settings = JointIcpSettings(
             iterations=cfg.track_joint_iterations, max_dist_m=tuple(cfg.track_joint_max_dist_m)
         )
-        floor = {f for f, v in levels.items() if v is not None and v.source == "floor"}
-        poses, joint_metrics = joint_icp(views, poses, floor, settings)
+        poses, joint_metrics = joint_icp(views, poses, settings)
     metrics = {
         "track_frames": len(poses),
         "frames_outside_track": len(times) - len(inside),
@@ -319,7 +319,7 @@ def _level_frames(
         times[fid] = int(t_ns)
         if use_plan:
             cam_points[fid] = frame_points(depth, calibration, line_cfg).astype(np.float32)
-        if cfg.track_joint_icp:
+        if use_plan and cfg.track_joint_icp:
             views[fid] = _joint_view(normals, calibration, cfg, radial_k)
     return levels, times, cam_points, views
 
