@@ -252,6 +252,11 @@ def test_track_fallback_levels_places_and_fixes_heading_by_plan_walls():
     fixed, _ = place_by_track(iter(frames), drifted, calib, RegisterConfig(), CORRIDOR_WALLS)
     err = [np.linalg.norm(fixed[k][:2, 3] - T[:2, 3]) for k, T in enumerate(poses)]
     assert max(err) < 0.05
+    # with the joint ICP of the frames (off by default): they stay as well placed, and it ran on their pairs
+    cfg = RegisterConfig(track_joint_icp=True)
+    joint, metrics = place_by_track(iter(frames), drifted, calib, cfg, CORRIDOR_WALLS)
+    assert metrics["joint_icp"]["pairs"] >= len(poses) - 1
+    assert max(np.linalg.norm(joint[k][:2, 3] - T[:2, 3]) for k, T in enumerate(poses)) < 0.05
 
 
 def _rot2(deg: float) -> np.ndarray:
