@@ -252,6 +252,11 @@ def test_track_fallback_levels_places_and_fixes_heading_by_plan_walls():
     fixed, _ = place_by_track(iter(frames), drifted, calib, RegisterConfig(), CORRIDOR_WALLS)
     err = [np.linalg.norm(fixed[k][:2, 3] - T[:2, 3]) for k, T in enumerate(poses)]
     assert max(err) < 0.05
+    # with the joint ICP of the frames (off by default): they stay as well placed, and it ran on their pairs
+    cfg = RegisterConfig(track_joint_icp=True)
+    joint, metrics = place_by_track(iter(frames), drifted, calib, cfg, CORRIDOR_WALLS)
+    assert metrics["joint_icp"]["pairs"] >= len(poses) - 1
+    assert max(np.linalg.norm(joint[k][:2, 3] - T[:2, 3]) for k, T in enumerate(poses)) < 0.05
 
 
 def _rot2(deg: float) -> np.ndarray:
@@ -665,12 +670,13 @@ def _kitchen_given_poses(folder: Path) -> dict[int, np.ndarray]:
 
 @pytest.mark.slow
 def test_real_7scenes_registered_accurate_and_metric(kitchen_registered):
-    """Real Kinect v1 frames (7-Scenes redkitchen, 100 frames): ≥ 90 registered, ATE ≤ 5 cm after a
-    similarity fit to the given poses, metric scale within 2 % (trajectory lengths), mapped once (the map
-    checks find it consistent)."""
+    """Real Kinect v1 frames (7-Scenes redkitchen, the fixture's frames: every 10th of the recording, 100):
+    ≥ 90 % registered, ATE ≤ 5 cm after a similarity fit to the given poses, metric scale within 2 %
+    (trajectory lengths), mapped once (the map checks find it consistent). The assertions hold for any
+    subset the fixture takes (every 20th, 50 frames: 50 registered, ATE 4.26 cm, length ratio 1.009)."""
     run = kitchen_registered
     truth = _kitchen_given_poses(run.folder)
-    assert len(truth) == run.metrics["ingest"]["frames"] == 100
+    assert len(truth) == run.metrics["ingest"]["frames"] >= 50
     est = pose_matrices(pq.read_table(run.out / "poses.parquet").to_pydict())
     ids = sorted(est)
     A = np.array([est[i][:3, 3] for i in ids])
@@ -680,13 +686,13 @@ def test_real_7scenes_registered_accurate_and_metric(kitchen_registered):
         np.linalg.norm(np.diff(A, axis=0), axis=1).sum() / np.linalg.norm(np.diff(B, axis=0), axis=1).sum()
     )
     print(
-        f"7-Scenes: {len(ids)} of 100 registered, ATE {ate * 100:.2f} cm, length ratio {length_ratio:.4f}, "
+        f"7-Scenes: {len(ids)} of {len(truth)} registered, ATE {ate * 100:.2f} cm, length ratio {length_ratio:.4f}, "
         f"SfM attempts {run.metrics['sfm_attempts']}, map check {run.metrics['map_check']}"
     )
     # the map checks do not fire on real frames: depth noise and timing spread, but neighbours agree
     assert run.metrics["map_check"]["verdict"] == "consistent"
     assert len(run.metrics["sfm_attempts"]) == 1
-    assert len(ids) >= 90
+    assert len(ids) >= 0.9 * len(truth)
     assert ate <= 0.05
     assert abs(length_ratio - 1) <= 0.02
 
@@ -775,3 +781,40 @@ def test_the_radial_depth_error_is_estimated_on_the_capture_and_taken_out(k):
         corner_after = np.abs(after[:, 0] / after[:, 2]) > 0.5
         assert np.mean(before[corner] @ p[:3] - p[3]) < -0.005  # pulled towards the camera
         assert abs(np.mean(after[corner_after] @ p[:3] - p[3])) < 0.003
+
+
+def test_joint_icp_makes_the_walls_frames_share_one_surface():
+    """Four views of the box room's corner, three placed right and one 5 cm and 2 degrees off (as the track
+    fallback may leave a frame): the joint ICP puts the odd one back with the others (its move matches theirs within
+    1 cm and 0.3 degrees: the gauge is the priors' mean), and frames already consistent stay put."""
+    from tasks.register.joint_icp import JointIcpSettings, joint_icp
+    from tasks.register.track_fallback import _joint_view, depth_normals
+
+    cam = small_camera()
+    calib = Calibration(ir=cam, rgb=cam, ir_to_rgb=RigidPose(np.eye(3), np.zeros(3)))
+    cfg = RegisterConfig()
+    truth = {
+        k: look_pose(np.array([x, y, 1.3]), np.radians(yaw), -0.1)
+        for k, (x, y, yaw) in enumerate([(-0.6, -0.4, 35), (-0.2, -0.2, 45), (0.2, 0.0, 40), (0.6, 0.2, 50)])
+    }
+    views = {
+        k: _joint_view(depth_normals(box_hits(cam, T)[0], cam), calib, cfg, 0.0) for k, T in truth.items()
+    }
+    odd = truth[2].copy()
+    c, s = np.cos(np.radians(2.0)), np.sin(np.radians(2.0))
+    odd[:3, :3] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ odd[:3, :3]
+    odd[:2, 3] += [0.03, -0.04]
+    out, metrics = joint_icp(views, {**truth, 2: odd}, JointIcpSettings())
+    assert metrics["pairs"] >= 3 and metrics["wall_residual_spread_after_m"] < 0.005
+
+    def yaw(T: np.ndarray) -> float:
+        return float(np.degrees(np.arctan2(T[1, 0], T[0, 0])))
+
+    others = [k for k in truth if k != 2]
+    moved = np.mean([out[k][:2, 3] - truth[k][:2, 3] for k in others], axis=0)
+    turned = np.mean([yaw(out[k][:3, :3] @ truth[k][:3, :3].T) for k in others])
+    assert np.linalg.norm(out[2][:2, 3] - truth[2][:2, 3] - moved) < 0.01
+    assert abs(yaw(out[2][:3, :3] @ truth[2][:3, :3].T) - turned) < 0.3
+    # already consistent frames do not move
+    same, _ = joint_icp(views, truth, JointIcpSettings())
+    assert max(np.linalg.norm(same[k][:3, 3] - truth[k][:3, 3]) for k in truth) < 0.005

@@ -139,6 +139,17 @@ class RegisterConfig:
     (else the model's placement stands); also the robust scale of the model's residuals."""
     wall_band_m: tuple[float, float] = (0.3, 2.0)
     """Height band above the floor whose points form the projected wall image."""
+    track_joint_icp: bool = False
+    """After the fallback's placement on the plan walls, one joint ICP of all its frames (`joint_icp`, issue
+    #15): every frame moved in x, y and heading so that the walls neighbouring frames share coincide, in the
+    directions each pair pins, each frame held near its plan placement by a prior. Off by default: on seed
+    813's hallway it removes the doubled north face (fusion 2.23 -> 1.17 cm, thickness 6.6 -> 3.4 cm), but on
+    seed 814's the walls stage then lost a wall niche (thickness 1.3 -> 5.2 cm)."""
+    track_joint_iterations: int = 10
+    """Joint ICP: iterations (each matches the frames again)."""
+    track_joint_max_dist_m: tuple[float, float] = (0.15, 0.04)
+    """Joint ICP: correspondence distance of the first and the last iteration (geometric steps between):
+    the first covers the fallback's placement error between frames, the last a depth camera's noise."""
 
 
 @dataclass(frozen=True)

@@ -207,7 +207,7 @@ def register_room(
         if "map_check" in metrics:
             metrics["map_check"]["used"] = "IMU track fallback"
         poses, methods, scale_json = _track_placement(
-            frames_path, track, calib, cfg, plan_walls, why, depth_units_per_m, metrics
+            frames_path, track, calib, cfg, plan_walls, why, depth_units_per_m, metrics, radial_k
         )
         frame = "plan"
     else:
@@ -486,9 +486,11 @@ def _track_placement(
     why: str,
     depth_units_per_m: float | None,
     metrics: dict[str, Any],
+    radial_k: float = 0.0,
 ) -> tuple[dict[int, NDArray[np.float64]], dict[int, str], dict[str, Any]]:
     """The track-based fallback's poses (frame id -> (4, 4) depth camera → plan), their method, and
-    scale.json saying why; adds the fallback's metrics to `metrics`."""
+    scale.json saying why; adds the fallback's metrics to `metrics`. `radial_k`: the capture's radial
+    depth error (1/m at the image corner), taken out of the points the joint ICP aligns."""
     poses, fb_metrics = place_by_track(
         (
             (int(r["frame_id"]), int(r["t_ns"]), _decode_depth(r, depth_units_per_m))
@@ -498,6 +500,7 @@ def _track_placement(
         calib,
         cfg,
         plan_walls,
+        radial_k,
     )
     methods = {fid: "track" for fid in poses}
     metrics["fallback"] = fb_metrics

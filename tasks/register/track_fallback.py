@@ -16,7 +16,8 @@ from numpy.typing import NDArray
 from tasks.camera import Calibration, CameraModel
 from tasks.cloud import DegenerateInputError
 from tasks.register.config import RegisterConfig
-from tasks.register.fusion import frame_points
+from tasks.register.fusion import frame_points, radial_position
+from tasks.register.joint_icp import JointIcpSettings, joint_icp, thin_view
 from tasks.register.plan_icp import PlanFit, fit_to_plan, icp_to_plan, plan_faces
 
 
@@ -207,17 +208,20 @@ def place_by_track(
     calibration: Calibration,
     cfg: RegisterConfig,
     plan_walls: NDArray[np.float64] | None = None,
+    radial_k: float = 0.0,
 ) -> tuple[dict[int, NDArray[np.float64]], dict[str, Any]]:
     """The track-based fallback (3.2.2): frames (frame_id, t_ns, (H, W) depth m) are levelled by their floor
-    (3.2.2.4), placed by the track (eq 3.17 heading toward the next track point, eq 3.18 translation) and,
-    with plan walls ((M, 4) x0 y0 x1 y1 or (M, 5) with thickness, plan frame), their heading corrected by
-    line parallelism (3.2.2.6). Returns (frame_id -> (4, 4) depth camera → plan, metrics)."""
+        (3.2.2.4), placed by the track (eq 3.17 heading toward the next track point, eq 3.18 translation) and,
+        with plan walls ((M, 4) x0 y0 x1 y1 or (M, 5) with thickness, plan frame), their heading corrected by
+        line parallelism (3.2.2.6); then, beyond the thesis, all frames aligned to each other by a joint ICP
+    (`joint_icp`) on their points with the capture's radial depth error `radial_k` (1/m at the image corner,
+    `RadialDepthError`) taken out. Returns (frame_id -> (4, 4) depth camera → plan, metrics)."""
     track = np.asarray(track, dtype=np.float64)
     if track.ndim != 2 or track.shape[1] != 3 or len(track) < 2:
         raise DegenerateInputError(f"the IMU track must be (K>=2, 3) t_ns x y, got shape {track.shape}")
     track = track[np.argsort(track[:, 0])]
     use_plan = plan_walls is not None and len(plan_walls) > 0
-    levels, times, cam_points = _level_frames(frames, calibration, cfg, use_plan)
+    levels, times, cam_points, views = _level_frames(frames, calibration, cfg, use_plan, radial_k)
     fits = [v for v in levels.values() if v is not None and v.height is not None]
     if not fits:
         raise DegenerateInputError(
@@ -244,6 +248,13 @@ def place_by_track(
             drift_metrics = plan.fit_drift_model()
         poses = {f: plan.fit[f].T for f in inside}
         angles = {f: plan.fit[f].angle + plan.starts[f] for f in inside}
+    joint_metrics: dict[str, Any] = {}
+    if cfg.track_joint_icp and use_plan:
+        # without the plan the headings are the walk's (eq 3.17), tens of degrees off: beyond an ICP's reach
+        settings = JointIcpSettings(
+            iterations=cfg.track_joint_iterations, max_dist_m=tuple(cfg.track_joint_max_dist_m)
+        )
+        poses, joint_metrics = joint_icp(views, poses, settings)
     metrics = {
         "track_frames": len(poses),
         "frames_outside_track": len(times) - len(inside),
@@ -257,6 +268,7 @@ def place_by_track(
         "camera_height_m": default_h,
         "heading_corrections_deg": [round(float(np.degrees(angles.get(f, 0.0))), 2) for f in inside],
         "drift_model": drift_metrics,
+        "joint_icp": joint_metrics,
     }
     return poses, metrics
 
@@ -277,14 +289,22 @@ def _level_frames(
     calibration: Calibration,
     cfg: RegisterConfig,
     use_plan: bool,
-) -> tuple[dict[int, _Level | None], dict[int, int], dict[int, NDArray[np.float64]]]:
+    radial_k: float = 0.0,
+) -> tuple[
+    dict[int, _Level | None],
+    dict[int, int],
+    dict[int, NDArray[np.float64]],
+    dict[int, tuple[NDArray[np.float32], NDArray[np.float32]]],
+]:
     """One pass over the frames: each one's levelling (None when it sees no floor, ceiling or walls),
-    its time, and, when the plan is used, its thinned (N, 3) depth-camera points for the wall-line work."""
+    its time, when the plan is used its thinned (N, 3) depth-camera points for the wall-line work, and
+    its thinned points with normals (camera frame, within the depth range) for the joint ICP."""
     levels: dict[int, _Level | None] = {}
     times: dict[int, int] = {}
     # wall-line work needs each frame's points (thinned) once more after all frames are levelled
     line_cfg = RegisterConfig(**{**cfg.__dict__, "pixel_stride": max(cfg.pixel_stride, 3)})
     cam_points: dict[int, NDArray[np.float64]] = {}
+    views: dict[int, tuple[NDArray[np.float32], NDArray[np.float32]]] = {}
     for frame_id, t_ns, depth in frames:
         fid = int(frame_id)
         normals = depth_normals(depth, calibration.ir)  # shared by the floor's and the ceiling's fit
@@ -299,7 +319,25 @@ def _level_frames(
         times[fid] = int(t_ns)
         if use_plan:
             cam_points[fid] = frame_points(depth, calibration, line_cfg).astype(np.float32)
-    return levels, times, cam_points
+        if use_plan and cfg.track_joint_icp:
+            views[fid] = _joint_view(normals, calibration, cfg, radial_k)
+    return levels, times, cam_points, views
+
+
+def _joint_view(
+    normals: tuple[NDArray, NDArray], calibration: Calibration, cfg: RegisterConfig, radial_k: float
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """A frame's points and normals (`depth_normals`) within the depth range, thinned, with the radial
+    inverse-depth error taken out (1/z' = 1/z - k rho: every point slides along its ray), for the joint ICP."""
+    pts, nrm = normals
+    keep = (pts[:, 2] >= cfg.min_depth_m) & (pts[:, 2] <= cfg.max_depth_m)
+    pts, nrm = thin_view(pts[keep], nrm[keep], JointIcpSettings.max_points)
+    if radial_k and len(pts):
+        p = pts.astype(np.float64)
+        denom = 1.0 - radial_k * radial_position(p, calibration.ir) * p[:, 2]
+        ok = denom > 0.5
+        pts, nrm = (p[ok] / denom[ok, None]).astype(np.float32), nrm[ok]
+    return pts, nrm
 
 
 class _TrackStart:
