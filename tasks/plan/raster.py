@@ -137,7 +137,17 @@ def _fill_outline_walls(
         both = np.concatenate([wd[fl & (nf == 2) & (wd >= min_width_px)] for fl, wd, nf in runs])
         one_max = float(np.percentile(both, one_face_percentile)) if len(both) else -1.0
         runs = [(fl & ((nf == 2) | ((nf == 1) & (wd <= one_max))), wd, nf) for fl, wd, nf in runs]
-    return ink | runs[0][0] | runs[1][0].T
+    out = ink | runs[0][0] | runs[1][0].T
+    # where an outline wall turns, the square between its faces has no ink across it along its row or
+    # its column (both lead on into a room): paper enclosed by the filled walls and no wider than L
+    # either way is a wall's core too (else the skeleton loops round it and each face reads as a wall)
+    _n, lab, stats, _c = cv2.connectedComponentsWithStats((~out).astype(np.uint8), connectivity=4)
+    h, w = out.shape
+    x0, y0 = stats[:, cv2.CC_STAT_LEFT], stats[:, cv2.CC_STAT_TOP]
+    x1, y1 = x0 + stats[:, cv2.CC_STAT_WIDTH], y0 + stats[:, cv2.CC_STAT_HEIGHT]
+    hole = (np.maximum(x1 - x0, y1 - y0) < L) & (x0 > 0) & (y0 > 0) & (x1 < w) & (y1 < h)
+    hole[0] = False  # label 0: the ink
+    return out | hole[lab]
 
 
 def _ink_layers(image: NDArray[np.uint8], ink: NDArray[np.bool_], cfg: PlanConfig) -> NDArray[np.uint8]:
