@@ -20,9 +20,23 @@ def sample_mask(mask_f: NDArray[np.float32], pts: NDArray) -> NDArray[np.float32
     """Bilinear samples of a float raster at (N, 2) pixel positions (u, v); 0 outside."""
     if len(pts) == 0:
         return np.zeros(0, np.float32)
+    # as a (rows, 1) map, in pieces: OpenCV's remap takes fewer than 32767 rows
     mx = pts[:, 0].astype(np.float32).reshape(-1, 1)
     my = pts[:, 1].astype(np.float32).reshape(-1, 1)
-    return cv2.remap(mask_f, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)[:, 0]
+    step = 32000
+    return np.concatenate(
+        [
+            cv2.remap(
+                mask_f,
+                mx[k : k + step],
+                my[k : k + step],
+                cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_CONSTANT,
+                borderValue=0,
+            )[:, 0]
+            for k in range(0, len(mx), step)
+        ]
+    )
 
 
 def _thickness_px(
