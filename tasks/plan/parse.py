@@ -50,7 +50,13 @@ from tasks.plan.rooms import (
     rooms_in_metres,
     to_metres,
 )
-from tasks.plan.sheet import direction_homography, find_sheet, read_scale_bar, sheet_homography
+from tasks.plan.sheet import (
+    direction_homography,
+    find_sheet,
+    read_scale_bar,
+    residual_perspective,
+    sheet_homography,
+)
 from tasks.plan.vectorize import hough_lines, vector_walls
 
 
@@ -202,7 +208,16 @@ def _scaled_image(
         corners = find_sheet(img, cfg.sheet_min_area_share)
         if corners is not None:  # a photo of the sheet: rectified to the sheet's side ratio
             H, size = sheet_homography(corners, cfg.sheet_aspect)
-            img = cv2.warpPerspective(img, H, size, flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255))
+            warped = cv2.warpPerspective(img, H, size, flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255))
+            # what perspective the border's corners left, from the plan's own lines (one warp in all)
+            rest = residual_perspective(warped) if cfg.rectify_directions else None
+            if rest is not None:
+                H = rest @ H
+                H /= H[2, 2]
+                warped = cv2.warpPerspective(
+                    img, H, size, flags=cv2.INTER_LINEAR, borderValue=(255, 255, 255)
+                )
+            img = warped
             img = flat_field(img, cfg.flat_field_share)
             # the sheet's edge, a sliver of what is around it and the drawing's frame are no plan
             b = max(1, round(cfg.sheet_edge_share * min(img.shape[:2])))

@@ -192,6 +192,55 @@ def direction_homography(
     return H, size
 
 
+def residual_perspective(
+    image: NDArray[np.uint8], min_shift_px: float = 0.5, max_shift_share: float = 0.03
+) -> NDArray[np.float64] | None:
+    """The perspective a rectification left in an (h, w, 3) image that should face the plan square on (a
+    photographed sheet rectified from its border: a corner found a pixel or two off tilts the plane, and
+    the scale then drifts across the plan by a few tenths of a percent). The plan's two families of long
+    straight edges (near the image's axes) must meet at infinity: the line through their two vanishing
+    points is sent to infinity by a (3, 3) homography that keeps the image's middle and the scale and
+    directions there (an affine rectification, thesis 4.2.3: the sheet's side ratio stays). Returns the
+    homography, or None when it moves no image corner more than min_shift_px (nothing left to take out),
+    or more than max_shift_share of the image's diagonal (not trusted), or fewer than two families show."""
+    grey = cv2.GaussianBlur(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), (0, 0), 1.0)
+    h, w = grey.shape
+    diag = math.hypot(w, h)
+    found = cv2.createLineSegmentDetector().detect(grey)[0]
+    if found is None:
+        return None
+    segs = found.reshape(-1, 4).astype(np.float64)
+    d = segs[:, 2:] - segs[:, :2]
+    length = np.hypot(d[:, 0], d[:, 1])
+    ang = np.degrees(np.arctan2(d[:, 1], d[:, 0])) % 180.0
+    c = np.array([w / 2, h / 2])
+    vps = []
+    for a in (0.0, 90.0):
+        sel = (length >= max(20.0, 0.04 * min(h, w))) & (np.abs((ang - a + 90.0) % 180.0 - 90.0) <= 5.0)
+        if sel.sum() < 4:
+            return None
+        v = _vanishing_point(segs[sel], length[sel], c, diag)
+        if v is None:
+            return None
+        vps.append(v)
+    line = np.cross(vps[0], vps[1])
+    if abs(line[2]) < 1e-12:
+        return None
+    line = line / line[2]
+    N = np.array([[1 / diag, 0, -c[0] / diag], [0, 1 / diag, -c[1] / diag], [0, 0, 1.0]])
+    Hn = np.array([[1.0, 0, 0], [0, 1.0, 0], [line[0], line[1], 1.0]])
+    H = np.linalg.inv(N) @ Hn @ N
+    H /= H[2, 2]
+    corners = np.array([[0, 0, 1], [w, 0, 1], [w, h, 1], [0, h, 1]], np.float64)
+    q = corners @ H.T
+    if (q[:, 2] <= 0).any():
+        return None
+    shift = float(np.abs(q[:, :2] / q[:, 2:] - corners[:, :2]).max())
+    if shift <= min_shift_px or shift > max_shift_share * diag:
+        return None
+    return H
+
+
 def _vanishing_point(
     segs: NDArray[np.float64], length: NDArray[np.float64], c: NDArray, diag: float
 ) -> NDArray[np.float64] | None:
@@ -263,7 +312,7 @@ def read_scale_bar(image: NDArray[np.uint8], dark: NDArray[np.bool_]) -> tuple[f
             )
             if str(t).strip()
         ]
-        found = _scale_bar(words, dark)
+        found = _scale_bar(words, dark, grey)
         if found is not None:
             return found
     return None
@@ -437,9 +486,12 @@ def _half_way_ends(grey: NDArray[np.uint8], box: tuple[int, int, int, int]) -> t
 
 
 def _scale_bar(
-    words: list[tuple[str, int, int, int, int]], dark: NDArray[np.bool_]
+    words: list[tuple[str, int, int, int, int]],
+    dark: NDArray[np.bool_],
+    grey: NDArray[np.uint8] | None = None,
 ) -> tuple[float, tuple] | None:
-    """The scale bar labelled by one of the words read (text, x, y, w, h), as `read_scale_bar` returns it."""
+    """The scale bar labelled by one of the words read (text, x, y, w, h), as `read_scale_bar` returns it
+    (its ends to a tenth of a pixel in `grey` when given, as in the first way)."""
     labels = []
     for k, (t, x, y, w, h) in enumerate(words):
         m = _NUMBER.match(t.lower().replace(" ", ""))
@@ -465,7 +517,7 @@ def _scale_bar(
             if du > 3 * h or dv > 3 * h:
                 continue
             if best is None or du + dv < best[0]:
-                best = (du + dv, *_bar_scale(box, dark, value))
+                best = (du + dv, *_bar_scale(box, dark, value, grey))
     if best is None:
         return None
     return best[1], best[2]
