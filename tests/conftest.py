@@ -4,6 +4,7 @@ reason where it is absent, except under INDOOR_SURVEY_REQUIRE_REALDATA=1 (CI), w
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -69,10 +70,11 @@ def mini_run(tmp_path_factory, prefect_harness):
 
 @dataclass(frozen=True)
 class KitchenRun:
-    """The register-room verb on the 100 real 7-Scenes redkitchen frames."""
+    """The register-room verb on 50 of the real 7-Scenes redkitchen frames."""
 
     folder: Path
-    """The frames: frame-XXXXXX.color.jpg / .depth.png / .pose.txt (the given camera-to-world poses)."""
+    """The frames the verb read: frame-XXXXXX.color.jpg / .depth.png / .pose.txt (the given camera-to-world
+    poses), links into the real-data folder."""
     out: Path
     """What the verb wrote: poses.parquet, cloud.ply, scale.json."""
     metrics: dict
@@ -81,13 +83,20 @@ class KitchenRun:
 
 @pytest.fixture(scope="session")
 def kitchen_registered(tmp_path_factory) -> KitchenRun:
-    """`register-room` (ingest -> sfm -> scale -> fusion) on the 100 real Kinect v1 frames, once per
-    session: SfM of 100 640x480 frames is the suite's largest single cost. The SfM, register and verb tests
+    """`register-room` (ingest -> sfm -> scale -> fusion) on 50 real Kinect v1 frames (every other frame of
+    the 100 in the real-data folder, linked into a temporary folder), once per session: SfM of 640x480
+    frames is the suite's largest single cost, and 50 frames still need sequential matching with loop
+    pairs (ATE 4.26 cm against 4.23 cm on all 100, at half the CPU). The SfM, register and verb tests
     read it."""
     from flows.oneoff import register_room
     from tasks.config import load_config
 
-    folder = _realdata("rgbd_7scenes_redkitchen")
+    source = _realdata("rgbd_7scenes_redkitchen")
+    folder = tmp_path_factory.mktemp("kitchen-frames")
+    for path in source.iterdir():
+        frame = re.fullmatch(r"frame-(\d+)\..*", path.name)
+        if frame is None or int(frame.group(1)) % 20 == 0:
+            (folder / path.name).symlink_to(path)
     out = tmp_path_factory.mktemp("kitchen") / "out"
     cfg = load_config([], ["ingest.intrinsics_px=[585, 585, 320, 240]", "ingest.tum_depth_units_per_m=1000"])
     return KitchenRun(folder, out, register_room(folder, out, cfg=cfg))
