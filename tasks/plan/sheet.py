@@ -139,15 +139,11 @@ def direction_homography(
     near = (np.arange(180) - a1 - 90.0 + 90.0) % 180.0 - 90.0  # signed distance from a1 + 90
     a2 = float(np.argmax(np.where(np.abs(near) <= max_tilt_deg, smooth, -1.0)))
     c = np.array([w / 2, h / 2])
-    vps = []
-    for a in (a1, a2):
-        sel = np.abs((ang - a + 90.0) % 180.0 - 90.0) <= 12.0
-        if sel.sum() < 4:
-            return None
-        v = _vanishing_point(segs[sel], length[sel], c, diag)
-        if v is None:
-            return None
-        vps.append(v)
+    vps = _family_points(
+        segs, length, c, diag, [np.abs((ang - a + 90.0) % 180.0 - 90.0) <= 12.0 for a in (a1, a2)]
+    )
+    if vps is None:
+        return None
     v1, v2 = vps  # homogeneous, in coordinates centred on the image's middle and divided by its diagonal
     # which is the horizontal family: the one whose direction is nearer the image's u axis
     if abs(math.cos(math.radians(a1))) < abs(math.cos(math.radians(a2))):
@@ -214,15 +210,12 @@ def residual_perspective(
     length = np.hypot(d[:, 0], d[:, 1])
     ang = np.degrees(np.arctan2(d[:, 1], d[:, 0])) % 180.0
     c = np.array([w / 2, h / 2])
-    vps = []
-    for a in (0.0, 90.0):
-        sel = (length >= max(20.0, 0.04 * min(h, w))) & (np.abs((ang - a + 90.0) % 180.0 - 90.0) <= 5.0)
-        if sel.sum() < 4:
-            return None
-        v = _vanishing_point(segs[sel], length[sel], c, diag)
-        if v is None:
-            return None
-        vps.append(v)
+    long = length >= max(20.0, 0.04 * min(h, w))
+    vps = _family_points(
+        segs, length, c, diag, [long & (np.abs((ang - a + 90.0) % 180.0 - 90.0) <= 5.0) for a in (0.0, 90.0)]
+    )
+    if vps is None:
+        return None
     line = np.cross(vps[0], vps[1])
     if abs(line[2]) < 1e-12:
         return None
@@ -239,6 +232,20 @@ def residual_perspective(
     if shift <= min_shift_px or shift > max_shift_share * diag:
         return None
     return H
+
+
+def _family_points(
+    segs: NDArray[np.float64], length: NDArray[np.float64], c: NDArray, diag: float, families: list[NDArray]
+) -> list[NDArray[np.float64]] | None:
+    """The vanishing point (`_vanishing_point`) of each family of segments (a mask over `segs`), or None
+    when a family has fewer than 4 segments or no point."""
+    vps = []
+    for sel in families:
+        v = _vanishing_point(segs[sel], length[sel], c, diag) if sel.sum() >= 4 else None
+        if v is None:
+            return None
+        vps.append(v)
+    return vps
 
 
 def _vanishing_point(
