@@ -879,3 +879,46 @@ def test_the_coarser_grid_is_not_used_when_the_fine_one_closes_the_room(rng):
     pts = np.concatenate([wall_points(t[:2], t[2:], 1.5, 2.5, rng, noise=0.005) for t in truth])
     model = model_walls(pts, 0.0, 2.7, CFG)
     assert model.closed and model.metrics["sparse_px"] == 0
+
+
+def _corridor_with_a_sparse_stretch(rng):
+    """A 10 m x 2 m corridor: the south wall well seen on 0-4 m and 6-10 m, its 4-6 m stretch seen
+    sparsely (the camera passed quickly: a point in 25 of the dense wall's); the north-west corner unseen
+    at every height (north wall data stop 2.5 m short of it, west wall data 1.5 m short)."""
+    dense = [
+        wall_points((0, 0), (4, 0), 1.5, 2.5, rng, noise=0.003),
+        wall_points((6, 0), (10, 0), 1.5, 2.5, rng, noise=0.003),
+        wall_points((10, 0), (10, 2), 1.5, 2.5, rng, noise=0.003),
+        wall_points((10, 2), (2.5, 2), 1.5, 2.5, rng, noise=0.003),
+        wall_points((0, 0.5), (0, 0), 1.5, 2.5, rng, noise=0.003),
+    ]
+    sparse = wall_points((4, 0), (6, 0), 1.5, 2.5, rng, noise=0.003)
+    return np.concatenate([*dense, sparse[rng.random(len(sparse)) < 0.04]])
+
+
+def test_backed_bridges_joins_a_sparsely_seen_stretch_but_not_a_door_or_an_unseen_corner(rng):
+    """The known answer on given walls: the south gap (4-6 m, a few points a bin) is bridged; the north
+    gap (a door: no point) and the unseen corner (not collinear) are not."""
+    from tasks.walls.evidence import backed_bridges
+
+    pts = _corridor_with_a_sparse_stretch(rng)
+    door = (pts[:, 1] > 1.9) & (pts[:, 0] > 5) & (pts[:, 0] < 6)
+    walls = np.array(
+        [[0, 0, 4, 0], [6, 0, 10, 0], [10, 0, 10, 2], [10, 2, 6, 2], [5, 2, 2.5, 2], [0, 0.5, 0, 0.0]]
+    )
+    origin = np.full(len(walls), "observed")
+    bridges = backed_bridges(walls, origin, pts[~door, :2], CFG)
+    assert bridges.shape == (1, 4)
+    assert sorted(bridges[0, [0, 2]]) == [4.0, 6.0] and np.allclose(bridges[0, [1, 3]], 0.0)
+
+
+def test_a_sparsely_seen_corridor_stretch_is_bridged_and_an_unseen_corner_stays_open(rng):
+    model = model_walls(_corridor_with_a_sparse_stretch(rng), 0.0, 2.7, CFG)
+    assert not model.closed
+    truth = np.array([[0, 0, 10, 0], [10, 0, 10, 2], [10, 2, 0, 2], [0, 2, 0, 0.0]])
+    ev = evaluate_walls(model.walls, truth)
+    assert ev["correctness"] >= 0.99, ev
+    # the south wall is modelled whole (4-6 m included); the corner's 2.5 m + 1.5 m are not invented
+    assert ev["completeness"] == pytest.approx((10 + 2 + 7.5 + 0.5) / 24, abs=0.02), ev
+    # without the backed bridge the south wall keeps its 2 m hole (completeness 0.77)
+    assert len(model.metrics["bridged_backed_m"]) == 1 and model.metrics["bridged_backed_m"][0] > 1.5

@@ -42,7 +42,11 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    largest face the walls enclose when the walls on or inside it hold most of the wall length; walls
    outside it (seen through doors and windows), groups hung from the ceiling (lamps) and dangling walls
    shorter than `min_wall_length_m` go. When the walls do not close, collinear pieces are bridged across
-   the wider `bridge_gaps_m`. Walls are turned to have the room on their left;
+   the wider `bridge_gaps_m`, kept when that closes the room. A room that stays open all the same (a
+   corner unseen at every height, which fusion closes along the plan) still gets the collinear gaps its
+   slice points back (`evidence.backed_bridges`: free ends facing each other, nothing standing between,
+   and half the gap's 10 cm bins holding `bridge_seen_ratio` of the median bin along the room's observed
+   walls; a door holds none). Walls are turned to have the room on their left;
 8. extrusion (5.2.6, `model`) to a triangle mesh, and a preview picture.
 
 Choosing α (`topology.choose_alpha`): the thesis has a person raise α until the clutter disappears. Here

@@ -126,6 +126,11 @@ class WallsConfig:
     corner the capture did not see in the slice), keeping the first that closes it; a bridged span between
     two junctions still needs data (the mouth of an alcove stays open), and so does a wall made only by
     extension that is longer than `lines.extend_m`."""
+    bridge_seen_ratio: float = 0.02
+    """When the walls still do not enclose the room (an unseen corner), two collinear observed walls are
+    joined across a longer gap all the same where the slice points back it (`evidence.backed_bridges`): at
+    least `lines.min_overlap` of its 10 cm bins hold this share of the median bin along the room's own
+    observed walls (a stretch the camera passed quickly holds a few points a bin; a door, none)."""
     stable_tol_m: float = 0.05
     """Two candidate models (automatic α) are equal when their walls lie within this of each other."""
     min_wall_length_m: float = 0.2

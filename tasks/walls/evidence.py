@@ -457,3 +457,83 @@ def seen_through_gaps(
         )
         out |= cand & (share >= min_share)
     return out
+
+
+def _bin_counts(xy: NDArray, a: NDArray, b: NDArray, tol: float, bin_m: float) -> NDArray:
+    """Points of `xy` (N, 2) within `tol` of the segment a-b, counted in bins of about `bin_m` along it."""
+    d = b - a
+    length = float(np.hypot(*d))
+    u = d / max(length, 1e-12)
+    rel = xy - a
+    t = rel @ u
+    near = (np.abs(rel @ np.array([-u[1], u[0]])) < tol) & (t >= 0) & (t < length)
+    n = max(1, round(length / bin_m))
+    return np.bincount(np.minimum((t[near] / length * n).astype(np.int64), n - 1), minlength=n)
+
+
+def backed_bridges(walls: NDArray, origin: NDArray, xy: NDArray, cfg: WallsConfig) -> NDArray:
+    """(K, 4) spans joining two collinear observed walls across a gap longer than `lines.max_gap_m` that
+    the slice points back (issue 14: a corridor wall the camera passed quickly, in a room that stays open).
+
+    Both ends facing the gap are free (no other wall within `end_tol_m`), nothing else stands in the gap,
+    and at least `lines.min_overlap` of its 10 cm bins hold `bridge_seen_ratio` times the median bin of
+    the room's own observed walls (points within `support_tol_m`): the reference is the room's, so the
+    sensor's density and the slice's height scale it alike. A door (no points at slice height) or an
+    unseen corner (not collinear) is not bridged."""
+    from tasks.connect import OBSERVED
+
+    seen = np.flatnonzero(origin == OBSERVED)
+    if len(seen) < 2 or len(xy) == 0:
+        return np.zeros((0, 4))
+    bin_m, tol = 0.1, cfg.support_tol_m
+    obs = walls[seen]
+    ref = float(np.median(np.concatenate([_bin_counts(xy, w[:2], w[2:], tol, bin_m) for w in obs])))
+    if ref <= 0:
+        return np.zeros((0, 4))
+    lines = cfg.lines
+    ends = walls.reshape(-1, 2)
+    d_ends = point_segment_distances(ends, walls)  # (2M, M)
+    own = np.repeat(np.arange(len(walls)), 2)
+    d_ends[np.arange(len(ends)), own] = np.inf
+    free = d_ends.min(axis=1) > cfg.end_tol_m
+    ang = angles(walls)
+    cands = []
+    for ii, i in enumerate(seen):
+        u = (walls[i, 2:] - walls[i, :2]) / max(float(lengths(walls[i : i + 1])[0]), 1e-12)
+        nrm = np.array([-u[1], u[0]])
+        for j in seen[ii + 1 :]:
+            da = abs((ang[i] - ang[j] + math.pi / 2) % math.pi - math.pi / 2)
+            if da > math.radians(lines.angle_tol_deg):
+                continue
+            if np.abs((walls[j].reshape(2, 2) - walls[i, :2]) @ nrm).max() > lines.offset_tol_m:
+                continue
+            ti = np.sort(walls[i].reshape(2, 2) @ u)
+            tj = np.sort(walls[j].reshape(2, 2) @ u)
+            lo, hi = (i, j) if ti[1] <= tj[0] else (j, i)
+            tl = ti if lo == i else tj
+            th = tj if lo == i else ti
+            gap = th[0] - tl[1]
+            if gap <= lines.max_gap_m:
+                continue
+            # the facing ends: lo's end furthest along u, hi's nearest
+            el = 2 * lo + int(np.argmax(walls[lo].reshape(2, 2) @ u))
+            eh = 2 * hi + int(np.argmin(walls[hi].reshape(2, 2) @ u))
+            if not (free[el] and free[eh]):
+                continue
+            a, b = ends[el], ends[eh]
+            n = max(2, math.ceil(gap / bin_m))
+            probe = a + np.linspace(0, 1, n + 1)[1:-1, None] * (b - a)
+            others = np.delete(walls, [i, j], axis=0)
+            if len(others) and point_segment_distances(probe, others).min() < tol:
+                continue
+            counts = _bin_counts(xy, a, b, tol, bin_m)
+            if (counts >= cfg.bridge_seen_ratio * ref).mean() >= lines.min_overlap:
+                cands.append((gap, el, eh))
+    used: set[int] = set()
+    out = []
+    for _, el, eh in sorted(cands):
+        if el in used or eh in used:
+            continue
+        used |= {el, eh}
+        out.append(np.concatenate([ends[el], ends[eh]]))
+    return np.array(out).reshape(-1, 4)

@@ -13,11 +13,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from tasks.cloud import DegenerateInputError
-from tasks.connect import OBSERVED
-from tasks.lines import angles, is_closed, transform_segments, wall_graph
+from tasks.connect import EXTENDED, OBSERVED
+from tasks.lines import angles, is_closed, lengths, transform_segments, wall_graph
 from tasks.preview import Key, View, frame_picture
 from tasks.walls.config import WallsConfig
-from tasks.walls.evidence import support_sampler
+from tasks.walls.evidence import backed_bridges, support_sampler
 from tasks.walls.image import Grid, coarse_projection, projection_image
 from tasks.walls.topology import choose_alpha, model_for
 
@@ -285,6 +285,13 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
 
     t2 = time.perf_counter()
     walls, origin = best.walls, best.origin
+    bridges = np.zeros((0, 4))
+    if best.polygon is None and len(walls):
+        # the room stays open: collinear gaps the slice data back are modelled all the same
+        bridges = backed_bridges(walls, origin, xy, cfg)
+        if len(bridges):
+            walls = np.concatenate([walls, bridges])
+            origin = np.concatenate([origin, np.full(len(bridges), EXTENDED)])
     share = support_sampler(best.binary, grid, cfg.support_tol_m)
     support = share(walls)
     polygon = best.polygon
@@ -312,6 +319,7 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
         **best.counts,
         "walls_observed": int((origin == OBSERVED).sum()),
         "walls_extended": int((origin != OBSERVED).sum()),
+        "bridged_backed_m": [round(float(x), 3) for x in lengths(bridges)],
         "closed": polygon is not None,
         "room_area_m2": float(polygon.area) if polygon is not None else None,
         "orientations_deg": sorted({round(float(a), 2) for a in np.degrees(angles(walls))})
