@@ -137,31 +137,7 @@ def _fill_outline_walls(
         both = np.concatenate([wd[fl & (nf == 2) & (wd >= min_width_px)] for fl, wd, nf in runs])
         one_max = float(np.percentile(both, one_face_percentile)) if len(both) else -1.0
         runs = [(fl & ((nf == 2) | ((nf == 1) & (wd <= one_max))), wd, nf) for fl, wd, nf in runs]
-    out = ink | runs[0][0] | runs[1][0].T
-    if faces is not None:
-        # a drawing in coloured layers: only the wall layers' faces bound a wall (MLSTRUCT 302 lost
-        # correctness 0.962 -> 0.949 when corners bordered by other layers' line work were filled)
-        return out
-    # where an outline wall turns, the square between its faces has no ink across it along its row or
-    # its column (both lead on into a room): paper enclosed by the filled walls, no wider than L either
-    # way and bordered by filled wall core (not by ink alone: the inside of a fixture or of a letter)
-    # is a wall's core too (else the skeleton loops round it and each face reads as a wall)
-    n, lab, stats, _c = cv2.connectedComponentsWithStats((~out).astype(np.uint8), connectivity=4)
-    h, w = out.shape
-    x0, y0 = stats[:, cv2.CC_STAT_LEFT], stats[:, cv2.CC_STAT_TOP]
-    x1, y1 = x0 + stats[:, cv2.CC_STAT_WIDTH], y0 + stats[:, cv2.CC_STAT_HEIGHT]
-    hole = (np.maximum(x1 - x0, y1 - y0) < L) & (x0 > 0) & (y0 > 0) & (x1 < w) & (y1 < h)
-    hole[0] = False  # label 0: the ink
-    if hole.any():
-        # each hole's rim (the pixels round it): the share of it that is filled wall core, not ink
-        core = (out & ~ink).astype(np.float64)
-        holes = np.where(hole[lab], lab, 0).astype(np.int32)
-        rim_lab = cv2.dilate(holes.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int32)
-        rim = (rim_lab > 0) & (holes == 0)
-        n_rim = np.bincount(rim_lab[rim], minlength=n)
-        n_core = np.bincount(rim_lab[rim], weights=core[rim], minlength=n)
-        hole &= n_core >= 0.4 * np.maximum(n_rim, 1)
-    return out | hole[lab]
+    return ink | runs[0][0] | runs[1][0].T
 
 
 def _ink_layers(image: NDArray[np.uint8], ink: NDArray[np.bool_], cfg: PlanConfig) -> NDArray[np.uint8]:
