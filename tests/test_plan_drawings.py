@@ -15,7 +15,7 @@ import shapely
 from tasks.plan.config import PlanConfig, PlanScale
 from tasks.plan.doors import _find_doors, swing_share
 from tasks.plan.parse import _scaled_image, parse_plan
-from tasks.plan.raster import InkMasks, _heavy_strokes
+from tasks.plan.raster import InkMasks, _fill_outline_walls, _heavy_strokes
 from tasks.plan.sheet import (
     _bar_blocks,
     _bar_candidates,
@@ -187,6 +187,44 @@ def _pinhole_view(image: np.ndarray, tilt_deg: tuple[float, float], f_share: flo
     Hc /= Hc[2, 2]
     view = cv2.warpPerspective(image, Hc, (out_w, out_h), borderValue=(255, 255, 255))
     return view, Hc
+
+
+def test_outline_wall_corners_filled():
+    """Known answer: a double-line wall (faces 12 px apart, 3 px pens) bending round a bay. Filled
+    between its faces along rows and columns, the squares where it turns have no ink across them either
+    way; they are filled too (no paper left inside the wall), while the bay and the rooms (wider than
+    the 25 px fill) stay paper."""
+    ink = np.zeros((200, 300), np.uint8)
+    outer = np.array([[10, 40], [100, 40], [100, 140], [200, 140], [200, 40], [290, 40]], np.int32)
+    inner = np.array([[10, 55], [85, 55], [85, 155], [215, 155], [215, 55], [290, 55]], np.int32)
+    cv2.polylines(ink, [outer, inner], False, 1, 3)
+    filled = _fill_outline_walls(ink.astype(bool), 25)
+    band = np.zeros_like(ink)  # the wall between its faces, the faces included
+    cv2.polylines(
+        band, [np.array([[10, 47], [92, 47], [92, 147], [207, 147], [207, 47], [290, 47]])], False, 1, 17
+    )
+    band[:, :15], band[:, 286:] = 0, 0  # not the line's round caps past the drawn ends
+    assert filled[band.astype(bool)].all()
+    assert not filled[100:130, 110:190].any()  # the bay
+    assert not filled[0:35, :].any() and not filled[65:200, 0:80].any()  # the rooms either side
+
+
+def test_gap_at_a_thickness_step_stays_paper():
+    """Known answer: a solid wall 8 px thick runs on as one 13 px thick (a 0.15 m and a 0.25 m wall end
+    to end at 0.02 m/px). Where they meet, a symbol drawn over the thick wall cut a pocket out of it:
+    24 px wide at the top, 26 px below (an arrow head). The 25 px fill closes the pocket's mouth along
+    the rows and its 1 px sides down the columns, so it is paper enclosed by filled wall with core on
+    two opposite sides, as the corner squares are; but no wall core runs into it from a side: it is no
+    corner and stays paper (filled, the skeleton bent the wall into a diagonal there)."""
+    ink = np.zeros((100, 240), bool)
+    ink[40:48, 10:120] = True  # the thin wall
+    ink[40:53, 120:230] = True  # the thick wall
+    ink[40:43, 122:146] = False  # the pocket's mouth
+    ink[43:51, 121:147] = False  # its body
+    filled = _fill_outline_walls(ink, 25)
+    assert filled[40:43, 122:146].all()  # the mouth is closed along the rows
+    assert not filled[44:50, 123:145].any()  # the pocket stays paper
+    assert not filled[0:39, :].any() and not filled[54:, :].any()  # the rooms either side
 
 
 def test_scale_bar_ends_sub_pixel_in_the_whole_image_read():
