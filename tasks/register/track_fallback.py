@@ -211,11 +211,12 @@ def place_by_track(
     radial_k: float = 0.0,
 ) -> tuple[dict[int, NDArray[np.float64]], dict[str, Any]]:
     """The track-based fallback (3.2.2): frames (frame_id, t_ns, (H, W) depth m) are levelled by their floor
-        (3.2.2.4), placed by the track (eq 3.17 heading toward the next track point, eq 3.18 translation) and,
-        with plan walls ((M, 4) x0 y0 x1 y1 or (M, 5) with thickness, plan frame), their heading corrected by
-        line parallelism (3.2.2.6); then, beyond the thesis, all frames aligned to each other by a joint ICP
-    (`joint_icp`) on their points with the capture's radial depth error `radial_k` (1/m at the image corner,
-    `RadialDepthError`) taken out. Returns (frame_id -> (4, 4) depth camera → plan, metrics)."""
+    (3.2.2.4), placed by the track (eq 3.17 heading toward the next track point, eq 3.18 translation) and,
+    with plan walls ((M, 4) x0 y0 x1 y1 or (M, 5) with thickness, plan frame), their heading corrected by
+    line parallelism (3.2.2.6); then, beyond the thesis and only with `cfg.track_joint_icp` (off by
+    default), all frames aligned to each other by a joint ICP (`joint_icp`) on their points with the
+    capture's radial depth error `radial_k` (1/m at the image corner, `RadialDepthError`) taken out.
+    Returns (frame_id -> (4, 4) depth camera → plan, metrics)."""
     track = np.asarray(track, dtype=np.float64)
     if track.ndim != 2 or track.shape[1] != 3 or len(track) < 2:
         raise DegenerateInputError(f"the IMU track must be (K>=2, 3) t_ns x y, got shape {track.shape}")
