@@ -777,3 +777,10 @@ def share_along(
     for o in np.arange(-margin_m, margin_m + 1e-9, 0.025):
         hit |= hit_at(pts + o * n)
     return float(hit.mean()) if len(hit) else 0.0
+
+
+def true_runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """[start, end) of every run of True in a 1-D boolean array, in order."""
+    m = np.concatenate([[False], mask, [False]]).astype(int)
+    d = np.diff(m)
+    return [(int(a), int(b)) for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True)]

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from shapely.geometry import LineString, Polygon
 
 from tasks.changes.config import ChangesConfig
-from tasks.lines import Segments, as_segments, lengths, room_polygons, share_along
+from tasks.lines import Segments, as_segments, lengths, room_polygons, share_along, true_runs
 
 ADDED, REMOVED, UNKNOWN = "added", "removed", "unknown"
 
@@ -303,7 +303,7 @@ def removed_walls(
         a = c[:2]
         u = (c[2:] - a) / length
         for kind, mask in ((REMOVED, ~supported & seen), (UNKNOWN, ~supported & ~seen)):
-            for i0, i1 in _runs(mask):
+            for i0, i1 in true_runs(mask):
                 if (i1 - i0) * step_m < cfg.min_length_m:
                     continue
                 p0, p1 = a + (i0 * step_m) * u, a + min(i1 * step_m, length) * u
@@ -319,12 +319,6 @@ def _seen(face: NDArray, n: NDArray, room: PlacedRoom, cfg: ChangesConfig) -> ND
     for d in np.arange(cfg.coverage_cell_m, cfg.coverage_reach_m + 1e-9, cfg.coverage_cell_m):
         out |= room.coverage.at(face + d * n)
     return out
-
-
-def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
-    m = np.concatenate([[False], mask, [False]]).astype(int)
-    d = np.diff(m)
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True))
 
 
 # -------------------------------------------------------------------------------------------- room level

@@ -18,7 +18,7 @@ from tasks.fuse.gaps import GAP_FILLED, GapFill, fill_gaps, shell_polygon
 from tasks.fuse.openings import SpanState, span_state, wall_columns
 from tasks.fuse.place import Placed, RoomInput, RoomModel, place_rooms
 from tasks.fuse.thickness import PlacedWalls, WallThickness, both_sides_thickness, residual_thickness
-from tasks.lines import Segments, as_segments, lengths, share_along
+from tasks.lines import Segments, as_segments, lengths, share_along, true_runs
 
 
 @dataclass(frozen=True)
@@ -187,7 +187,7 @@ def wall_evidence(
                 continue
             runs = [
                 (i0 * 0.05, min(i1 * 0.05, length))
-                for i0, i1 in _bool_runs(mask)
+                for i0, i1 in true_runs(mask)
                 if (i1 - i0) * 0.05 >= min_run_m
             ]
             if runs:
@@ -202,7 +202,7 @@ def door_runs(empty: NDArray[np.bool_], beyond: NDArray[np.bool_], cfg: FuseConf
     sees only the jambs and the floor beside them (the far wall lies beyond reach), and the middle of the
     door, empty but with nothing counted beyond it, is as open as its edges."""
     out = np.zeros(len(empty), dtype=bool)
-    for i0, i1 in _bool_runs(empty):
+    for i0, i1 in true_runs(empty):
         width = (i1 - i0) * 0.05
         if cfg.door_min_m <= width <= cfg.door_max_m and beyond[i0:i1].mean() >= cfg.door_through_share:
             out[i0:i1] = True
@@ -217,12 +217,6 @@ def _beside(
     s = (np.arange(bins) + 0.5) * 0.05
     pts = start + s[:, None] * along + (thickness / 2 + 0.15) * normal
     return shapely.contains_xy(polygon.buffer(0.05), pts[:, 0], pts[:, 1])
-
-
-def _bool_runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
-    m = np.concatenate([[False], mask, [False]]).astype(int)
-    d = np.diff(m)
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True))
 
 
 def _fuse_room(

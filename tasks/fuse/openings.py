@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from tasks.lines import Segments, as_segments, lengths
+from tasks.lines import Segments, as_segments, lengths, true_runs
 
 LOW_M = (0.15, 1.0)
 """Height band (above the floor) where a door is open and a window's parapet or a sill is not."""
@@ -194,7 +194,7 @@ def find_doors(
             open_ &= high <= high_share * ref_high
         empty = cols.face_low <= empty_share * ref_low
         nbins = len(empty)
-        for i0, i1 in _runs(open_):
+        for i0, i1 in true_runs(open_):
             while i0 > 0 and empty[i0 - 1] and not open_[i0 - 1]:  # the neighbours' average eroded it
                 i0 -= 1
             while i1 < nbins and empty[i1] and not open_[i1]:
@@ -259,13 +259,6 @@ def span_state(
         return SpanState(None, through, spread)
     seen = face[inside] >= max(min_points, min_share * ref)
     return SpanState(float(seen.mean()), through, spread)
-
-
-def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
-    """[start, end) of every run of True."""
-    m = np.concatenate([[False], mask, [False]]).astype(int)
-    d = np.diff(m)
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True))
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from tasks.lines import true_runs
+
 log = logging.getLogger(__name__)
 
 _LENGTH = re.compile(r"^(\d{1,3})[.,]?(\d{2})$")
@@ -106,20 +108,12 @@ def crossings(ink: NDArray[np.bool_], a: float, b: float, u0: int, u1: int) -> t
     below = ink[vb, us[None, :]].mean(axis=0)
     hit = (above >= 0.2) & (below >= 0.2)
     out, reach = [], []
-    k = 0
-    while k < len(hit):
-        if not hit[k]:
-            k += 1
-            continue
-        e = k
-        while e + 1 < len(hit) and hit[e + 1]:
-            e += 1
-        wts = (above[k : e + 1] + below[k : e + 1]).astype(np.float64)
-        c = float((us[k : e + 1] * wts).sum() / wts.sum())
+    for k, e in true_runs(hit):
+        wts = (above[k:e] + below[k:e]).astype(np.float64)
+        c = float((us[k:e] * wts).sum() / wts.sum())
         out.append(c)
         col = ink[round(a + b * c) :, round(c)]
         reach.append(float(np.argmin(np.append(col, False))))
-        k = e + 1
     return out, float(np.median(reach)) if reach else 0.0
 
 

@@ -88,19 +88,10 @@ def _thickness_px(
 
 def _line_centres(profile: NDArray, offs: NDArray) -> list[float]:
     """Centres (mass-weighted offsets) of the ink runs of a profile across a wall, separated by paper."""
-    ink = profile > 0.5
     out = []
-    k = 0
-    while k < len(ink):
-        if not ink[k]:
-            k += 1
-            continue
-        e = k
-        while e + 1 < len(ink) and ink[e + 1]:
-            e += 1
-        w = profile[k : e + 1]
-        out.append(float((w * offs[k : e + 1]).sum() / max(float(w.sum()), 1e-9)))
-        k = e + 1
+    for k, e in lines.true_runs(profile > 0.5):
+        w = profile[k:e]
+        out.append(float((w * offs[k:e]).sum() / max(float(w.sum()), 1e-9)))
     return out
 
 
