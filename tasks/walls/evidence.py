@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from tasks.connect import OBSERVED
 from tasks.lines import angles, lengths, point_segment_distances, sample_segments
 from tasks.walls.config import WallsConfig
 from tasks.walls.image import Grid
@@ -480,8 +481,6 @@ def backed_bridges(walls: NDArray, origin: NDArray, xy: NDArray, cfg: WallsConfi
     the room's own observed walls (points within `support_tol_m`): the reference is the room's, so the
     sensor's density and the slice's height scale it alike. A door (no points at slice height) or an
     unseen corner (not collinear) is not bridged."""
-    from tasks.connect import OBSERVED
-
     seen = np.flatnonzero(origin == OBSERVED)
     if len(seen) < 2 or len(xy) == 0:
         return np.zeros((0, 4))
