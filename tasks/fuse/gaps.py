@@ -115,13 +115,26 @@ def _first_hit(ring: shapely.LinearRing, p: NDArray, d: NDArray, reach_m: float)
 
 
 def _covered(pieces: Segments, walls: Segments, tol_m: float) -> NDArray[np.bool_]:
-    """(P,) shell pieces whose samples mostly lie within tol_m of a model wall."""
+    """(P,) shell pieces whose samples mostly lie beside a model wall: within tol_m of it, their foot on
+    the wall between its ends (`beside`). Past a wall's free end the shell is a gap, also within tol_m of
+    that end: the stretch from where a wall stops short to the corner it should reach is filled."""
     if len(pieces) == 0 or len(walls) == 0:
         return np.zeros(len(pieces), dtype=bool)
     pts, owner = sample_segments(pieces, 0.05)
-    near = point_segment_distances(pts, walls).min(axis=1) <= tol_m
+    near = beside(pts, as_segments(walls), tol_m)
     share = np.bincount(owner, near, len(pieces)) / np.bincount(owner, minlength=len(pieces))
     return share >= 0.5
+
+
+def beside(points: NDArray, walls: Segments, tol_m: float) -> NDArray[np.bool_]:
+    """(N,) points within tol_m of some wall whose foot on it lies between the wall's ends."""
+    a, b = walls[:, :2], walls[:, 2:]
+    length = np.maximum(lengths(walls), 1e-12)
+    u = (b - a) / length[:, None]
+    rel = np.asarray(points, dtype=np.float64)[:, None, :] - a[None]
+    t = (rel * u[None]).sum(-1)
+    off = np.abs(rel[..., 0] * u[None, :, 1] - rel[..., 1] * u[None, :, 0])
+    return ((off <= tol_m) & (t >= -1e-9) & (t <= length[None] + 1e-9)).any(axis=1)
 
 
 def _shell_graph(
