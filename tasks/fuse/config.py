@@ -54,9 +54,10 @@ class FuseConfig:
     """A model door and a plan door coincide when their centres are this close along the wall."""
     plan_simplify_m: float = 0.02
     """Plan room outlines are simplified by this (the raster's pixel jitter) before their edges become faces."""
-    thickness_method: Literal["both_sides", "residuals"] = "both_sides"
-    """Per-wall thickness: the distance between the facing inner faces of the two rooms on either side
-    (both_sides), or the thesis' one value per room from the registration residuals (residuals)."""
+    thickness_method: Literal["both_sides", "model_lines", "residuals"] = "both_sides"
+    """Per-wall thickness: the distance between the facing inner faces of the two rooms on either side,
+    each where its room's cloud shows it (both_sides), or between the rooms' straight model lines
+    (model_lines), or the thesis' one value per room from the registration residuals (residuals)."""
     thickness_range_m: tuple[float, float] = (0.05, 0.60)
     """Plausible wall thickness: measurements outside it are not taken."""
     default_thickness_m: float = 0.15

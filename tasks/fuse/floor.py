@@ -54,6 +54,7 @@ class FusedFloor:
     thickness: WallThickness
     thickness_residuals: WallThickness
     """The thesis' per-room residual thickness, kept for the comparison."""
+    thickness_lines: WallThickness
     centrelines: Segments
     plan_doors: Segments
     plan_rooms: list[PlanRoom]
@@ -80,7 +81,12 @@ def fuse_floor(
         if p.placement is not None:
             m = models[rid]
             on_plan.append(
-                PlacedWalls(rid, p.placement.segments(by_id[rid].walls), m.inward @ p.placement.rotation.T)
+                PlacedWalls(
+                    rid,
+                    p.placement.segments(by_id[rid].walls),
+                    m.inward @ p.placement.rotation.T,
+                    _wall_band(by_id[rid], p.placement),
+                )
             )
     args = (
         centrelines,
@@ -90,7 +96,8 @@ def fuse_floor(
         cfg.default_thickness_m,
     )
     both, resid = both_sides_thickness(*args), residual_thickness(*args)
-    thickness = both if cfg.thickness_method == "both_sides" else resid
+    lines = both_sides_thickness(*args, local=False)
+    thickness = {"both_sides": both, "model_lines": lines, "residuals": resid}[cfg.thickness_method]
     plan_by_id = {p.id: p for p in plan_rooms}
     fused = {}
     for rid, p in placed.items():
@@ -100,8 +107,18 @@ def fuse_floor(
     fused = cross_check_doors(fused, by_id, models, cfg)
     evidence = wall_evidence(fused, by_id, models, centrelines, thickness.thickness_m, cfg)
     return FusedFloor(
-        fused, models, thickness, resid, centrelines, as_segments(plan_doors), plan_rooms, {}, evidence
+        fused, models, thickness, resid, lines, centrelines, as_segments(plan_doors), plan_rooms, {}, evidence
     )
+
+
+def _wall_band(room: RoomInput, placement) -> NDArray[np.float64] | None:
+    """(M, 2) the room's cloud from 0.15 m above its floor to 0.10 m below its ceiling, in the plan frame
+    (where its walls' faces show, clear of the floor and ceiling): None without a cloud."""
+    if room.points is None:
+        return None
+    z = room.points[:, 2]
+    band = room.points[(z >= room.floor_z + 0.15) & (z <= room.ceiling_z - 0.10), :2]
+    return placement.points(band)
 
 
 @dataclass(frozen=True)

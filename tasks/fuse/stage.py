@@ -4,7 +4,8 @@ the parsed plan, place and fuse them (tasks.fuse.floor), write the fused floor.
 Outputs (its own folder; the publish step copies them):
 - floor.geojson: placed rooms, their walls (inner faces, origin), plan walls with fused thickness and the
   rooms on each side, doors;
-- thickness.parquet: per plan wall, the fused thickness and its source, and the thesis' residual figure;
+- thickness.parquet: per plan wall, the fused thickness and its source, the thesis' residual figure and the
+  distance between the rooms' model lines (tasks.fuse.thickness: the comparison);
 - fuse.json: per room, the correspondence and its source, the transform, residuals and fit score, or
   why the room was not placed; whether it closed; per plan wall, the stretches crisp captures show
   standing or seen through (the changes stage);
@@ -156,6 +157,7 @@ def write_outputs(
             source=t.source.tolist(),
             thickness_residuals_m=r.thickness_m,
             source_residuals=r.source.tolist(),
+            thickness_lines_m=floor.thickness_lines.thickness_m,
             room_left=[s[0] or "" for s in t.sides],
             room_right=[s[1] or "" for s in t.sides],
         ),

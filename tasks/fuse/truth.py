@@ -248,7 +248,10 @@ def fusion_figures(
     fsegs = np.column_stack([faces[c].to_numpy() for c in ("x0", "y0", "x1", "y1")]).astype(np.float64)
     both = both_sides_truth(tc, tthick, fsegs, np.asarray(faces["room_id"].to_pylist()))
     fc, ft = art.read_segments(fuse.file("thickness.parquet"))
-    for name, col in (("both_sides", "thickness_m"), ("residuals", "thickness_residuals_m")):
+    methods = [("both_sides", "thickness_m"), ("residuals", "thickness_residuals_m")]
+    if "thickness_lines_m" in ft.column_names:
+        methods.append(("model_lines", "thickness_lines_m"))
+    for name, col in methods:
         err = thickness_errors(fc, ft[col].to_numpy(), tc, tthick)
         e = err[both & np.isfinite(err)]
         out[f"thickness_{name}"] = {
