@@ -181,13 +181,17 @@ class SfmConfig:
     `max_num_features` of them spread over this many (columns, rows) cells: the largest-scale features of
     every cell first, then the next of every cell, so that no part of the frame is left out while
     another holds hundreds. (0, 0) keeps SIFT's own choice (the largest scales of the whole frame)."""
-    sift_first_octave: int = -1
-    """SIFT's first octave: -1 doubles the image before the scale space (COLMAP's default: more, smaller
-    features), 0 starts at the image's own resolution. 0 costs far less but is not the default: on 100
-    real 7-Scenes frames SfM CPU 95.7 -> 39.3 s (extraction 30.8 -> 10.1 s; matching and mapping halved
-    with the fewer, larger features) at ATE 4.23 -> 4.29 cm, all registered, but on the rendered views of
-    the synthetic rooms the camera centres came out 12 mm off instead of 1.9 mm (fewer, worse-placed
-    points). Worth setting for real, blurred video frames."""
+    sift_first_octave: int | None = None
+    """SIFT's first octave: -1 doubles the frame before the scale space (COLMAP's default: more, smaller
+    features), 0 starts at the frame's own resolution, None chooses from the camera (`sift_min_focal_px`)."""
+    sift_min_focal_px: float = 500.0
+    """With `sift_first_octave` None, the frame is doubled only when its focal length (in the pixels SIFT
+    sees, after `max_image_size_px`) is below this, so that SIFT's finest scale (1.6 px) always spans at
+    most about 3 mrad: what the map's accuracy follows. Rendered views of the test room, camera centres
+    after Sim(3): 320x240 (f 260 px) 12.7 mm at octave 0, 1.8 mm doubled; 640x480 (f 520 px) 0.9 mm either
+    way. On 100 real 7-Scenes frames (f 585 px) octave 0 instead of -1 cut SfM's CPU by about half at ATE
+    4.23 -> 4.29 cm (earlier settings); every synthetic survey (320x240, f 261 px) is still doubled. The
+    choice is in the metrics (`sfm.sift_first_octave`)."""
     feature_threads: int = 1
     """Threads for SIFT extraction and matching (the frames enter the database in capture order first, so
     the image ids do not depend on it). One by default: with two, a 300-frame register stage gave a
