@@ -161,10 +161,12 @@ class SfmConfig:
     `exhaustive_max_frames` frames, sequential beyond."""
     exhaustive_max_frames: int = 40
     """Largest frame count matched exhaustively by `matching="auto"`."""
-    sequential_overlap: int = 10
-    """Sequential matching: each frame is matched with this many following frames. 5 on 100 real 7-Scenes
-    frames (every 10th of the recording, loop pairs as below): matching CPU 11.1 -> 8.0 s of about 96,
-    ATE 4.29 -> 4.26 cm, all registered; too little to leave the plain pycolmap setting."""
+    sequential_overlap: int = 5
+    """Sequential matching: each frame is matched with this many following frames. On 100 real 7-Scenes
+    frames (every 10th of the recording, loop pairs as below) 5 instead of 10: with SIFT at the frames' own
+    resolution matching CPU 8.5 -> 5.6 s of 32 (SfM 0.323 -> 0.291 CPU s/frame), ATE 4.29 -> 4.26 cm, all
+    registered (doubled frames: 11.1 -> 8.0 s of 96, ATE 4.29 -> 4.26 cm). Captures up to
+    `exhaustive_max_frames` frames are matched exhaustively and do not use it."""
     loop_keyframe_stride: int = 5
     """Loop closures (sequential matching): every n-th frame is also matched with every other n-th frame
     farther apart than the overlap (0 = off). Stands in for vocabulary-tree loop detection, whose tree
@@ -189,8 +191,9 @@ class SfmConfig:
     sees, after `max_image_size_px`) is below this, so that SIFT's finest scale (1.6 px) always spans at
     most about 3 mrad: what the map's accuracy follows. Rendered views of the test room, camera centres
     after Sim(3): 320x240 (f 260 px) 12.7 mm at octave 0, 1.8 mm doubled; 640x480 (f 520 px) 0.9 mm either
-    way. On 100 real 7-Scenes frames (f 585 px) octave 0 instead of -1 cut SfM's CPU by about half at ATE
-    4.23 -> 4.29 cm (earlier settings); every synthetic survey (320x240, f 261 px) is still doubled. The
+    way. On 100 real 7-Scenes frames (f 585 px) octave 0 instead of -1: SfM 0.750 -> 0.323 CPU s/frame
+    (extraction 25.7 -> 8.1 s, matching 23.6 -> 8.5, mapping 24.1 -> 14.2) at ATE 4.23 -> 4.29 cm, all
+    registered; every synthetic survey (320x240, f 261 px) is still doubled, so maps the same bytes. The
     choice is in the metrics (`sfm.sift_first_octave`)."""
     feature_threads: int = 1
     """Threads for SIFT extraction and matching (the frames enter the database in capture order first, so
