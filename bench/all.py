@@ -98,7 +98,7 @@ def row_sfm(size: dict[str, int], quick: bool, sets: list[str]) -> list[dict[str
             "row": "SfM",
             "figure": f"{s['sfm_s_per_frame']:.3f} s/frame ({s['sfm_cpu_s_per_frame']:.3f} s CPU)",
             "accuracy": f"{s['registered']}/{s['frames']} registered, ATE {s['ate_cm']:.2f} cm",
-            "input": f"{n} real 640x480 Kinect frames",
+            "input": f"{n} real 640x480 Kinect frames, SIFT octave {s.get('sift_first_octave', -1)}",
             "load": run["load"],
             "data": s,
         },

@@ -108,6 +108,7 @@ def bench_sfm_and_scale(n: int, cfg: SfmConfig) -> dict[str, Any]:
         "sfm_s_per_frame": sfm_s / n,
         "sfm_cpu_s_per_frame": sfm_cpu / n,
         "sfm_stages_s": {k: sfm.metrics[k] for k in stages},
+        "sift_first_octave": sfm.metrics.get("sift_first_octave"),
         "scale_s_per_frame": scale_s / n,
         "scale_cpu_s_per_frame": scale_cpu / n,
         "scale_frames_used": len(report.frames_used),
@@ -284,7 +285,8 @@ def main(argv: list[str] | None = None) -> int:
             f"SfM   {r['sfm_s_per_frame']:.3f} s/frame wall, {r['sfm_cpu_s_per_frame']:.3f} s/frame CPU at 640x480 "
             f"({r['registered']}/{r['frames']} registered, ATE {r['ate_cm']:.2f} cm; extract "
             f"{st['extract_s']:.1f} s / {st['extract_cpu_s']:.1f} s CPU, match {st['match_s']:.1f} / "
-            f"{st['match_cpu_s']:.1f}, map {st['map_s']:.1f} / {st['map_cpu_s']:.1f})",
+            f"{st['match_cpu_s']:.1f}, map {st['map_s']:.1f} / {st['map_cpu_s']:.1f}; SIFT first octave "
+            f"{r['sift_first_octave']})",
             flush=True,
         )
         print(

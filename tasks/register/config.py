@@ -161,10 +161,12 @@ class SfmConfig:
     `exhaustive_max_frames` frames, sequential beyond."""
     exhaustive_max_frames: int = 40
     """Largest frame count matched exhaustively by `matching="auto"`."""
-    sequential_overlap: int = 10
-    """Sequential matching: each frame is matched with this many following frames. 5 on 100 real 7-Scenes
-    frames (every 10th of the recording, loop pairs as below): matching CPU 11.1 -> 8.0 s of about 96,
-    ATE 4.29 -> 4.26 cm, all registered; too little to leave the plain pycolmap setting."""
+    sequential_overlap: int = 5
+    """Sequential matching: each frame is matched with this many following frames. On 100 real 7-Scenes
+    frames (every 10th of the recording, loop pairs as below) 5 instead of 10: with SIFT at the frames' own
+    resolution matching CPU 8.5 -> 5.6 s of 32 (SfM 0.323 -> 0.291 CPU s/frame), ATE 4.29 -> 4.26 cm, all
+    registered (doubled frames: 11.1 -> 8.0 s of 96, ATE 4.29 -> 4.26 cm). Captures up to
+    `exhaustive_max_frames` frames are matched exhaustively and do not use it."""
     loop_keyframe_stride: int = 5
     """Loop closures (sequential matching): every n-th frame is also matched with every other n-th frame
     farther apart than the overlap (0 = off). Stands in for vocabulary-tree loop detection, whose tree
@@ -181,13 +183,18 @@ class SfmConfig:
     `max_num_features` of them spread over this many (columns, rows) cells: the largest-scale features of
     every cell first, then the next of every cell, so that no part of the frame is left out while
     another holds hundreds. (0, 0) keeps SIFT's own choice (the largest scales of the whole frame)."""
-    sift_first_octave: int = -1
-    """SIFT's first octave: -1 doubles the image before the scale space (COLMAP's default: more, smaller
-    features), 0 starts at the image's own resolution. 0 costs far less but is not the default: on 100
-    real 7-Scenes frames SfM CPU 95.7 -> 39.3 s (extraction 30.8 -> 10.1 s; matching and mapping halved
-    with the fewer, larger features) at ATE 4.23 -> 4.29 cm, all registered, but on the rendered views of
-    the synthetic rooms the camera centres came out 12 mm off instead of 1.9 mm (fewer, worse-placed
-    points). Worth setting for real, blurred video frames."""
+    sift_first_octave: int | None = None
+    """SIFT's first octave: -1 doubles the frame before the scale space (COLMAP's default: more, smaller
+    features), 0 starts at the frame's own resolution, None chooses from the camera (`sift_min_focal_px`)."""
+    sift_min_focal_px: float = 500.0
+    """With `sift_first_octave` None, the frame is doubled only when its focal length (in the pixels SIFT
+    sees, after `max_image_size_px`) is below this, so that SIFT's finest scale (1.6 px) always spans at
+    most about 3 mrad: what the map's accuracy follows. Rendered views of the test room, camera centres
+    after Sim(3): 320x240 (f 260 px) 12.7 mm at octave 0, 1.8 mm doubled; 640x480 (f 520 px) 0.9 mm either
+    way. On 100 real 7-Scenes frames (f 585 px) octave 0 instead of -1: SfM 0.750 -> 0.323 CPU s/frame
+    (extraction 25.7 -> 8.1 s, matching 23.6 -> 8.5, mapping 24.1 -> 14.2) at ATE 4.23 -> 4.29 cm, all
+    registered; every synthetic survey (320x240, f 261 px) is still doubled, so maps the same bytes. The
+    choice is in the metrics (`sfm.sift_first_octave`)."""
     feature_threads: int = 1
     """Threads for SIFT extraction and matching (the frames enter the database in capture order first, so
     the image ids do not depend on it). One by default: with two, a 300-frame register stage gave a
@@ -198,7 +205,10 @@ class SfmConfig:
     this factor since the last one (COLMAP's default 1.1; more means fewer global adjustments). 1.4 with
     the points ratio 1.4 and one local refinement: on 100 real 7-Scenes frames mapping CPU 19.0 -> 11.8 s
     at ATE 4.26 -> 4.25 cm, but (with two feature threads) data/mini's r1 came out at ATE 2.3 cm instead
-    of 0.3, scale -0.37 % instead of -0.10 %, corner F1 0.71 instead of 1.00; so COLMAP's defaults stay."""
+    of 0.3, scale -0.37 % instead of -0.10 %, corner F1 0.71 instead of 1.00; so COLMAP's defaults stay.
+    Again with one thread and SIFT at the frames' own resolution: 7-Scenes mapping 16.2 -> 9.5 CPU s (SfM
+    0.25 CPU s/frame) at ATE 4.25 cm, and data/mini's r1 ATE 0.32 -> 2.15 cm, corner F1 0.77: the bundle
+    adjustments, not the threads, cost r1 its accuracy."""
     ba_global_points_ratio: float = 1.1
     """Incremental mapping: likewise for the number of 3D points."""
     ba_global_max_refinements: int = 5

@@ -148,6 +148,20 @@ def _loop_pairs(names: list[str], cfg: SfmConfig) -> list[tuple[str, str]]:
     ]
 
 
+def sift_first_octave(camera: CameraModel | None, size: tuple[int, int], cfg: SfmConfig) -> int:
+    """SIFT's first octave for frames of `size` (width, height): `cfg.sift_first_octave` when set, else
+    -1 (the frame doubled) when the focal length in the pixels SIFT sees (after the `max_image_size_px`
+    downscale) is below `cfg.sift_min_focal_px`, 0 otherwise. Without a calibrated camera the focal length
+    is COLMAP's own prior for an unknown camera, 1.2 times the longest side."""
+    if cfg.sift_first_octave is not None:
+        return cfg.sift_first_octave
+    longest = max(size)
+    focal = float(min(camera.K[0, 0], camera.K[1, 1])) if camera is not None else 1.2 * longest
+    if cfg.max_image_size_px > 0 and longest > cfg.max_image_size_px:
+        focal *= cfg.max_image_size_px / longest
+    return -1 if focal < cfg.sift_min_focal_px else 0
+
+
 def run_sfm(
     images: Sequence[tuple[str, NDArray[np.uint8]]],
     camera: CameraModel | None,
@@ -177,8 +191,10 @@ def run_sfm(
     db = workdir / "database.db"
     if db.exists():
         db.unlink()
+    first = np.asarray(images[0][1])
+    octave = sift_first_octave(camera, (first.shape[1], first.shape[0]), cfg)
     t0, c0 = time.perf_counter(), time.process_time()
-    _extract_features(db, img_dir, names, camera, cfg)
+    _extract_features(db, img_dir, names, camera, cfg, octave)
     timings["extract_s"], timings["extract_cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
 
     t0, c0 = time.perf_counter(), time.process_time()
@@ -203,6 +219,7 @@ def run_sfm(
         points=len(result.points),
         models=result.models,
         matching=mode,
+        sift_first_octave=octave,
     )
     log.info(
         "sfm: %d of %d frames registered, %d points, %.1f s",
@@ -236,10 +253,10 @@ def _write_images(
 
 
 def _extract_features(
-    db: Path, img_dir: Path, names: list[str], camera: CameraModel | None, cfg: SfmConfig
+    db: Path, img_dir: Path, names: list[str], camera: CameraModel | None, cfg: SfmConfig, octave: int
 ) -> None:
-    """SIFT features of every frame into the database, one shared camera (the calibrated pinhole one, or
-    `uncalibrated_camera_model` for COLMAP to estimate)."""
+    """SIFT features (scale space from `octave`) of every frame into the database, one shared camera (the
+    calibrated pinhole one, or `uncalibrated_camera_model` for COLMAP to estimate)."""
     import pycolmap
 
     if camera is not None:
@@ -254,7 +271,7 @@ def _extract_features(
     )
     bucketed = min(cfg.feature_grid) > 0
     extraction.sift.max_num_features = cfg.max_num_features * (4 if bucketed else 1)
-    extraction.sift.first_octave = cfg.sift_first_octave
+    extraction.sift.first_octave = octave
     # the frames enter the database in capture order first: the extractor numbers the images it adds in
     # the order its threads finish them, and the mapper's choices follow the image ids
     pycolmap.Database.open(db).close()
