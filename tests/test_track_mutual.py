@@ -55,6 +55,14 @@ def _placement(truth: dict[int, np.ndarray], placed: dict[int, np.ndarray]) -> _
     world = _corridor_points()
     plan = object.__new__(_PlanPlacement)
     plan.cfg = RegisterConfig()
+    plan.walls = np.array(  # the corridor's plan: centrelines and thickness, inner faces on its box
+        [
+            [-0.1, -0.1, LENGTH + 0.1, -0.1, 0.2],
+            [-0.1, WIDTH + 0.1, LENGTH + 0.1, WIDTH + 0.1, 0.2],
+            [-0.1, -0.1, -0.1, WIDTH + 0.1, 0.2],
+            [LENGTH + 0.1, -0.1, LENGTH + 0.1, WIDTH + 0.1, 0.2],
+        ]
+    )
     plan.order = sorted(truth)
     plan.cam_points = {f: _seen_from(T, world) for f, T in truth.items()}
     plan.fit = {f: PlanFit(placed[f], 0.0, 0.0, 0.0, np.zeros((2, 2))) for f in truth}

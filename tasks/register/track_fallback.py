@@ -16,10 +16,11 @@ from scipy.spatial import cKDTree
 
 from tasks.camera import Calibration, CameraModel
 from tasks.cloud import DegenerateInputError
+from tasks.lines import angle_difference, angles
 from tasks.register.config import RegisterConfig
 from tasks.register.fusion import frame_points, radial_position, transform_points
 from tasks.register.joint_icp import JointIcpSettings, joint_icp, thin_view
-from tasks.register.plan_icp import PlanFit, fit_to_plan, icp_to_plan, plan_faces
+from tasks.register.plan_icp import PlanFit, fit_to_plan, icp_to_plan, plan_faces, wall_lines
 
 
 def depth_normals(
@@ -529,6 +530,18 @@ class _PlanPlacement:
         """(N, 2) the frame's wall-band points placed by T (default: its fit), one per `line_cell_m` cell."""
         return wall_band_xy(self.fit[f].T if T is None else T, self.cam_points[f], self.cfg)
 
+    def parallel_to_plan(self, f: int, T: NDArray[np.float64]) -> bool:
+        """Whether the frame placed by T has most of its wall lines (`line_good_fraction` of their length)
+        within 2 degrees of a plan wall's direction (3.2.2.6: the heading is that of the plan's walls; a
+        frame seeing a corner close up fits the other frames' points turned by some degrees as well)."""
+        lines = wall_lines(transform_points(T, np.asarray(self.cam_points[f], dtype=np.float64)), self.cfg)
+        if len(lines) == 0:
+            return False
+        turn = angle_difference(angles(lines)[:, None], angles(self.walls[:, :4])[None])
+        along = (np.abs(turn) <= np.radians(2.0)).any(axis=1)
+        length = np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1])
+        return bool(length[along].sum() >= self.cfg.line_good_fraction * length.sum())
+
     def check_with_neighbours(self) -> dict[str, Any]:
         """Beyond the thesis: each frame's placement checked against the other frames' depth, not the plan.
         A frame whose wall points land on the walls the other frames saw (`agreement`) for less than half
@@ -536,7 +549,7 @@ class _PlanPlacement:
         a corridor's end fits the plan as well turned by a quarter). It is turned about its camera in steps
         of 30 degrees and each start fitted to the others' points (`icp_to_points`); the placement most of
         its points agree on is taken when no distinct placement agrees almost as well (a frame seeing one
-        corner close up fits every corner). A frame that then still agrees with under a quarter of that
+        corner close up fits every corner) and its wall lines run along the plan's walls. A frame that then still agrees with under a quarter of that
         share is left unplaced: its points would stand in the cloud as walls nobody else saw, placed by
         the coarse plan alone. Returns metrics: the capture's median agreement, each frame's before and
         after, the frames turned (degrees) and those left unplaced."""
@@ -563,7 +576,7 @@ class _PlanPlacement:
                     tried.append((agreement(self.wall_xy(f, T1), others, tol), T1))
                 got, best = max(tried, key=lambda c: c[0])
                 rivals = [T for g, T in tried if g >= got - 0.1 and _distinct(T, best)]
-                if got < max(share[f] + 0.1, 0.5 * typical) or rivals:
+                if got < max(share[f] + 0.1, 0.5 * typical) or rivals or not self.parallel_to_plan(f, best):
                     continue
                 rel = best[:3, :3] @ self.fit[f].T[:3, :3].T
                 turn = float(np.arctan2(rel[1, 0], rel[0, 0]))
