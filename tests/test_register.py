@@ -627,17 +627,22 @@ def _precision_eq_3_19(frames_path: Path, est: dict, truth: dict, calib: Calibra
 @pytest.mark.slow
 def test_synthetic_hallway_sfm_fails_and_the_track_fallback_places_every_frame(mini_run):
     """The texture-poor hallway of data/mini as the pipeline registered it: SfM fails, and the IMU track with
-    the plan stage's walls (door gaps; the built walls may differ from them) places every frame."""
+    the plan stage's walls (door gaps; the built walls may differ from them) places every frame but the
+    few whose walls the other frames' depth contradicts (on data/mini two, 25 and 90 degrees off before)."""
     _, work = mini_run
     hall = next(r for r, kind in _survey_rooms(MINI).items() if kind == "hallway")
     result = _stage_result(work, hall, "register")
     metrics = result.manifest["metrics"]
     poses = pq.read_table(result.file("poses.parquet")).to_pydict()
     assert metrics["sfm_registered_fraction"] < 0.5
-    assert set(poses["method"]) == {"track"}
+    # every frame placed by the track, but those the other frames' depth contradicts (left unplaced)
+    unplaced = metrics["fallback"]["mutual_check"]["unplaced"]
+    assert len(unplaced) <= 0.1 * len(poses["frame_id"])
+    assert set(poses["method"]) <= {"track", "none"}
+    assert sum(m == "none" for m in poses["method"]) == len(unplaced)
     est = pose_matrices(poses)
     truth = _truth_poses(MINI / "truth" / "poses" / f"{hall}.parquet")
-    assert sorted(est) == sorted(truth)
+    assert sorted(est) == sorted(set(truth) - set(unplaced))
     calib = Calibration.from_json(
         read_json(_stage_result(work, BUILDING, "calibrate").file("calibration.json"))
     )

@@ -139,6 +139,15 @@ class RegisterConfig:
     (else the model's placement stands); also the robust scale of the model's residuals."""
     wall_band_m: tuple[float, float] = (0.3, 2.0)
     """Height band above the floor whose points form the projected wall image."""
+    track_mutual_check: bool = True
+    """After the fallback's placement on the plan walls, each frame checked against the other frames' depth
+    (`check_with_neighbours`): a frame whose wall points land on the walls the others saw for less than half
+    the capture's typical share (a corner fits the coarse plan as well turned by a quarter) is turned about
+    its camera onto the others' points where one placement clearly agrees, and left unplaced where it
+    still agrees with under a quarter of that share."""
+    track_mutual_tol_m: float = 0.05
+    """Mutual check: a frame's wall point agrees with the other frames when one of theirs lies this close (a
+    Kinect's wall noise at 3-4 m and a placement's few centimetres)."""
     track_joint_icp: bool = False
     """After the fallback's placement on the plan walls, one joint ICP of all its frames (`joint_icp`, issue
     #15): every frame moved in x, y and heading so that the walls neighbouring frames share coincide, in the

@@ -12,13 +12,15 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from tasks.camera import Calibration, CameraModel
 from tasks.cloud import DegenerateInputError
+from tasks.lines import angle_difference, angles
 from tasks.register.config import RegisterConfig
-from tasks.register.fusion import frame_points, radial_position
+from tasks.register.fusion import frame_points, radial_position, transform_points
 from tasks.register.joint_icp import JointIcpSettings, joint_icp, thin_view
-from tasks.register.plan_icp import PlanFit, fit_to_plan, icp_to_plan, plan_faces
+from tasks.register.plan_icp import PlanFit, fit_to_plan, icp_to_plan, plan_faces, wall_lines
 
 
 def depth_normals(
@@ -241,12 +243,16 @@ def place_by_track(
     angles: dict[int, float] = {}
     restarted = searched = 0
     drift_metrics: dict[str, Any] = {}
+    mutual_metrics: dict[str, Any] = {}
     if use_plan:
         plan = _PlanPlacement(start, cam_points, np.asarray(plan_walls, dtype=np.float64), inside, poses)
         restarted = plan.restart_from_neighbours()
         searched = plan.search_headings()
         if cfg.track_drift_model and inside:
             drift_metrics = plan.fit_drift_model()
+        if cfg.track_mutual_check and inside:
+            mutual_metrics = plan.check_with_neighbours()
+            inside = [f for f in inside if f not in set(mutual_metrics["unplaced"])]
         poses = {f: plan.fit[f].T for f in inside}
         angles = {f: plan.fit[f].angle + plan.starts[f] for f in inside}
     joint_metrics: dict[str, Any] = {}
@@ -269,6 +275,7 @@ def place_by_track(
         "camera_height_m": default_h,
         "heading_corrections_deg": [round(float(np.degrees(angles.get(f, 0.0))), 2) for f in inside],
         "drift_model": drift_metrics,
+        "mutual_check": mutual_metrics,
         "joint_icp": joint_metrics,
     }
     return poses, metrics
@@ -518,6 +525,142 @@ class _PlanPlacement:
         self.fit[f] = base._replace(T=T0)
         placed[k], info[k] = p, 0.0
         return False
+
+    def wall_xy(self, f: int, T: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+        """(N, 2) the frame's wall-band points placed by T (default: its fit), one per `line_cell_m` cell."""
+        return wall_band_xy(self.fit[f].T if T is None else T, self.cam_points[f], self.cfg)
+
+    def parallel_to_plan(self, f: int, T: NDArray[np.float64]) -> bool:
+        """Whether the frame placed by T has most of its wall lines (`line_good_fraction` of their length)
+        within 2 degrees of a plan wall's direction (3.2.2.6: the heading is that of the plan's walls; a
+        frame seeing a corner close up fits the other frames' points turned by some degrees as well)."""
+        lines = wall_lines(transform_points(T, np.asarray(self.cam_points[f], dtype=np.float64)), self.cfg)
+        if len(lines) == 0:
+            return False
+        turn = angle_difference(angles(lines)[:, None], angles(self.walls[:, :4])[None])
+        along = (np.abs(turn) <= np.radians(2.0)).any(axis=1)
+        length = np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1])
+        return bool(length[along].sum() >= self.cfg.line_good_fraction * length.sum())
+
+    def check_with_neighbours(self) -> dict[str, Any]:
+        """Beyond the thesis: each frame's placement checked against the other frames' depth, not the plan.
+        A frame whose wall points land on the walls the other frames saw (`agreement`) for less than half
+        the share the capture's frames do as a rule matched the coarse plan with a wrong heading (a corner or
+        a corridor's end fits the plan as well turned by a quarter). It is turned about its camera in steps
+        of 30 degrees and each start fitted to the others' points (`icp_to_points`); the placement most of
+        its points agree on is taken when no distinct placement agrees almost as well (a frame seeing one
+        corner close up fits every corner) and its wall lines run along the plan's walls. A frame that then still agrees with under a quarter of that
+        share is left unplaced: its points would stand in the cloud as walls nobody else saw, placed by
+        the coarse plan alone. Returns metrics: the capture's median agreement, each frame's before and
+        after, the frames turned (degrees) and those left unplaced."""
+        cfg, order = self.cfg, self.order
+        tol = cfg.track_mutual_tol_m
+        clouds = {f: self.wall_xy(f) for f in order}
+        share = {f: agreement(clouds[f], _others(clouds, f), tol) for f in order}
+        before = [round(share[f], 2) for f in order]
+        typical = float(np.median(list(share.values()))) if share else 0.0
+        turned: dict[int, float] = {}
+        suspect = {f for f in order if share[f] < 0.5 * typical}
+        for _sweep in range(2):  # the second with the frames the first turned among the reference
+            reference = {f: c for f, c in clouds.items() if f not in suspect}
+            for f in sorted(suspect, key=lambda g: -share[g]):
+                others = _others(reference, f)
+                if len(others) < 10:
+                    continue
+                share[f] = agreement(clouds[f], others, tol)
+                tried = []
+                for k in range(12):
+                    T1 = icp_to_points(
+                        _turn(self.fit[f].T, np.radians(30.0 * k)), self.cam_points[f], others, cfg
+                    )
+                    tried.append((agreement(self.wall_xy(f, T1), others, tol), T1))
+                got, best = max(tried, key=lambda c: c[0])
+                rivals = [T for g, T in tried if g >= got - 0.1 and _distinct(T, best)]
+                if got < max(share[f] + 0.1, 0.5 * typical) or rivals or not self.parallel_to_plan(f, best):
+                    continue
+                rel = best[:3, :3] @ self.fit[f].T[:3, :3].T
+                turn = float(np.arctan2(rel[1, 0], rel[0, 0]))
+                turned[f] = round(float(np.degrees(turn)) + turned.get(f, 0.0), 1)
+                self.fit[f] = self.fit[f]._replace(T=best, angle=self.fit[f].angle + turn)
+                clouds[f] = reference[f] = self.wall_xy(f)
+                share[f] = got
+            suspect = {f for f in suspect if share[f] < 0.5 * typical}
+        dropped = [f for f in order if share[f] < 0.25 * typical]
+        return {
+            "median_agreement": round(typical, 3),
+            "agreement_before": before,
+            "agreement_after": [round(share[f], 2) for f in order],
+            "turned_deg": {str(f): v for f, v in turned.items()},
+            "unplaced": dropped,
+        }
+
+
+def _distinct(A: NDArray[np.float64], B: NDArray[np.float64]) -> bool:
+    """Two placements of one frame differ by more than 10 degrees or 0.2 m."""
+    rel = A[:3, :3] @ B[:3, :3].T
+    return bool(
+        abs(np.arctan2(rel[1, 0], rel[0, 0])) > np.radians(10.0) or np.linalg.norm(A[:2, 3] - B[:2, 3]) > 0.2
+    )
+
+
+def wall_band_xy(T: NDArray[np.float64], points_cam: NDArray, cfg: RegisterConfig) -> NDArray[np.float64]:
+    """(N, 2) plan xy of a frame's wall-band points (camera points placed by T), one per `line_cell_m` cell."""
+    lo, hi = cfg.wall_band_m
+    pts = transform_points(T, np.asarray(points_cam, dtype=np.float64))
+    pts = pts[(pts[:, 2] > lo) & (pts[:, 2] < hi), :2]
+    if len(pts) == 0:
+        return np.zeros((0, 2))
+    _, first = np.unique(np.floor(pts / cfg.line_cell_m).astype(np.int64), axis=0, return_index=True)
+    return pts[np.sort(first)]
+
+
+def _others(clouds: dict[int, NDArray[np.float64]], f: int) -> NDArray[np.float64]:
+    rest = [c for g, c in clouds.items() if g != f and len(c)]
+    return np.vstack(rest) if rest else np.zeros((0, 2))
+
+
+def agreement(xy: NDArray[np.float64], others: NDArray[np.float64], tol_m: float) -> float:
+    """Share of (N, 2) points within `tol_m` of some point of (M, 2) `others` (0 when either is empty)."""
+    if len(xy) == 0 or len(others) == 0:
+        return 0.0
+    d, _ = cKDTree(others).query(xy, distance_upper_bound=tol_m)
+    return float(np.isfinite(d).mean())
+
+
+def icp_to_points(
+    T: NDArray[np.float64], points_cam: NDArray, others: NDArray[np.float64], cfg: RegisterConfig
+) -> NDArray[np.float64]:
+    """2D point-to-point ICP (heading about the camera and position, robust Cauchy weights) of one frame's
+    wall-band points onto (M, 2) other frames' wall points, the correspondence distance shrinking from
+    `track_refit_max_shift_m` to `track_mutual_tol_m`. Returns the corrected T (depth camera → plan)."""
+    p = wall_band_xy(T, points_cam, cfg)
+    if len(p) < 10 or len(others) < 10:
+        return T
+    tree = cKDTree(others)
+    c = T[:2, 3].copy()
+    R, t = np.eye(2), np.zeros(2)
+    for max_d in np.geomspace(cfg.track_refit_max_shift_m, cfg.track_mutual_tol_m, 8):
+        q = (p - c) @ R.T + c + t
+        d, idx = tree.query(q, distance_upper_bound=float(max_d))
+        ok = np.isfinite(d)
+        if ok.sum() < 10:
+            break
+        a, b = q[ok], others[idx[ok]]
+        w = 1.0 / (1.0 + (d[ok] / (0.5 * max_d)) ** 2)
+        ca, cb = (w[:, None] * a).sum(0) / w.sum(), (w[:, None] * b).sum(0) / w.sum()
+        H = ((a - ca) * w[:, None]).T @ (b - cb)
+        U, _, Vt = np.linalg.svd(H)
+        dR = Vt.T @ U.T
+        if np.linalg.det(dR) < 0:
+            Vt[1] *= -1
+            dR = Vt.T @ U.T
+        # q -> dR (q - ca) + cb, expressed as a turn about the camera and a shift
+        R = dR @ R
+        t = dR @ (c + t - ca) + cb - c
+    D = np.eye(4)
+    D[:2, :2] = R
+    D[:2, 3] = c + t - R @ c
+    return D @ T
 
 
 def _turn(T: NDArray[np.float64], yaw_rad: float) -> NDArray[np.float64]:
