@@ -536,3 +536,100 @@ def backed_bridges(walls: NDArray, origin: NDArray, xy: NDArray, cfg: WallsConfi
         used |= {el, eh}
         out.append(np.concatenate([ends[el], ends[eh]]))
     return np.array(out).reshape(-1, 4)
+
+
+def furniture_in_front(
+    lines: NDArray, interior: NDArray | None, cfg: WallsConfig, angle_tol_deg: float
+) -> NDArray[np.bool_]:
+    """(M,) lines that are the faces of furniture standing against a wall, for a slice with nothing seen
+    above it (a handheld scan cut at 1.3-2 m, no ceiling), where a cabinet, a shelf or a plant reaches the
+    slice top like the walls and the top-reach test cannot tell them apart:
+    - a front: a line at most `furniture_max_length_m` long, parallel to a line ("the wall") and
+      `furniture_min_depth_m` to `furniture_max_depth_m` in front of it on the room's side (towards `interior`), with the wall's line
+      (its collinear pieces together, longer than the front: the wall behind the furniture is hidden in
+      the slice, so its pieces either side may each be shorter) running along the whole of it;
+    - a side: a line perpendicular to such a wall, `furniture_min_depth_m` to `furniture_max_depth_m` long, from the wall's
+      line (not at its ends: a corner) into the room, in line with no other line, whose inner end is free (within `thin_wall_end_tol_m` of no line but the wall
+      and the fronts): a partition stub is longer than furniture is deep, and one shorter meets a wall.
+    A pilaster of a furniture's size in front of a wall is dropped as well: without a ceiling nothing
+    tells them apart (with one, the top-reach test keeps it)."""
+    m = len(lines)
+    out = np.zeros(m, dtype=bool)
+    if m < 2 or interior is None:
+        return out
+    d_lo, d_hi = cfg.furniture_min_depth_m, cfg.furniture_max_depth_m
+    tol = cfg.support_tol_m
+    L = lengths(lines)
+    u = (lines[:, 2:] - lines[:, :2]) / np.maximum(L, 1e-12)[:, None]
+    n = np.column_stack([-u[:, 1], u[:, 0]])
+    ang = angles(lines)
+    cos_tol = math.cos(math.radians(angle_tol_deg))
+    # a short face of furniture, before regularization, may lie twice the tolerance off its wall's direction
+    cos_loose = math.cos(math.radians(2 * angle_tol_deg))
+    sin_loose = math.sin(math.radians(2 * angle_tol_deg))
+
+    def wall_extent(j: int) -> tuple[float, float]:
+        """Along line j's direction, the extent of j and its collinear pieces (offset within tol)."""
+        par = np.abs(np.cos(ang - ang[j])) >= cos_tol
+        off = np.abs(np.stack([(lines[:, :2] - lines[j, :2]) @ n[j], (lines[:, 2:] - lines[j, :2]) @ n[j]]))
+        same = par & (off.max(axis=0) <= cfg.lines.offset_tol_m)
+        t = np.concatenate([(lines[same, :2] - lines[j, :2]) @ u[j], (lines[same, 2:] - lines[j, :2]) @ u[j]])
+        return float(t.min()), float(t.max())
+
+    def depth(k: int, j: int) -> NDArray:
+        """Signed offsets of line k's ends from line j, positive towards the interior."""
+        side = 1.0 if float((interior - lines[j, :2]) @ n[j]) >= 0 else -1.0
+        return side * np.array([(lines[k, :2] - lines[j, :2]) @ n[j], (lines[k, 2:] - lines[j, :2]) @ n[j]])
+
+    for i in np.flatnonzero(L <= cfg.furniture_max_length_m):
+        for j in np.argsort(-L):
+            if j == i or abs(math.cos(ang[i] - ang[j])) < cos_loose:
+                continue
+            dd = depth(i, j)
+            if not ((dd >= d_lo) & (dd <= d_hi)).all():
+                continue
+            t0, t1 = wall_extent(j)
+            t = np.array([(lines[i, :2] - lines[j, :2]) @ u[j], (lines[i, 2:] - lines[j, :2]) @ u[j]])
+            # the wall's line runs along at least half the front (a wardrobe in a corner hides the wall
+            # behind it up to the corner; an alcove's mouth beside the alcove's back wall runs along none)
+            overlap = min(t.max(), t1) - max(t.min(), t0)
+            if t1 - t0 > L[i] + tol and overlap >= 0.5 * L[i]:
+                out[i] = True
+                break
+    front = out.copy()
+    for k in np.flatnonzero((L >= d_lo) & (L <= d_hi + tol) & ~front):
+        par_k = np.abs(np.cos(ang - ang[k])) >= cos_tol
+        off_k = np.abs((0.5 * (lines[:, :2] + lines[:, 2:]) - lines[k, :2]) @ n[k])
+        par_k[k] = False
+        inline = par_k & ~front & (off_k <= cfg.lines.offset_tol_m)
+        if inline.any():
+            gap = point_segment_distances(lines[k].reshape(2, 2), lines[inline]).min()
+            if gap <= cfg.lines.max_gap_m:
+                continue  # a piece of a wall, in line with another
+        for j in np.argsort(-L):
+            if j == k or front[j] or abs(math.cos(ang[k] - ang[j])) > sin_loose:
+                continue
+            dd = depth(k, j)
+            if not ((dd >= -tol) & (dd <= d_hi + tol)).all() or dd.min() > tol:
+                continue
+            t0, t1 = wall_extent(j)
+            if t1 - t0 <= L[k]:
+                continue
+            tk = float((0.5 * (lines[k, :2] + lines[k, 2:]) - lines[j, :2]) @ u[j])
+            if not t0 + d_lo <= tk <= t1 - d_lo:
+                continue  # at the wall's end: a corner of the room
+            inner = lines[k, 2:] if dd[1] > dd[0] else lines[k, :2]
+            others = np.ones(m, dtype=bool)
+            others[[k, j]] = False
+            others &= ~front
+            # the wall's collinear pieces are the wall too
+            par = np.abs(np.cos(ang - ang[j])) >= cos_tol
+            off = np.abs((0.5 * (lines[:, :2] + lines[:, 2:]) - lines[j, :2]) @ n[j])
+            others &= ~(par & (off <= cfg.lines.offset_tol_m))
+            if others.any():
+                near = point_segment_distances(inner[None], lines[others]).min() <= cfg.thin_wall_end_tol_m
+                if near:
+                    continue
+            out[k] = True
+            break
+    return out
