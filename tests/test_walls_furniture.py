@@ -72,3 +72,30 @@ def test_a_room_without_a_ceiling_keeps_its_walls_and_drops_a_wardrobe(rng):
     # with a ceiling far above the slice the test is not made (the top-reach test's job)
     high = model_walls(band, 0.0, 2.7, CFG)
     assert high.metrics["lines_furniture_no_ceiling"] == 0
+
+
+def test_a_wall_seen_through_a_door_beyond_a_barely_seen_wall_goes_and_an_l_room_s_wing_stays():
+    from tasks.walls.evidence import beyond_the_room
+
+    room = np.array(
+        [
+            [0, 0, 1.0, 0],  # the south wall, seen only west of its door (the rest unseen)
+            [0, 0, 0, 4],  # west, north, east
+            [0, 4, 5, 4],
+            [5, 4, 5, 1.5],
+            [1.5, -2.0, 2.3, -2.0],  # the corridor's far wall, seen through the door 2 m beyond
+        ],
+        dtype=float,
+    )
+    found = beyond_the_room(room, np.array([2.5, 2.0]), CFG, 3.0)
+    assert found.tolist() == [False, False, False, False, True]
+    # an L-shaped room: the far wing's wall (y = 5) lies 2 m behind the line of the y = 3 wall, but the
+    # wing's west wall runs between them
+    ell = np.array(
+        [[0, 0, 6, 0], [6, 0, 6, 3], [6, 3, 3, 3], [0, 5, 2.6, 5], [0, 5, 0, 0]],
+        dtype=float,
+    )
+    assert not beyond_the_room(ell, np.array([2.5, 2.3]), CFG, 3.0).any()
+    # and without it (the wing's side walls unseen) the test cannot tell: switched off, nothing goes
+    off = replace(CFG, beyond_room_min_depth_m=0.0)
+    assert not beyond_the_room(room, np.array([2.5, 2.0]), off, 3.0).any()

@@ -633,3 +633,64 @@ def furniture_in_front(
             out[k] = True
             break
     return out
+
+
+def beyond_the_room(
+    lines: NDArray, interior: NDArray | None, cfg: WallsConfig, angle_tol_deg: float
+) -> NDArray[np.bool_]:
+    """(M,) lines seen beyond the room, for a slice with nothing seen above it (a handheld scan): a wall of
+    the next room seen through a door whose own wall the capture barely saw (`seen_through_gaps` needs that
+    wall's data in front of it). A line L is such a wall when it lies wholly more than
+    `beyond_room_min_depth_m` behind the line of a parallel line W of the room (on its side away from the
+    room's `interior`: deeper than furniture stands before a wall), the room's other lines run along the
+    whole of L, and no line of the room lies between W's line and L's (more than `thin_wall_max_m` from
+    either) within `lines.max_gap_m` of L's span: an L-shaped room's far wing or an alcove is joined to the
+    rest by its side walls, which lie there. `beyond_room_min_depth_m` 0 switches the test off."""
+    lines = np.asarray(lines, dtype=np.float64)
+    m = len(lines)
+    out = np.zeros(m, dtype=bool)
+    if cfg.beyond_room_min_depth_m <= 0 or interior is None or m < 3:
+        return out
+    L = lengths(lines)
+    ok = L > 0
+    u = np.zeros((m, 2))
+    u[ok] = (lines[ok, 2:] - lines[ok, :2]) / L[ok, None]
+    normal = np.column_stack([-u[:, 1], u[:, 0]])
+    back = normal.copy()
+    back[((np.asarray(interior) - lines[:, :2]) * back).sum(axis=1) > 0] *= -1
+    ang = angles(lines)
+    cos_tol = math.cos(math.radians(angle_tol_deg))
+    pts, owner = sample_segments(lines, 0.05)
+    thin = cfg.thin_wall_max_m
+    for w in np.argsort(-L):
+        if not ok[w] or out[w]:
+            continue
+        rel = pts - lines[w, :2]
+        depth, t = rel @ back[w], rel @ u[w]
+        shallow = np.bincount(owner, depth <= cfg.beyond_room_min_depth_m, m) > 0
+        cand = ~shallow & (np.abs(np.cos(ang - ang[w])) >= cos_tol) & ~out & (L < L[w])
+        cand[w] = False
+        for c in np.flatnonzero(cand):
+            mid = 0.5 * (lines[:, :2] + lines[:, 2:])
+            same = (np.abs(np.cos(ang - ang[c])) >= cos_tol) & (
+                np.abs((mid - lines[c, :2]) @ normal[c]) <= cfg.lines.offset_tol_m
+            )
+            others = ~same & ~out
+            others[w] = True
+            mine = owner == c
+            lo, hi = float(t[mine].min()), float(t[mine].max())
+            rest = others[owner]
+            if not rest.any() or t[rest].min() > lo or t[rest].max() < hi:
+                continue  # beyond the end of the room's lines: an L-room's wing
+            far = float(depth[mine].min())
+            between = (
+                rest
+                & (owner != w)
+                & (depth > thin)
+                & (depth < far - thin)
+                & (t >= lo - cfg.lines.max_gap_m)
+                & (t <= hi + cfg.lines.max_gap_m)
+            )
+            if not between.any():
+                out[c] = True
+    return out

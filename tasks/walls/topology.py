@@ -27,6 +27,7 @@ from tasks.lines import (
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import (
     TopCells,
+    beyond_the_room,
     extend_to_data,
     furniture_in_front,
     refine_offsets,
@@ -111,6 +112,7 @@ def model_for(
         "merged_lines": len(found.merged.segments),
         "lines_below_top": found.below_top,
         "lines_furniture_no_ceiling": found.furniture,
+        "walls_beyond_room_no_ceiling": found.beyond,
         "removed_extensions": len(found.conn.removed),
         "walls_outside_room": found.outside,
         "walls_seen_through_gaps": found.through,
@@ -146,6 +148,8 @@ class _Topology:
     """Walls dropped because no orientation cluster and too little data supported them (`stray_walls`)."""
     furniture: int = 0
     """Lines dropped as furniture in front of a wall in a slice without a ceiling (`furniture_in_front`)."""
+    beyond: int = 0
+    """Lines dropped as seen beyond the room in a slice without a ceiling (`beyond_the_room`)."""
 
 
 def _along_lines(walls: NDArray, grid: Grid, shape: tuple[int, ...], tol_m: float) -> NDArray:
@@ -194,7 +198,7 @@ def _topology(
     merged = merge_segments(hough, lcfg, quantum=grid.size)
     lines, chain = merged.segments, merged.chain
     noise = line_noise(hough, merged.labels, lines, grid.size)
-    below_top = furniture_lines = 0
+    below_top = furniture_lines = beyond_lines = 0
     if cfg.top_reach_m is not None and len(lines):
         reach = top_reach_shares(lines, top, cfg.top_share_tol_m, lcfg.angle_tol_deg)
         keep = reach >= cfg.min_top_share
@@ -229,6 +233,11 @@ def _topology(
         cfg.through_gap_share,
         cfg.support_tol_m,
     )
+    if proj.open_top:
+        # nothing seen above the slice (a handheld scan): the wall in front of a door may be barely seen
+        beyond = beyond_the_room(refined, _centre(refined), cfg, lcfg.angle_tol_deg)
+        through |= beyond
+        beyond_lines = int(beyond.sum())
     if through.any():
         refined, rotation, chain = refined[~through], rotation[~through], chain[~through]
     centres = 0.5 * (refined[:, :2] + refined[:, 2:])
@@ -280,10 +289,11 @@ def _topology(
         below_top,
         wall_data,
         share,
-        int(through.sum()),
+        int(through.sum()) - beyond_lines,
         int(refused.sum()),
         int(stray.sum()),
         furniture_lines,
+        beyond_lines,
     )
 
 
