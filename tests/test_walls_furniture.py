@@ -99,3 +99,22 @@ def test_a_wall_seen_through_a_door_beyond_a_barely_seen_wall_goes_and_an_l_room
     # and without it (the wing's side walls unseen) the test cannot tell: switched off, nothing goes
     off = replace(CFG, beyond_room_min_depth_m=0.0)
     assert not beyond_the_room(room, np.array([2.5, 2.0]), off, 3.0).any()
+
+
+def test_a_wardrobe_in_a_corner_whose_wall_the_sensor_never_saw_above_it_is_no_wall(rng):
+    """A full-height room (ceiling captured): a 2 m wardrobe, 1 m wide and 0.5 m deep, in the south-east
+    corner hides the south wall behind it at every height (a scanner's view). Its front stops below the
+    slice top, but no top-reaching data lies behind it: the south wall's line, which goes on behind it,
+    shadows it all the same, and the room closes along the south wall."""
+    from tasks.walls.model import model_walls
+
+    corners = [(0, 0), (6, 0), (6, 4), (0, 4)]
+    truth = np.array([[*corners[i], *corners[(i + 1) % 4]] for i in range(4)], float)
+    faces = [wall_points(t[:2], t[2:], 1.5, 2.5, rng, step=0.01, noise=0.003) for t in truth]
+    pts = np.concatenate(faces)
+    pts = pts[~((pts[:, 1] < 0.02) & (pts[:, 0] > 4.98))]  # the wall behind the wardrobe, unseen
+    box = [((5, 0.5), (6, 0.5)), ((5, 0), (5, 0.5))]
+    pts = np.concatenate([pts, *[wall_points(a, b, 1.5, 2.0, rng, noise=0.003) for a, b in box]])
+    model = model_walls(pts, 0.0, 2.7, CFG)
+    ev = evaluate_walls(model.walls, truth)
+    assert model.closed and len(model.walls) == 4 and ev["correctness"] == 1.0, (ev, model.walls)

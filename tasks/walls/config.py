@@ -78,7 +78,10 @@ class WallsConfig:
     walls), a line at most this long standing `furniture_min_depth_m` to `furniture_max_depth_m` in front of a
     longer parallel wall that runs along the whole of it is a furniture's front, and a line of that depth
     from the wall into the room with a free end its side (`evidence.furniture_in_front`): wardrobes,
-    shelves, plants; 0 switches that off."""
+    shelves, plants; 0 switches that off. With a ceiling, a line up to this long that stops below the slice
+    top is shadowed (`unshadowed_lines`) also by a top-reaching wall's line extended by `lines.extend_m`
+    behind it at that depth: a wardrobe in a corner hides the wall behind it from a scanner at every
+    height."""
     furniture_min_depth_m: float = 0.2
     """...deeper than a jog or a thin partition's faces."""
     furniture_max_depth_m: float = 0.75

@@ -251,7 +251,10 @@ def unshadowed_lines(
     did not (a corridor's walls seen from a metre away by a camera with a 43° vertical view), nothing says
     that a line is furniture, and the line stays (as it does in the thesis, which has no such test).
     Furniture stands in front of a wall seen above it, so its front is shadowed (a partition's face by its
-    other face, which `thin_wall_faces` judges). Nothing is exempted when no line reaches the top: the slice
+    other face, which `thin_wall_faces` judges); a line of furniture size (`furniture_max_length_m`) is
+    shadowed also by the wall lines' extensions (`lines.extend_m`) furniture-deep behind it
+    (`furniture_min_depth_m` to `furniture_max_depth_m`): the wall goes on behind a wardrobe in a corner
+    that hid it at every height. Nothing is exempted when no line reaches the top: the slice
     then holds no wall to judge against (clutter only)."""
     lines = np.asarray(lines, dtype=np.float64)
     out = np.zeros(len(lines), dtype=bool)
@@ -260,6 +263,18 @@ def unshadowed_lines(
     cell_xy = np.concatenate([top.xy, sample_segments(lines[walls], top.grid.size)[0]])
     L = lengths(lines)
     bin_m = 0.1
+    # a wall's line goes on behind furniture that hides it from the sensor (a wardrobe in a corner, the
+    # wall above it unseen): its extension shadows a line standing furniture-deep in front of it
+    w = lines[walls]
+    wu = (w[:, 2:] - w[:, :2]) / np.maximum(lengths(w), 1e-12)[:, None]
+    reach = cfg.lines.extend_m
+    ext = np.concatenate(
+        [
+            np.column_stack([w[:, :2] - reach * wu, w[:, :2]]),
+            np.column_stack([w[:, 2:], w[:, 2:] + reach * wu]),
+        ]
+    )
+    ext_xy = sample_segments(ext, top.grid.size)[0]
     for i in np.flatnonzero(~walls & (L >= cfg.open_min_length_m)):
         a = lines[i, :2]
         u = (lines[i, 2:] - a) / L[i]
@@ -268,6 +283,15 @@ def unshadowed_lines(
         beside = (t >= 0) & (t < L[i]) & (d > cfg.shadow_gap_m) & (d <= cfg.shadow_m)
         n_bins = max(1, math.ceil(L[i] / bin_m))
         per_bin = np.bincount(np.minimum((t[beside] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins)
+        if L[i] <= cfg.furniture_max_length_m and len(ext_xy):
+            rel = ext_xy - a
+            t, d = rel @ u, np.abs(rel @ np.array([-u[1], u[0]]))
+            behind = (
+                (t >= 0) & (t < L[i]) & (d >= cfg.furniture_min_depth_m) & (d <= cfg.furniture_max_depth_m)
+            )
+            per_bin += np.bincount(
+                np.minimum((t[behind] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins
+            )
         out[i] = float((per_bin > 0).mean()) < 0.5
     return out
 
