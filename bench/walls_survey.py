@@ -33,9 +33,14 @@ The `handheld` split (or `--degrade` with any seeds) degrades every room's cloud
 phone scans are (`tasks.synth.rooms.degrade_handheld`, drawn per seed and room: 3-5 cm random
 subsampling, nothing above a cut at 1.3-2.0 m and no ceiling, 20-30 % of the wall length unseen, the floor
 partly seen) and scores the model also against labelled points (`tasks.evaluate.evaluate_walls_on_points`,
-points within 5 cm of a truth wall labelled wall): p_compl, p_corr, p_acc. Its targets: no room refused,
-labelled completeness >= 0.85, correctness against the truth walls >= 0.95 (a model wall bridging an
-unseen span is right when it lies on the true wall), mean labelled accuracy <= 20 mm.
+points within 5 cm of a truth wall labelled wall): p_compl, p_corr, p_acc. `compl`, the polygon
+completeness, counts the 20-30 % of the walls the degraded capture never saw, so it is also given over the
+seen pieces of the truth walls only (`compl_seen`). The labelled points carry the sensor's noise: the truth
+walls themselves score a labelled accuracy `p_acc_truth` (21-25 mm on the Kinect rooms), so the model's
+accuracy is judged against the truth walls (`acc_mm`) and p_acc is shown beside that floor. Targets: no
+room refused, labelled completeness >= 0.85 (the seen walls only, by construction), correctness against the
+truth walls >= 0.95 (a model wall bridging an unseen span is right when it lies on the true wall), mean
+accuracy against the truth walls <= 20 mm.
 
 Rendered clouds are cached (`--cache`, default /tmp/indoor-survey-bench/walls_survey) by seed, room,
 size and the fusion settings, so re-running the method costs only preprocess and walls.
@@ -79,7 +84,7 @@ SPLITS = {
 """Buildings tuned on, buildings only reported (never looked at while tuning), and the degraded split: the
 held-out buildings degraded (the degradation was never tuned on them)."""
 DEGRADED_SPLITS = ("handheld",)
-HANDHELD_TARGETS = {"p_compl": 0.85, "correctness": 0.95, "p_acc_mm": 20.0}
+HANDHELD_TARGETS = {"p_compl": 0.85, "correctness": 0.95, "acc_mm": 20.0}
 ROOMS = ("r1", "r2", "r3", "r4", "r5")
 TARGETS = {"kinect_v1": {"completeness": 0.95, "correctness": 0.95, "acc_mm": 15.0, "corner_f1": 0.90}}
 TLS_ACC_MM = 5.0
@@ -115,6 +120,10 @@ class RoomResult:
     p_compl: float = math.nan
     p_corr: float = math.nan
     p_acc_mm: float = math.nan
+    p_acc_truth_mm: float = math.nan
+    """The labelled accuracy the truth walls themselves score: the labelled points' noise floor."""
+    compl_seen: float = math.nan
+    """Completeness against the seen pieces of the truth walls only (degraded rooms)."""
 
     def meets(self) -> bool:
         if self.error is not None:
@@ -124,7 +133,7 @@ class RoomResult:
             return (
                 self.p_compl >= t["p_compl"]
                 and self.correctness >= t["correctness"]
-                and self.p_acc_mm <= t["p_acc_mm"]
+                and self.acc_mean_mm <= t["acc_mm"]
             )
         t = TARGETS["kinect_v1"]
         acc_mm = TLS_ACC_MM if self.sensor == "tls" else t["acc_mm"]
@@ -227,6 +236,7 @@ def run_room(
         rng = np.random.default_rng([seed, ROOMS.index(room_id) if room_id in ROOMS else 9, 14])
         points, d = degrade_handheld(points, truth, rng)
         labels = wall_labels(points, truth)
+        seen_truth = d.seen
         extra["degraded"] = f"sp{100 * d.spacing_m:.1f}cm cut{d.cut_m:.2f}m unseen{d.unseen_share:.2f}"
     base = dict(seed=seed, room=room_id, shape=room.shape, sensor=sensor, points=len(points), **extra)
     t, cpu = time.perf_counter(), time.process_time()
@@ -261,8 +271,13 @@ def run_room(
         from tasks.evaluate import evaluate_walls_on_points
 
         pe = evaluate_walls_on_points(walls, points[:, :2], labels)
+        floor = evaluate_walls_on_points(truth, points[:, :2], labels)
         extra = dict(
-            p_compl=pe["completeness"], p_corr=pe["correctness"], p_acc_mm=1000 * pe["accuracy_mean_m"]
+            p_compl=pe["completeness"],
+            p_corr=pe["correctness"],
+            p_acc_mm=1000 * pe["accuracy_mean_m"],
+            p_acc_truth_mm=1000 * floor["accuracy_mean_m"],
+            compl_seen=evaluate_walls(walls, seen_truth)["completeness"] if len(seen_truth) else math.nan,
         )
         base.update(extra)
     # the slice's height band, in the plan frame (levelling moves heights by well under a centimetre)
@@ -311,7 +326,8 @@ def row(r: RoomResult) -> str:
         + (
             ""
             if r.degraded is None
-            else f" | {r.degraded} p_compl {r.p_compl:.3f} p_corr {r.p_corr:.3f} p_acc {r.p_acc_mm:.1f}mm"
+            else f" | {r.degraded} compl_seen {r.compl_seen:.3f} p_compl {r.p_compl:.3f} p_corr {r.p_corr:.3f} "
+            f"p_acc {r.p_acc_mm:.1f}mm (truth {r.p_acc_truth_mm:.1f}mm)"
         )
     )
 
@@ -337,8 +353,9 @@ def summary(results: list[RoomResult]) -> list[str]:
         )
         if any(r.degraded is not None for r in sel):
             out.append(
-                f"  degraded: labelled completeness {mean('p_compl'):.3f}, labelled correctness "
-                f"{mean('p_corr'):.3f}, labelled accuracy {mean('p_acc_mm'):.1f} mm, refused "
+                f"  degraded: completeness of the seen walls {mean('compl_seen'):.3f}, labelled completeness "
+                f"{mean('p_compl'):.3f}, labelled correctness {mean('p_corr'):.3f}, labelled accuracy "
+                f"{mean('p_acc_mm'):.1f} mm (the truth walls: {mean('p_acc_truth_mm'):.1f} mm), refused "
                 f"{len(sel) - len(ok)}, closed {sum(r.closed for r in ok)}/{len(sel)}"
             )
         for shape in sorted({r.shape for r in ok}):

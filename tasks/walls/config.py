@@ -73,6 +73,24 @@ class WallsConfig:
     """The two faces of such a wall end within this distance of each other, at the wall's free end."""
     thin_wall_clear_m: float = 0.3
     """...where no wall runs on beside the end, outward of either face, this far (a corner's wall would)."""
+    furniture_max_length_m: float = 1.8
+    """In a slice with nothing seen above it (no ceiling: the top-reach test cannot tell furniture from
+    walls), a line at most this long standing `furniture_min_depth_m` to `furniture_max_depth_m` in front of a
+    longer parallel wall that runs along the whole of it is a furniture's front, and a line of that depth
+    from the wall into the room with a free end its side (`evidence.furniture_in_front`): wardrobes,
+    shelves, plants; 0 switches that off. With a ceiling, a line up to this long that stops below the slice
+    top is shadowed (`unshadowed_lines`) also by a top-reaching wall's line extended by `lines.extend_m`
+    behind it at that depth: a wardrobe in a corner hides the wall behind it from a scanner at every
+    height."""
+    furniture_min_depth_m: float = 0.2
+    """...deeper than a jog or a thin partition's faces."""
+    furniture_max_depth_m: float = 0.75
+    """...and no deeper than furniture is (wardrobes and kitchen units 0.6 m)."""
+    beyond_room_min_depth_m: float = 0.75
+    """In a slice with nothing seen above it, a line wholly this far behind the line of a parallel wall of the
+    room, along which the room's lines run and between which and that wall nothing of the room lies, was
+    seen through a door whose own wall the capture barely saw (`evidence.beyond_the_room`): a wall of the
+    next room; 0 switches that off."""
     below_slice_min_share: float = 0.5
     """A partition stub (a wall with a free end standing on another at a T) whose second face the slice does
     not hold takes it from the levelled cloud under the slice (`evidence.faces_below_slice`: a face seen only

@@ -251,7 +251,10 @@ def unshadowed_lines(
     did not (a corridor's walls seen from a metre away by a camera with a 43° vertical view), nothing says
     that a line is furniture, and the line stays (as it does in the thesis, which has no such test).
     Furniture stands in front of a wall seen above it, so its front is shadowed (a partition's face by its
-    other face, which `thin_wall_faces` judges). Nothing is exempted when no line reaches the top: the slice
+    other face, which `thin_wall_faces` judges); a line of furniture size (`furniture_max_length_m`) is
+    shadowed also by the wall lines' extensions (`lines.extend_m`) furniture-deep behind it
+    (`furniture_min_depth_m` to `furniture_max_depth_m`): the wall goes on behind a wardrobe in a corner
+    that hid it at every height. Nothing is exempted when no line reaches the top: the slice
     then holds no wall to judge against (clutter only)."""
     lines = np.asarray(lines, dtype=np.float64)
     out = np.zeros(len(lines), dtype=bool)
@@ -260,6 +263,18 @@ def unshadowed_lines(
     cell_xy = np.concatenate([top.xy, sample_segments(lines[walls], top.grid.size)[0]])
     L = lengths(lines)
     bin_m = 0.1
+    # a wall's line goes on behind furniture that hides it from the sensor (a wardrobe in a corner, the
+    # wall above it unseen): its extension shadows a line standing furniture-deep in front of it
+    w = lines[walls]
+    wu = (w[:, 2:] - w[:, :2]) / np.maximum(lengths(w), 1e-12)[:, None]
+    reach = cfg.lines.extend_m
+    ext = np.concatenate(
+        [
+            np.column_stack([w[:, :2] - reach * wu, w[:, :2]]),
+            np.column_stack([w[:, 2:], w[:, 2:] + reach * wu]),
+        ]
+    )
+    ext_xy = sample_segments(ext, top.grid.size)[0]
     for i in np.flatnonzero(~walls & (L >= cfg.open_min_length_m)):
         a = lines[i, :2]
         u = (lines[i, 2:] - a) / L[i]
@@ -268,6 +283,15 @@ def unshadowed_lines(
         beside = (t >= 0) & (t < L[i]) & (d > cfg.shadow_gap_m) & (d <= cfg.shadow_m)
         n_bins = max(1, math.ceil(L[i] / bin_m))
         per_bin = np.bincount(np.minimum((t[beside] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins)
+        if L[i] <= cfg.furniture_max_length_m and len(ext_xy):
+            rel = ext_xy - a
+            t, d = rel @ u, np.abs(rel @ np.array([-u[1], u[0]]))
+            behind = (
+                (t >= 0) & (t < L[i]) & (d >= cfg.furniture_min_depth_m) & (d <= cfg.furniture_max_depth_m)
+            )
+            per_bin += np.bincount(
+                np.minimum((t[behind] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins
+            )
         out[i] = float((per_bin > 0).mean()) < 0.5
     return out
 
@@ -536,3 +560,161 @@ def backed_bridges(walls: NDArray, origin: NDArray, xy: NDArray, cfg: WallsConfi
         used |= {el, eh}
         out.append(np.concatenate([ends[el], ends[eh]]))
     return np.array(out).reshape(-1, 4)
+
+
+def furniture_in_front(
+    lines: NDArray, interior: NDArray | None, cfg: WallsConfig, angle_tol_deg: float
+) -> NDArray[np.bool_]:
+    """(M,) lines that are the faces of furniture standing against a wall, for a slice with nothing seen
+    above it (a handheld scan cut at 1.3-2 m, no ceiling), where a cabinet, a shelf or a plant reaches the
+    slice top like the walls and the top-reach test cannot tell them apart:
+    - a front: a line at most `furniture_max_length_m` long, parallel to a line ("the wall") and
+      `furniture_min_depth_m` to `furniture_max_depth_m` in front of it on the room's side (towards `interior`), with the wall's line
+      (its collinear pieces together, longer than the front: the wall behind the furniture is hidden in
+      the slice, so its pieces either side may each be shorter) running along the whole of it;
+    - a side: a line perpendicular to such a wall, `furniture_min_depth_m` to `furniture_max_depth_m` long, from the wall's
+      line (not at its ends: a corner) into the room, in line with no other line, whose inner end is free (within `thin_wall_end_tol_m` of no line but the wall
+      and the fronts): a partition stub is longer than furniture is deep, and one shorter meets a wall.
+    A pilaster of a furniture's size in front of a wall is dropped as well: without a ceiling nothing
+    tells them apart (with one, the top-reach test keeps it)."""
+    m = len(lines)
+    out = np.zeros(m, dtype=bool)
+    if m < 2 or interior is None:
+        return out
+    d_lo, d_hi = cfg.furniture_min_depth_m, cfg.furniture_max_depth_m
+    tol = cfg.support_tol_m
+    L = lengths(lines)
+    u = (lines[:, 2:] - lines[:, :2]) / np.maximum(L, 1e-12)[:, None]
+    n = np.column_stack([-u[:, 1], u[:, 0]])
+    ang = angles(lines)
+    cos_tol = math.cos(math.radians(angle_tol_deg))
+    # a short face of furniture, before regularization, may lie twice the tolerance off its wall's direction
+    cos_loose = math.cos(math.radians(2 * angle_tol_deg))
+    sin_loose = math.sin(math.radians(2 * angle_tol_deg))
+
+    def wall_extent(j: int) -> tuple[float, float]:
+        """Along line j's direction, the extent of j and its collinear pieces (offset within tol)."""
+        par = np.abs(np.cos(ang - ang[j])) >= cos_tol
+        off = np.abs(np.stack([(lines[:, :2] - lines[j, :2]) @ n[j], (lines[:, 2:] - lines[j, :2]) @ n[j]]))
+        same = par & (off.max(axis=0) <= cfg.lines.offset_tol_m)
+        t = np.concatenate([(lines[same, :2] - lines[j, :2]) @ u[j], (lines[same, 2:] - lines[j, :2]) @ u[j]])
+        return float(t.min()), float(t.max())
+
+    def depth(k: int, j: int) -> NDArray:
+        """Signed offsets of line k's ends from line j, positive towards the interior."""
+        side = 1.0 if float((interior - lines[j, :2]) @ n[j]) >= 0 else -1.0
+        return side * np.array([(lines[k, :2] - lines[j, :2]) @ n[j], (lines[k, 2:] - lines[j, :2]) @ n[j]])
+
+    for i in np.flatnonzero(L <= cfg.furniture_max_length_m):
+        for j in np.argsort(-L):
+            if j == i or abs(math.cos(ang[i] - ang[j])) < cos_loose:
+                continue
+            dd = depth(i, j)
+            if not ((dd >= d_lo) & (dd <= d_hi)).all():
+                continue
+            t0, t1 = wall_extent(j)
+            t = np.array([(lines[i, :2] - lines[j, :2]) @ u[j], (lines[i, 2:] - lines[j, :2]) @ u[j]])
+            # the wall's line runs along at least half the front (a wardrobe in a corner hides the wall
+            # behind it up to the corner; an alcove's mouth beside the alcove's back wall runs along none)
+            overlap = min(t.max(), t1) - max(t.min(), t0)
+            if t1 - t0 > L[i] + tol and overlap >= 0.5 * L[i]:
+                out[i] = True
+                break
+    front = out.copy()
+    for k in np.flatnonzero((L >= d_lo) & (L <= d_hi + tol) & ~front):
+        par_k = np.abs(np.cos(ang - ang[k])) >= cos_tol
+        off_k = np.abs((0.5 * (lines[:, :2] + lines[:, 2:]) - lines[k, :2]) @ n[k])
+        par_k[k] = False
+        inline = par_k & ~front & (off_k <= cfg.lines.offset_tol_m)
+        if inline.any():
+            gap = point_segment_distances(lines[k].reshape(2, 2), lines[inline]).min()
+            if gap <= cfg.lines.max_gap_m:
+                continue  # a piece of a wall, in line with another
+        for j in np.argsort(-L):
+            if j == k or front[j] or abs(math.cos(ang[k] - ang[j])) > sin_loose:
+                continue
+            dd = depth(k, j)
+            if not ((dd >= -tol) & (dd <= d_hi + tol)).all() or dd.min() > tol:
+                continue
+            t0, t1 = wall_extent(j)
+            if t1 - t0 <= L[k]:
+                continue
+            tk = float((0.5 * (lines[k, :2] + lines[k, 2:]) - lines[j, :2]) @ u[j])
+            if not t0 + d_lo <= tk <= t1 - d_lo:
+                continue  # at the wall's end: a corner of the room
+            inner = lines[k, 2:] if dd[1] > dd[0] else lines[k, :2]
+            others = np.ones(m, dtype=bool)
+            others[[k, j]] = False
+            others &= ~front
+            # the wall's collinear pieces are the wall too
+            par = np.abs(np.cos(ang - ang[j])) >= cos_tol
+            off = np.abs((0.5 * (lines[:, :2] + lines[:, 2:]) - lines[j, :2]) @ n[j])
+            others &= ~(par & (off <= cfg.lines.offset_tol_m))
+            if others.any():
+                near = point_segment_distances(inner[None], lines[others]).min() <= cfg.thin_wall_end_tol_m
+                if near:
+                    continue
+            out[k] = True
+            break
+    return out
+
+
+def beyond_the_room(
+    lines: NDArray, interior: NDArray | None, cfg: WallsConfig, angle_tol_deg: float
+) -> NDArray[np.bool_]:
+    """(M,) lines seen beyond the room, for a slice with nothing seen above it (a handheld scan): a wall of
+    the next room seen through a door whose own wall the capture barely saw (`seen_through_gaps` needs that
+    wall's data in front of it). A line L is such a wall when it lies wholly more than
+    `beyond_room_min_depth_m` behind the line of a parallel line W of the room (on its side away from the
+    room's `interior`: deeper than furniture stands before a wall), the room's other lines run along the
+    whole of L, and no line of the room lies between W's line and L's (more than `thin_wall_max_m` from
+    either) within `lines.max_gap_m` of L's span: an L-shaped room's far wing or an alcove is joined to the
+    rest by its side walls, which lie there. `beyond_room_min_depth_m` 0 switches the test off."""
+    lines = np.asarray(lines, dtype=np.float64)
+    m = len(lines)
+    out = np.zeros(m, dtype=bool)
+    if cfg.beyond_room_min_depth_m <= 0 or interior is None or m < 3:
+        return out
+    L = lengths(lines)
+    ok = L > 0
+    u = np.zeros((m, 2))
+    u[ok] = (lines[ok, 2:] - lines[ok, :2]) / L[ok, None]
+    normal = np.column_stack([-u[:, 1], u[:, 0]])
+    back = normal.copy()
+    back[((np.asarray(interior) - lines[:, :2]) * back).sum(axis=1) > 0] *= -1
+    ang = angles(lines)
+    cos_tol = math.cos(math.radians(angle_tol_deg))
+    pts, owner = sample_segments(lines, 0.05)
+    thin = cfg.thin_wall_max_m
+    for w in np.argsort(-L):
+        if not ok[w] or out[w]:
+            continue
+        rel = pts - lines[w, :2]
+        depth, t = rel @ back[w], rel @ u[w]
+        shallow = np.bincount(owner, depth <= cfg.beyond_room_min_depth_m, m) > 0
+        cand = ~shallow & (np.abs(np.cos(ang - ang[w])) >= cos_tol) & ~out & (L < L[w])
+        cand[w] = False
+        for c in np.flatnonzero(cand):
+            mid = 0.5 * (lines[:, :2] + lines[:, 2:])
+            same = (np.abs(np.cos(ang - ang[c])) >= cos_tol) & (
+                np.abs((mid - lines[c, :2]) @ normal[c]) <= cfg.lines.offset_tol_m
+            )
+            others = ~same & ~out
+            others[w] = True
+            mine = owner == c
+            lo, hi = float(t[mine].min()), float(t[mine].max())
+            rest = others[owner]
+            if not rest.any() or t[rest].min() > lo or t[rest].max() < hi:
+                continue  # beyond the end of the room's lines: an L-room's wing
+            far = float(depth[mine].min())
+            between = (
+                rest
+                & (owner != w)
+                & (depth > thin)
+                & (depth < far - thin)
+                & (t >= lo - cfg.lines.max_gap_m)
+                & (t <= hi + cfg.lines.max_gap_m)
+            )
+            if not between.any():
+                out[c] = True
+    return out

@@ -49,6 +49,9 @@ class Projection:
     """Voxel layers in the slice (the largest possible count)."""
     cell: NDArray[np.int64]
     """(N,) every point's flat cell index."""
+    open_top: bool = False
+    """Nothing was seen above the slice (its top within `top_clear_m` of the given ceiling, which is then
+    the walls' top: a handheld scan without a ceiling): furniture reaches the top like the walls."""
 
 
 def projection_image(points: NDArray, cfg: WallsConfig, ceiling_z_m: float = math.inf) -> Projection:
@@ -84,11 +87,13 @@ def projection_image(points: NDArray, cfg: WallsConfig, ceiling_z_m: float = mat
     low = np.zeros_like(tall)
     low[vcell[first][vlev[first] <= math.floor(reach / g)]] = True
     top = np.ones_like(tall)
+    open_top = False
     if cfg.top_reach_m is not None:
         z_top = float(np.quantile(z, 0.999))
         lo_lev = math.floor((z_top - cfg.top_reach_m - z_lo) / g)
         hi_lev = n_levels
         if ceiling_z_m - z_top < cfg.top_clear_m:
+            open_top = True
             # the slice holds the ceiling, whose stray points land in every column (a cabinet's too):
             # look for data between top_reach_m and top_clear_m below the ceiling instead
             hi_lev = max(lo_lev, math.floor((ceiling_z_m - cfg.top_clear_m - z_lo) / g))
@@ -109,6 +114,7 @@ def projection_image(points: NDArray, cfg: WallsConfig, ceiling_z_m: float = mat
         grid=grid,
         n_levels=n_levels,
         cell=cell,
+        open_top=open_top,
     )
 
 

@@ -27,7 +27,9 @@ from tasks.lines import (
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import (
     TopCells,
+    beyond_the_room,
     extend_to_data,
+    furniture_in_front,
     refine_offsets,
     seen_through_gaps,
     support_sampler,
@@ -109,6 +111,8 @@ def model_for(
         "regularization_refused": found.refused,
         "merged_lines": len(found.merged.segments),
         "lines_below_top": found.below_top,
+        "lines_furniture_no_ceiling": found.furniture,
+        "walls_beyond_room_no_ceiling": found.beyond,
         "removed_extensions": len(found.conn.removed),
         "walls_outside_room": found.outside,
         "walls_seen_through_gaps": found.through,
@@ -142,6 +146,10 @@ class _Topology:
     """Lines whose regularization was refused (it would move them beyond their data's noise)."""
     stray: int = 0
     """Walls dropped because no orientation cluster and too little data supported them (`stray_walls`)."""
+    furniture: int = 0
+    """Lines dropped as furniture in front of a wall in a slice without a ceiling (`furniture_in_front`)."""
+    beyond: int = 0
+    """Lines dropped as seen beyond the room in a slice without a ceiling (`beyond_the_room`)."""
 
 
 def _along_lines(walls: NDArray, grid: Grid, shape: tuple[int, ...], tol_m: float) -> NDArray:
@@ -190,13 +198,19 @@ def _topology(
     merged = merge_segments(hough, lcfg, quantum=grid.size)
     lines, chain = merged.segments, merged.chain
     noise = line_noise(hough, merged.labels, lines, grid.size)
-    below_top = 0
+    below_top = furniture_lines = beyond_lines = 0
     if cfg.top_reach_m is not None and len(lines):
         reach = top_reach_shares(lines, top, cfg.top_share_tol_m, lcfg.angle_tol_deg)
         keep = reach >= cfg.min_top_share
         keep = keep | thin_wall_faces(lines, keep, top, cfg, lcfg.angle_tol_deg)
         keep |= unshadowed_lines(lines, keep, top, cfg)
-        below_top = int((~keep).sum())
+        if proj.open_top and cfg.furniture_max_length_m > 0:
+            # nothing seen above the slice: furniture reached its top too
+            furniture = furniture_in_front(lines, _centre(lines[keep]), cfg, lcfg.angle_tol_deg)
+            furniture[~keep] = False
+            furniture_lines = int(furniture.sum())
+            keep &= ~furniture
+        below_top = int((~keep).sum()) - furniture_lines
         lines, noise, chain = lines[keep], noise[keep], chain[keep]
     wall_data = _wall_data(binary, proj.top, lines, grid, cfg.support_tol_m)
     share = support_sampler(wall_data, grid, cfg.support_tol_m)
@@ -219,6 +233,11 @@ def _topology(
         cfg.through_gap_share,
         cfg.support_tol_m,
     )
+    if proj.open_top:
+        # nothing seen above the slice (a handheld scan): the wall in front of a door may be barely seen
+        beyond = beyond_the_room(refined, _centre(refined), cfg, lcfg.angle_tol_deg)
+        through |= beyond
+        beyond_lines = int(beyond.sum())
     if through.any():
         refined, rotation, chain = refined[~through], rotation[~through], chain[~through]
     centres = 0.5 * (refined[:, :2] + refined[:, 2:])
@@ -270,9 +289,11 @@ def _topology(
         below_top,
         wall_data,
         share,
-        int(through.sum()),
+        int(through.sum()) - beyond_lines,
         int(refused.sum()),
         int(stray.sum()),
+        furniture_lines,
+        beyond_lines,
     )
 
 

@@ -1,0 +1,120 @@
+"""Furniture in a slice with nothing seen above it (a handheld scan without a ceiling): a wardrobe reaches
+the slice top like the walls, so its faces are told by where they stand (`evidence.furniture_in_front`)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from tasks.evaluate import evaluate_walls
+from tasks.walls.config import WallsConfig
+from tasks.walls.evidence import furniture_in_front
+from tests.scenes import wall_points
+
+CFG = WallsConfig()
+
+
+def test_furniture_faces_in_front_of_a_wall_are_told_from_walls_and_an_alcove():
+    lines = np.array(
+        [
+            [0, 0, 2, 0],  # south wall, hidden behind the wardrobe from x = 2 to 3
+            [3, 0, 4.5, 0],
+            [5.3, 0, 5.95, 0],  # a piece of it at the corner, in line with the rest: not a side
+            [6, 0, 6, 4],  # east
+            [6, 4, 4.2, 4],  # north, 1.8 m: as short as a wardrobe, beside the alcove's mouth
+            [4.2, 4, 4.2, 4.6],  # the alcove (outside the room's line): side, back, side
+            [4.2, 4.6, 3, 4.6],
+            [3, 4.6, 3, 4],
+            [3, 4, 0, 4],
+            [0, 4, 0, 0],  # west
+            [2, 0.55, 3, 0.55],  # the wardrobe's front, 0.55 m in front of the south wall
+            [2, 0, 2, 0.55],  # and its sides
+            [3, 0, 3, 0.55],
+            [5.4, 4, 5.4, 3.6],  # a short stub meeting nothing, 0.4 m from the north wall: a shelf's side
+        ],
+        dtype=float,
+    )
+    found = furniture_in_front(lines, np.array([3.0, 2.0]), CFG, 3.0)
+    assert np.flatnonzero(found).tolist() == [10, 11, 12, 13]
+    # switched off by a depth range nothing falls in
+    off = replace(CFG, furniture_min_depth_m=0.7, furniture_max_depth_m=0.72)
+    assert not furniture_in_front(lines, np.array([3.0, 2.0]), off, 3.0).any()
+
+
+def _room_with_a_wardrobe(rng: np.random.Generator, cut: float) -> tuple[np.ndarray, np.ndarray]:
+    corners = [(0, 0), (6, 0), (6, 4), (0, 4)]
+    truth = np.array([[*corners[i], *corners[(i + 1) % 4]] for i in range(4)], float)
+    faces = [wall_points(t[:2], t[2:], 0.0, cut, rng, step=0.02, noise=0.005) for t in truth]
+    # a wardrobe 1 m wide and 0.55 m deep against the south wall, taller than the cut
+    box = [((2, 0.55), (3, 0.55)), ((2, 0), (2, 0.55)), ((3, 0.55), (3, 0))]
+    faces += [wall_points(a, b, 0.0, cut, rng, step=0.02, noise=0.005) for a, b in box]
+    pts = np.concatenate(faces)
+    # the wall behind the wardrobe is hidden from the room
+    hidden = (pts[:, 1] < 0.02) & (pts[:, 0] > 2.02) & (pts[:, 0] < 2.98)
+    return pts[~hidden], truth
+
+
+def test_a_room_without_a_ceiling_keeps_its_walls_and_drops_a_wardrobe(rng):
+    from tasks.walls.model import model_walls
+
+    cut = 1.6
+    pts, truth = _room_with_a_wardrobe(rng, cut)
+    band = pts[pts[:, 2] >= cut - 0.5]  # the slice: the highest half metre under the walls' top
+    model = model_walls(band, 0.0, cut, CFG)  # no ceiling: the given top is the walls'
+    ev = evaluate_walls(model.walls, truth)
+    assert model.closed and len(model.walls) == 4, model.walls
+    assert ev["correctness"] == 1.0 and ev["completeness"] > 0.99, ev
+    assert model.metrics["lines_furniture_no_ceiling"] >= 1
+    # without the test the wardrobe's front is a wall of the room
+    kept = model_walls(band, 0.0, cut, replace(CFG, furniture_max_length_m=0.0))
+    assert evaluate_walls(kept.walls, truth)["correctness"] < 0.95
+    # with a ceiling far above the slice the test is not made (the top-reach test's job)
+    high = model_walls(band, 0.0, 2.7, CFG)
+    assert high.metrics["lines_furniture_no_ceiling"] == 0
+
+
+def test_a_wall_seen_through_a_door_beyond_a_barely_seen_wall_goes_and_an_l_room_s_wing_stays():
+    from tasks.walls.evidence import beyond_the_room
+
+    room = np.array(
+        [
+            [0, 0, 1.0, 0],  # the south wall, seen only west of its door (the rest unseen)
+            [0, 0, 0, 4],  # west, north, east
+            [0, 4, 5, 4],
+            [5, 4, 5, 1.5],
+            [1.5, -2.0, 2.3, -2.0],  # the corridor's far wall, seen through the door 2 m beyond
+        ],
+        dtype=float,
+    )
+    found = beyond_the_room(room, np.array([2.5, 2.0]), CFG, 3.0)
+    assert found.tolist() == [False, False, False, False, True]
+    # an L-shaped room: the far wing's wall (y = 5) lies 2 m behind the line of the y = 3 wall, but the
+    # wing's west wall runs between them
+    ell = np.array(
+        [[0, 0, 6, 0], [6, 0, 6, 3], [6, 3, 3, 3], [0, 5, 2.6, 5], [0, 5, 0, 0]],
+        dtype=float,
+    )
+    assert not beyond_the_room(ell, np.array([2.5, 2.3]), CFG, 3.0).any()
+    # and without it (the wing's side walls unseen) the test cannot tell: switched off, nothing goes
+    off = replace(CFG, beyond_room_min_depth_m=0.0)
+    assert not beyond_the_room(room, np.array([2.5, 2.0]), off, 3.0).any()
+
+
+def test_a_wardrobe_in_a_corner_whose_wall_the_sensor_never_saw_above_it_is_no_wall(rng):
+    """A full-height room (ceiling captured): a 2 m wardrobe, 1 m wide and 0.5 m deep, in the south-east
+    corner hides the south wall behind it at every height (a scanner's view). Its front stops below the
+    slice top, but no top-reaching data lies behind it: the south wall's line, which goes on behind it,
+    shadows it all the same, and the room closes along the south wall."""
+    from tasks.walls.model import model_walls
+
+    corners = [(0, 0), (6, 0), (6, 4), (0, 4)]
+    truth = np.array([[*corners[i], *corners[(i + 1) % 4]] for i in range(4)], float)
+    faces = [wall_points(t[:2], t[2:], 1.5, 2.5, rng, step=0.01, noise=0.003) for t in truth]
+    pts = np.concatenate(faces)
+    pts = pts[~((pts[:, 1] < 0.02) & (pts[:, 0] > 4.98))]  # the wall behind the wardrobe, unseen
+    box = [((5, 0.5), (6, 0.5)), ((5, 0), (5, 0.5))]
+    pts = np.concatenate([pts, *[wall_points(a, b, 1.5, 2.0, rng, noise=0.003) for a, b in box]])
+    model = model_walls(pts, 0.0, 2.7, CFG)
+    ev = evaluate_walls(model.walls, truth)
+    assert model.closed and len(model.walls) == 4 and ev["correctness"] == 1.0, (ev, model.walls)
