@@ -13,7 +13,7 @@ import pytest
 import shapely
 
 from tasks.plan.config import PlanConfig, PlanScale
-from tasks.plan.doors import _find_doors, swing_share
+from tasks.plan.doors import _find_doors, _ink_cover, swing_share
 from tasks.plan.parse import _scaled_image, parse_plan
 from tasks.plan.raster import InkMasks, _fill_outline_walls, _heavy_strokes
 from tasks.plan.sheet import (
@@ -187,6 +187,32 @@ def _pinhole_view(image: np.ndarray, tilt_deg: tuple[float, float], f_share: flo
     Hc /= Hc[2, 2]
     view = cv2.warpPerspective(image, Hc, (out_w, out_h), borderValue=(255, 255, 255))
     return view, Hc
+
+
+def test_jamb_past_a_corner_followed():
+    """Known answer: a wall (13 px thick) whose skeleton turned at a junction (its segment starts at the
+    crossing wall's end) while its ink runs on 40 px past it (a jamb beside a window) is prolonged to the
+    ink's end (x = 40); where the ink stops at the crossing wall's outer face (a true corner) it stays."""
+    for ink_from, end_x in ((40, 40.0), (74, 80.0)):
+        mask = np.zeros((200, 400), np.float32)
+        mask[94:107, ink_from:301] = 1.0  # the wall, 13 px
+        mask[20:107, 75:86] = 1.0  # the crossing wall, 11 px, ending at the first one
+        segs = np.array([[80.0, 100.0, 300.0, 100.0], [80.0, 100.0, 80.0, 20.0]])
+        out = follow_ink_to_ends(segs, np.array([13.0, 11.0]), mask, 75.0)
+        assert out[0, 0] == pytest.approx(end_x, abs=1.0)
+        assert out[1].tolist() == pytest.approx([80.0, 100.0, 80.0, 20.0], abs=1.0)
+
+
+def test_window_drawn_as_its_faces_covers_the_gap():
+    """Known answer: a window drawn as its wall's two faces (thin lines 5 px either side of the
+    centreline) running on across a 100 px opening: the centreline alone is bare (cover 0), within half
+    the wall's thickness it is covered all along (cover 1)."""
+    ink = np.zeros((200, 300), np.float32)
+    ink[94:96, 100:201] = 1.0
+    ink[105:107, 100:201] = 1.0
+    gap = np.array([100.0, 100.0, 200.0, 100.0])
+    assert _ink_cover(gap, ink) == 0.0
+    assert _ink_cover(gap, ink, 13 / 2 - 1) == 1.0
 
 
 def test_outline_wall_corners_filled():
