@@ -212,6 +212,8 @@ def doors_and_windows(
         faint = cv2.adaptiveThreshold(grey, 1, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, block, 12)
         faint = cv2.dilate(faint & ~sym_any.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
         off_walls = np.where(mask_f > 0.5, 0.0, np.maximum(thin, faint)).astype(np.float32)
+        # a window's thin lines are read against the paper around them too (glare pales them as well)
+        thin = np.maximum(thin, faint).astype(np.float32)
         swing = (off_walls, cfg.door_swing_share, thin, cfg.window_ink_share)
     doors = _find_doors(
         segs, thick, {"door_min": cfg.door_min_m * px, "door_max": cfg.door_max_m * px}, mask_f, swing
@@ -223,6 +225,9 @@ def doors_and_windows(
         jamb = lines.point_segment_distances(doors[:, :2], segs).argmin(axis=1)  # the wall it opens
         for n, dr in enumerate(doors):
             window[n] = _ink_cover(dr, thin, thick[jamb[n]] / 2 - 1) >= cfg.window_ink_share
+            if window[n] and swing is not None:
+                # a gap whose swing is drawn is a door, whatever runs along it (a counter by the wall)
+                window[n] = swing_share(dr[:2], dr[2:], thick[jamb[n]] / 2, swing[0]) < cfg.door_swing_share
         if window.any():
             near = lines.point_segment_distances(doors[window][:, :2], segs).argmin(axis=1)
             segs = np.concatenate([segs, doors[window]])
