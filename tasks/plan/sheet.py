@@ -402,17 +402,23 @@ def _bar_first(grey: NDArray[np.uint8], dark: NDArray[np.bool_], tess) -> tuple[
             lo, hi = int(g.min()), int(g.max())
             if hi - lo < 30:  # paper only
                 continue
+            guessed: list[float] = []  # values read from letters only, at one enlargement so far
             for zoom in (3, 4, 2):
                 big = cv2.resize(g, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_CUBIC)
                 big = np.where(big < (lo + hi) // 2, 0, 255).astype(np.uint8)
                 big = cv2.copyMakeBorder(big, 20, 20, 20, 20, cv2.BORDER_CONSTANT, value=255)
-                text = tess.image_to_string(big, config="--psm 7").strip().translate(_CONFUSED)
-                m = _NUMBER.match(text.lower().replace(" ", ""))
+                raw = tess.image_to_string(big, config="--psm 7").strip()
+                m = _NUMBER.match(raw.translate(_CONFUSED).lower().replace(" ", ""))
                 if m is None or m.group(2) is None:
                     continue
                 value = float(m.group(1).replace(",", "."))
-                if value > 0 and _round_step(value / blocks):
+                if not (value > 0 and _round_step(value / blocks)):
+                    continue
+                # a number read without a single digit ("im" for a "5 m" the photo's edge cut) is a
+                # guess: taken only when another enlargement reads the same
+                if any(ch.isdigit() for ch in raw) or value in guessed:
                     return _bar_scale(box, dark, value, grey)
+                guessed.append(value)
     return None
 
 
