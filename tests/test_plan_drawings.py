@@ -13,7 +13,7 @@ import pytest
 import shapely
 
 from tasks.plan.config import PlanConfig, PlanScale
-from tasks.plan.doors import _find_doors, swing_share
+from tasks.plan.doors import _find_doors, _ink_cover, swing_share
 from tasks.plan.parse import _scaled_image, parse_plan
 from tasks.plan.raster import InkMasks, _fill_outline_walls, _heavy_strokes
 from tasks.plan.sheet import (
@@ -189,6 +189,32 @@ def _pinhole_view(image: np.ndarray, tilt_deg: tuple[float, float], f_share: flo
     return view, Hc
 
 
+def test_jamb_past_a_corner_followed():
+    """Known answer: a wall (13 px thick) whose skeleton turned at a junction (its segment starts at the
+    crossing wall's end) while its ink runs on 40 px past it (a jamb beside a window) is prolonged to the
+    ink's end (x = 40); where the ink stops at the crossing wall's outer face (a true corner) it stays."""
+    for ink_from, end_x in ((40, 40.0), (74, 80.0)):
+        mask = np.zeros((200, 400), np.float32)
+        mask[94:107, ink_from:301] = 1.0  # the wall, 13 px
+        mask[20:107, 75:86] = 1.0  # the crossing wall, 11 px, ending at the first one
+        segs = np.array([[80.0, 100.0, 300.0, 100.0], [80.0, 100.0, 80.0, 20.0]])
+        out = follow_ink_to_ends(segs, np.array([13.0, 11.0]), mask, 75.0)
+        assert out[0, 0] == pytest.approx(end_x, abs=1.0)
+        assert out[1].tolist() == pytest.approx([80.0, 100.0, 80.0, 20.0], abs=1.0)
+
+
+def test_window_drawn_as_its_faces_covers_the_gap():
+    """Known answer: a window drawn as its wall's two faces (thin lines 5 px either side of the
+    centreline) running on across a 100 px opening: the centreline alone is bare (cover 0), within half
+    the wall's thickness it is covered all along (cover 1)."""
+    ink = np.zeros((200, 300), np.float32)
+    ink[94:96, 100:201] = 1.0
+    ink[105:107, 100:201] = 1.0
+    gap = np.array([100.0, 100.0, 200.0, 100.0])
+    assert _ink_cover(gap, ink) == 0.0
+    assert _ink_cover(gap, ink, 13 / 2 - 1) == 1.0
+
+
 def test_outline_wall_corners_filled():
     """Known answer: a double-line wall (faces 12 px apart, 3 px pens) bending round a bay. Filled
     between its faces along rows and columns, the squares where it turns have no ink across them either
@@ -359,3 +385,101 @@ def test_scale_from_dimension_lines():
     one = grey.copy()
     one[500:620, 300:] = 255  # the second stretch and its number gone
     assert read_dimension_scale(one) is None
+
+
+def test_dimension_scale_agreed_over_stretches():
+    """Known answer: four stretches whose numbers were read several ways (a photo's small digits); three
+    have a candidate at 0.020 m/px (one only as its second reading), the fourth only wrong readings: the
+    scale is 0.020 (the median of the three nearest candidates), agreed by 3. Misreads that agree with
+    nothing else are outvoted; one stretch alone, however often read, is not enough."""
+    from tasks.plan.dimensions import agreed_scale
+
+    stretches = [
+        {0.02070: 4},  # "2.88" for 2.80 only
+        {0.02046: 4, 0.02002: 1, 0.01756: 2},  # "1.55", "1.53", "1.33"
+        {0.02000: 3, 0.01911: 3},  # "3.84", "3.64"
+        {0.01998: 5, 0.02024: 1},
+    ]
+    found = agreed_scale(stretches)
+    assert found is not None
+    assert found[1] == 3
+    assert found[0] == pytest.approx(0.02000, abs=2e-5)
+    assert agreed_scale([{0.02: 8, 0.0201: 2}]) is None
+    assert agreed_scale([]) is None
+
+
+def test_dimension_line_cut_by_a_thick_stretch_is_one_line():
+    """A 1 px dimension line blurred to 5 px over 40 px of its length (a photo) is found as one line from
+    end to end, not two pieces (the longer alone would lose the stretch across the cut)."""
+    from tasks.plan.dimensions import dimension_lines
+
+    ink = np.zeros((200, 1000), bool)
+    ink[100, 100:900] = True
+    ink[98:103, 400:440] = True  # the blurred bit
+    ink[20:40, 100:900] = True  # a wall: thick, not a dimension line
+    found = dimension_lines(ink)
+    assert len(found) == 1
+    a, b, u0, u1 = found[0]
+    assert a + b * 500 == pytest.approx(100.0, abs=0.5)
+    assert u0 <= 101 and u1 >= 899
+
+
+class _FakeTesseract:
+    """Tesseract reading the given strings in turn (one per call, then nothing)."""
+
+    def __init__(self, reads: list[str]) -> None:
+        self.reads = list(reads)
+
+    def image_to_string(self, _img, config: str = "") -> str:
+        return self.reads.pop(0) if self.reads else ""
+
+
+def test_scale_bar_label_without_a_digit_needs_a_second_reading():
+    """A bar of five 50 px blocks with ink where its label stands: "5 m" read gives 0.02 m/px; "im" (no
+    digit, a "5 m" the photo's edge cut) read once is not taken (None: the whole page is read next), read
+    at two enlargements it is (1 m: 0.004 m/px)."""
+    from tasks.plan.sheet import _bar_first
+
+    grey = np.full((100, 500), 255, np.uint8)
+    grey[40:48, 50:300] = 0
+    for k in (1, 3):
+        grey[41:47, 50 + 50 * k + 1 : 100 + 50 * k - 1] = 255
+    grey[38:50, 310:330] = 0  # the label's ink
+    dark = grey < 128
+    found = _bar_first(grey, dark, _FakeTesseract(["5 m"]))
+    assert found is not None and found[0] == pytest.approx(5.0 / 250, rel=0.02)
+    assert _bar_first(grey, dark, _FakeTesseract(["im"])) is None
+    again = _bar_first(grey, dark, _FakeTesseract(["im", "im"]))
+    assert again is not None and again[0] == pytest.approx(1.0 / 250, rel=0.02)
+
+
+def test_window_read_pale_and_a_swung_gap_stays_a_door():
+    """Known answer (pixels, 50 px/m): a heavy-pen wall along v = 100 with two 45 px gaps. The first has
+    its door's swing drawn and a counter's thin line running along it (inside half the wall's thickness):
+    a door still. The second is a window drawn as the wall's two faces in a pale grey that the page's ink
+    threshold misses (a photo's glare): read against the paper around it, the wall goes on through it."""
+    from tasks.plan.doors import doors_and_windows
+
+    img = np.full((300, 700, 3), 255, np.uint8)
+    walls = np.zeros((300, 700), np.uint8)
+    for u0, u1 in ((0, 250), (295, 500), (545, 700)):
+        cv2.rectangle(walls, (u0, 96), (u1 - 1, 104), 1, -1)
+    img[walls > 0] = 20
+    arc = np.zeros((300, 700), np.uint8)
+    _arc(arc, (250, 104), 45, 0.0, math.pi / 2)
+    arc = cv2.erode(arc, np.ones((3, 3), np.uint8))
+    img[arc > 0] = 60
+    img[98, 250:295] = 60  # the counter's front along the door gap
+    img[97, 500:545] = 190  # the window's faces, pale
+    img[103, 500:545] = 190
+    dark = (255 - img.min(axis=2)) > 100
+    found = InkMasks(img, {}, [], 100.0, dark, np.zeros_like(dark), dark, np.zeros_like(dark))
+    segs = np.array([[0.0, 100, 249, 100], [295, 100, 499, 100], [545, 100, 699, 100]])
+    thick = np.full(3, 9.0)
+    out = doors_and_windows(
+        segs, thick, thick.copy(), walls.astype(np.float32), found, 50.0, PlanConfig(), True
+    )
+    _segs, _thick, _faces, doors, n_windows = out
+    assert n_windows == 1
+    assert doors.shape == (1, 4)
+    np.testing.assert_allclose(sorted(doors[0, ::2]), [249, 295], atol=1.0)

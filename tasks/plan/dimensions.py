@@ -26,34 +26,49 @@ survive the photo ("538") is read as the same number."""
 def read_dimension_scale(
     grey: NDArray[np.uint8], min_agree: int = 2, tol: float = 0.01
 ) -> tuple[float, int] | None:
-    """Metres per pixel from the dimension lines of an (h, w) grey image: the median
-    over the stretches read (a number like "5.38" beside the stretch between two crossings) of number
-    over length, when at least `min_agree` stretches agree with it within `tol`; with the count that
-    agree. None when fewer are read (no dimension lines, or Tesseract missing)."""
+    """Metres per pixel from the dimension lines of an (h, w) grey image, and how many stretches agree
+    on it. Every stretch read (a number like "5.38" beside the stretch between two crossings) gives a few
+    candidate scales, number over length, one per reading Tesseract made of its number under different
+    enlargements (a photo's 9 px digits come out "5.38", "5.36" or "3.38"); the scale is the one on which
+    the most stretches have a candidate within `tol` (ties: the most readings), the median of those
+    stretches' nearest candidates, when at least `min_agree` stretches agree. None when fewer do (no
+    dimension lines, or Tesseract missing). Horizontal and vertical stretches are pooled."""
     try:
         import pytesseract
     except ImportError:  # pragma: no cover - the project depends on it
         log.warning("pytesseract is not installed: no dimension line is read")
         return None
-    scales: list[float] = []
+    stretches: list[dict[float, int]] = []
     try:
         for k in (0, 1):  # horizontal lines, then the vertical ones turned to horizontal
             g = grey if k == 0 else np.ascontiguousarray(np.rot90(grey, -1))
-            scales += _read_lines(g, pytesseract)
+            stretches += _read_lines(g, pytesseract)
     except pytesseract.TesseractNotFoundError:
         log.warning("tesseract is not installed: no dimension line is read")
         return None
-    if not scales:
+    return agreed_scale(stretches, min_agree, tol)
+
+
+def agreed_scale(
+    stretches: list[dict[float, int]], min_agree: int = 2, tol: float = 0.01
+) -> tuple[float, int] | None:
+    """The scale most stretches agree on (see `read_dimension_scale`): `stretches` holds per stretch its
+    candidate scales and how many readings gave each. (scale, number of stretches agreeing) or None."""
+    best: tuple[int, int, float] = (0, 0, 0.0)  # (stretches, readings, scale)
+    for cand in stretches:
+        for v in cand:
+            n, votes, near = 0, 0, []
+            for other in stretches:
+                close = [(abs(c / v - 1.0), c, k) for c, k in other.items() if abs(c / v - 1.0) <= tol]
+                if close:
+                    n += 1
+                    votes += sum(k for _e, _c, k in close)
+                    near.append(min(close)[1])
+            if (n, votes) > best[:2]:
+                best = (n, votes, float(np.median(near)))
+    if best[0] < min_agree:
         return None
-    s = np.asarray(scales)
-    best, best_n = 0.0, 0
-    for v in s:  # the value most others agree with
-        n = int((np.abs(s / v - 1.0) <= tol).sum())
-        if n > best_n:
-            best, best_n = float(np.median(s[np.abs(s / v - 1.0) <= tol])), n
-    if best_n < min_agree:
-        return None
-    return best, best_n
+    return best[2], best[0]
 
 
 def line_work(grey: NDArray[np.uint8]) -> NDArray[np.bool_]:
@@ -66,7 +81,9 @@ def line_work(grey: NDArray[np.uint8]) -> NDArray[np.bool_]:
 def dimension_lines(ink: NDArray[np.bool_]) -> list[tuple[float, float, int, int]]:
     """Thin, nearly horizontal lines (a, b, u0, u1: row v = a + b u from u0 to u1) at least a tenth of the
     image's width long and at most 4 px thick: candidates for dimension lines (walls are thicker, text is
-    shorter). A line tilted by a degree or two (a scan's skew) is found in pieces that are joined."""
+    shorter). A line tilted by a degree or two (a scan's skew) is found in pieces that are joined, and so
+    is a line cut where a photo's blur made it as thick as a wall for a few pixels: collinear pieces
+    (each at least 15 px) a short gap apart are one line."""
     w = ink.shape[1]
     d8 = ink.astype(np.uint8)
     L = max(30, w // 10)
@@ -76,18 +93,35 @@ def dimension_lines(ink: NDArray[np.bool_]) -> list[tuple[float, float, int, int
     # pieces of one tilted line overlap once thickened a little across
     joined = cv2.dilate(thin, np.ones((3, 25), np.uint8))
     n, lab, stats, _c = cv2.connectedComponentsWithStats(joined, connectivity=8)
-    out = []
+    pieces = []  # (u0, u1, us, vs) of every thin, straight piece
     for k in range(1, n):
         x, y, bw, bh, _a = stats[k]
-        if bw < L or bh > 4 + bw * 0.05:
+        if bw < 15 or bh > 4 + bw * 0.05:
             continue
         vs, us = np.nonzero((lab[y : y + bh, x : x + bw] == k) & (thin[y : y + bh, x : x + bw] > 0))
         if len(us) < 0.5 * bw:
             continue
-        b, a = np.polyfit(us + x, vs + y, 1)
-        resid = np.abs(vs + y - (a + b * (us + x)))
+        pieces.append((int(x), int(x + bw), us + x, vs + y))
+    pieces.sort(key=lambda p: p[0])
+    gap = max(12, L // 4)
+    lines: list[list] = []  # [u0, u1, us, vs, a, b]
+    for u0, u1, us, vs in pieces:
+        for ln in lines:
+            # a piece starting a short gap after a line's end, on that line's prolongation
+            if 0 <= u0 - ln[1] <= gap and abs(ln[4] + ln[5] * (u0 + u1) / 2 - np.median(vs)) <= 2.0:
+                ln[1], ln[2], ln[3] = u1, np.concatenate([ln[2], us]), np.concatenate([ln[3], vs])
+                ln[5], ln[4] = np.polyfit(ln[2], ln[3], 1) if np.ptp(ln[2]) > 0 else (0.0, ln[4])
+                break
+        else:
+            b, a = np.polyfit(us, vs, 1) if np.ptp(us) > 0 else (0.0, float(np.median(vs)))
+            lines.append([u0, u1, us, vs, a, b])
+    out = []
+    for u0, u1, us, vs, a, b in lines:
+        if u1 - u0 < L or len(us) < 0.5 * (u1 - u0):
+            continue
+        resid = np.abs(vs - (a + b * us))
         if np.percentile(resid, 90) <= 2.0:
-            out.append((float(a), float(b), int(x), int(x + bw)))
+            out.append((float(a), float(b), int(u0), int(u1)))
     return out
 
 
@@ -117,11 +151,12 @@ def crossings(ink: NDArray[np.bool_], a: float, b: float, u0: int, u1: int) -> t
     return out, float(np.median(reach)) if reach else 0.0
 
 
-def _read_lines(grey: NDArray[np.uint8], tess) -> list[float]:
-    """Metres per pixel from every stretch read on the image's nearly horizontal dimension lines."""
+def _read_lines(grey: NDArray[np.uint8], tess) -> list[dict[float, int]]:
+    """Every stretch read on the image's nearly horizontal dimension lines: its candidate metres per
+    pixel (each reading of its number over the stretch's length) and how many readings gave each."""
     H = grey.shape[0]
     ink = line_work(grey)
-    out: list[float] = []
+    out: list[dict[float, int]] = []
     for a, b, u0, u1 in dimension_lines(ink):
         cs, reach = crossings(ink, a, b, u0 - 3, u1 + 3)
         if len(cs) < 2 or reach < 4:
@@ -130,35 +165,40 @@ def _read_lines(grey: NDArray[np.uint8], tess) -> list[float]:
             if cb - ca < 2 * reach:
                 continue  # too short a stretch to carry its number
             v = a + b * (ca + cb) / 2
+            length = float(np.hypot(cb - ca, b * (cb - ca)))
             for side in (1, -1):  # the number under the line, else over it
                 lo, hi = (0.3, 2.6) if side > 0 else (-2.6, -0.3)
                 va, vb = max(0, round(v + lo * reach)), min(H, round(v + hi * reach))
                 ua, ub = round(ca + 0.1 * (cb - ca)), round(cb - 0.1 * (cb - ca))
                 if vb - va < 6 or ub - ua < 8:
                     continue
-                value = _read_number(grey[va:vb, ua:ub], tess)
-                if value is not None and 0.3 <= value <= 200.0:
-                    out.append(value / float(np.hypot(cb - ca, b * (cb - ca))))
+                values = _read_number(grey[va:vb, ua:ub], tess)
+                cand = {value / length: k for value, k in values.items() if 0.3 <= value <= 200.0}
+                if cand:
+                    out.append(cand)
                     break
     return out
 
 
-def _read_number(crop: NDArray[np.uint8], tess) -> float | None:
-    """A length like "5.38" read in a small grey crop: its ink (half-way between paper and the darkest
-    ink) boxed, contrast stretched, enlarged to about 40 px high and read as one line (in grey, then
-    binarized)."""
+def _read_number(crop: NDArray[np.uint8], tess) -> dict[float, int]:
+    """The readings of a length like "5.38" in a small grey crop, and how many of the tries gave each:
+    its ink (half-way between paper and the darkest ink) boxed, contrast stretched, enlarged 3 to 6 times
+    (at least to about 40 px high) and read as one line, in grey and binarized. Empty when nothing reads
+    as a length."""
     lo, hi = int(crop.min()), int(crop.max())
     if hi - lo < 30:
-        return None
+        return {}
     ink = crop < (lo + hi) // 2
     vs, us = np.nonzero(ink)
     if len(vs) < 6:
-        return None
+        return {}
     v0, v1, u0, u1 = vs.min(), vs.max() + 1, us.min(), us.max() + 1
     box = crop[max(0, v0 - 2) : v1 + 2, max(0, u0 - 2) : u1 + 2]
-    # contrast stretched and enlarged, in grey first (binarizing a small "5" can make a "9" of it)
+    # contrast stretched and enlarged, in grey and binarized (binarizing a small "5" can make a "9" of it)
     stretched = ((box.astype(np.float32) - lo) * (255.0 / (hi - lo))).clip(0, 255).astype(np.uint8)
-    for binarize, zoom in itertools.product((False, True), sorted({max(3, round(40 / max(v1 - v0, 1))), 4})):
+    z0 = max(3, round(40 / max(v1 - v0, 1)))
+    found: dict[float, int] = {}
+    for binarize, zoom in itertools.product((False, True), (z0, z0 + 1, z0 + 2, z0 + 3)):
         big = cv2.resize(stretched, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_CUBIC)
         if binarize:
             big = np.where(big < 128, 0, 255).astype(np.uint8)
@@ -166,5 +206,6 @@ def _read_number(crop: NDArray[np.uint8], tess) -> float | None:
         text = tess.image_to_string(big, config="--psm 7 -c tessedit_char_whitelist=0123456789.,").strip()
         m = _LENGTH.match(text.replace(" ", ""))
         if m is not None:
-            return float(f"{m.group(1)}.{m.group(2)}")
-    return None
+            value = float(f"{m.group(1)}.{m.group(2)}")
+            found[value] = found.get(value, 0) + 1
+    return found

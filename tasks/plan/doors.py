@@ -68,11 +68,17 @@ def swing_share(
     return best
 
 
-def _ink_cover(gap: NDArray, ink_f: NDArray[np.float32]) -> float:
-    """Share of the gap x0 y0 x1 y1 (pixels) that the ink raster (h, w) covers (a pixel a sample)."""
+def _ink_cover(gap: NDArray, ink_f: NDArray[np.float32], half_width: float = 0.0) -> float:
+    """Share of the gap x0 y0 x1 y1 (pixels) that the ink raster (h, w) covers (a pixel a sample): a
+    sample is covered when ink lies on the gap's line or beside it within half_width (a window drawn as
+    its wall's two faces running on across the opening leaves the centreline bare)."""
     L = float(np.hypot(*(gap[2:] - gap[:2])))
     pts = gap[:2] + np.linspace(0, 1, max(2, int(L) + 1))[:, None] * (gap[2:] - gap[:2])
-    return float((sample_mask(ink_f, pts) > 0.5).mean())
+    n = np.array([gap[1] - gap[3], gap[2] - gap[0]]) / max(L, 1e-9)
+    offs = np.arange(-math.floor(half_width), math.floor(half_width) + 1, dtype=np.float64)
+    across = pts[:, None, :] + offs[None, :, None] * n  # (S, O, 2)
+    on = sample_mask(ink_f, across.reshape(-1, 2)).reshape(len(pts), len(offs)) > 0.5
+    return float(on.any(axis=1).mean())
 
 
 def _find_doors(
@@ -90,7 +96,7 @@ def _find_doors(
     def swung(p: NDArray, q: NDArray, i: int) -> bool:
         if swing is None or swing_share(p, q, thick[i] / 2, swing[0]) >= swing[1]:
             return True
-        return len(swing) > 2 and _ink_cover(np.concatenate([p, q]), swing[2]) >= swing[3]
+        return len(swing) > 2 and _ink_cover(np.concatenate([p, q]), swing[2], thick[i] / 2 - 1) >= swing[3]
 
     doors: list[NDArray] = []
     used: set[tuple[int, int]] = set()
@@ -206,6 +212,8 @@ def doors_and_windows(
         faint = cv2.adaptiveThreshold(grey, 1, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, block, 12)
         faint = cv2.dilate(faint & ~sym_any.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
         off_walls = np.where(mask_f > 0.5, 0.0, np.maximum(thin, faint)).astype(np.float32)
+        # a window's thin lines are read against the paper around them too (glare pales them as well)
+        thin = np.maximum(thin, faint).astype(np.float32)
         swing = (off_walls, cfg.door_swing_share, thin, cfg.window_ink_share)
     doors = _find_doors(
         segs, thick, {"door_min": cfg.door_min_m * px, "door_max": cfg.door_max_m * px}, mask_f, swing
@@ -214,8 +222,12 @@ def doors_and_windows(
     if len(doors) and cfg.window_ink_share <= 1.0:
         # a gap spanned by a thin line is a window drawn in its wall: the wall goes on through it
         window = np.zeros(len(doors), bool)
+        jamb = lines.point_segment_distances(doors[:, :2], segs).argmin(axis=1)  # the wall it opens
         for n, dr in enumerate(doors):
-            window[n] = _ink_cover(dr, thin) >= cfg.window_ink_share
+            window[n] = _ink_cover(dr, thin, thick[jamb[n]] / 2 - 1) >= cfg.window_ink_share
+            if window[n] and swing is not None:
+                # a gap whose swing is drawn is a door, whatever runs along it (a counter by the wall)
+                window[n] = swing_share(dr[:2], dr[2:], thick[jamb[n]] / 2, swing[0]) < cfg.door_swing_share
         if window.any():
             near = lines.point_segment_distances(doors[window][:, :2], segs).argmin(axis=1)
             segs = np.concatenate([segs, doors[window]])

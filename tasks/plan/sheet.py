@@ -22,8 +22,21 @@ def find_sheet(
     at least min_area_share of the image, with the outside darker by min_contrast grey levels on average.
     None otherwise (a scan, a drawing on a white page, a photo cropped inside the sheet)."""
     grey = cv2.GaussianBlur(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), (0, 0), 2)
-    h, w = grey.shape
     edges = cv2.Canny(grey, 8, 24)
+    quad = _sheet_quad(grey, edges, min_area_share, min_contrast)
+    if quad is None:
+        # the sheet's edge beside the drawing's frame a few pixels in gives parallel edges that the
+        # probabilistic Hough can walk across in pieces too short to count: once more, each band of
+        # parallel edges merged into one
+        quad = _sheet_quad(grey, cv2.dilate(edges, np.ones((5, 5), np.uint8)), min_area_share, min_contrast)
+    return quad
+
+
+def _sheet_quad(
+    grey: NDArray[np.uint8], edges: NDArray[np.uint8], min_area_share: float, min_contrast: float
+) -> NDArray[np.float64] | None:
+    """`find_sheet` on the (h, w) edge image of the blurred grey photo."""
+    h, w = grey.shape
     min_len = 0.3 * min(h, w)
     found = cv2.HoughLinesP(
         edges, 1, np.pi / 720, int(min_len / 2), minLineLength=min_len, maxLineGap=round(0.02 * max(h, w))
@@ -402,17 +415,23 @@ def _bar_first(grey: NDArray[np.uint8], dark: NDArray[np.bool_], tess) -> tuple[
             lo, hi = int(g.min()), int(g.max())
             if hi - lo < 30:  # paper only
                 continue
+            guessed: list[float] = []  # values read from letters only, at one enlargement so far
             for zoom in (3, 4, 2):
                 big = cv2.resize(g, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_CUBIC)
                 big = np.where(big < (lo + hi) // 2, 0, 255).astype(np.uint8)
                 big = cv2.copyMakeBorder(big, 20, 20, 20, 20, cv2.BORDER_CONSTANT, value=255)
-                text = tess.image_to_string(big, config="--psm 7").strip().translate(_CONFUSED)
-                m = _NUMBER.match(text.lower().replace(" ", ""))
+                raw = tess.image_to_string(big, config="--psm 7").strip()
+                m = _NUMBER.match(raw.translate(_CONFUSED).lower().replace(" ", ""))
                 if m is None or m.group(2) is None:
                     continue
                 value = float(m.group(1).replace(",", "."))
-                if value > 0 and _round_step(value / blocks):
+                if not (value > 0 and _round_step(value / blocks)):
+                    continue
+                # a number read without a single digit ("im" for a "5 m" the photo's edge cut) is a
+                # guess: taken only when another enlargement reads the same
+                if any(ch.isdigit() for ch in raw) or value in guessed:
                     return _bar_scale(box, dark, value, grey)
+                guessed.append(value)
     return None
 
 
