@@ -203,49 +203,6 @@ def follow_ink_to_ends(
         k = int(np.argmax(stop))
         # the ink's end lies between the last sample on ink and the first off it
         out[i, 2 * e : 2 * e + 2] = p + (ts[k] - (step / 2 if off_ink[k] else 0.0)) * u
-    return _jambs_past_corners(out, segs, thick, mask_f, max_px)
-
-
-def _jambs_past_corners(
-    out: NDArray, segs: NDArray, thick: NDArray, mask_f: NDArray[np.float32], max_px: float
-) -> NDArray[np.float64]:
-    """Wall ends (M, 4) at a corner whose own ink runs straight on past the other wall's far face by at
-    least half the wall's thickness (a jamb beside a door or window on the far side of a junction that the
-    skeleton turned at: the junction is a T, not an L) prolonged to where that ink ends, at most max_px.
-    At a true corner the ink stops at the other wall's outer face."""
-    if len(segs) < 2:
-        return out
-    step = 0.5
-    ts = np.arange(step, max_px + step, step)
-    ang = lines.angles(segs)
-    free = set(free_ends(segs, 1.0))
-    for i in range(len(segs)):
-        for e in (0, 1):
-            if (i, e) in free:
-                continue
-            a, b = segs[i, :2], segs[i, 2:]
-            p, q = (b, a) if e else (a, b)
-            u = (p - q) / max(float(np.hypot(*(p - q))), 1e-9)
-            others = np.delete(np.arange(len(segs)), i)
-            at_p = lines.point_segment_distances(p[None], segs[others])[0] <= 1.0
-            turn = np.abs(np.sin(np.asarray(lines.angle_difference(ang[others], ang[i]))))
-            # only a corner: the walls met there all cross this one, and one of them ends there
-            if not at_p.any() or (turn[at_p] < math.sin(math.radians(60.0))).any():
-                continue
-            met = others[at_p]
-            if min(min(np.hypot(*(segs[j, :2] - p)), np.hypot(*(segs[j, 2:] - p))) for j in met) > 1.0:
-                continue
-            pts = p + ts[:, None] * u
-            on_ink = sample_mask(mask_f, pts) > 0.5
-            # and no other wall on the way (its ink is not this wall's)
-            rest = others[~at_p]
-            if len(rest):
-                on_ink &= ~(lines.point_segment_distances(pts, segs[rest]) <= 1.0).any(axis=1)
-            n = len(ts) if on_ink.all() else int(np.argmin(on_ink))
-            reach = n * step - step / 2 if n < len(ts) else ts[-1]
-            if n == 0 or reach < float(thick[met].max() + thick[i]) / 2:
-                continue
-            out[i, 2 * e : 2 * e + 2] = p + reach * u
     return out
 
 
