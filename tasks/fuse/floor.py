@@ -95,8 +95,8 @@ def fuse_floor(
         cfg.thickness_range_m,
         cfg.default_thickness_m,
     )
-    both, resid = both_sides_thickness(*args), residual_thickness(*args)
-    lines = both_sides_thickness(*args, local=False)
+    both, lines = both_sides_thickness(*args), both_sides_thickness(*args, local=False)
+    resid = residual_thickness(*args, lines=lines)
     thickness = {"both_sides": both, "model_lines": lines, "residuals": resid}[cfg.thickness_method]
     plan_by_id = {p.id: p for p in plan_rooms}
     fused = {}

@@ -246,12 +246,20 @@ def residual_thickness(
     placed: list[PlacedWalls],
     valid_range_m: tuple[float, float],
     default_m: float,
+    lines: WallThickness | None = None,
 ) -> WallThickness:
     """Per plan wall: the mean of the residual thickness of the placed rooms with a face along it (the
-    thesis' method), else the plan's value, else the default."""
+    thesis' method), else the plan's value, else the default. `lines`: the same walls'
+    `both_sides_thickness(..., local=False)` when already at hand (which rooms are on each side)."""
     centrelines = as_segments(centrelines)
     per_room = {p.room: room_thickness_from_residuals(p.walls, centrelines, valid_range_m) for p in placed}
-    both = both_sides_thickness(centrelines, plan_thickness_m, placed, valid_range_m, default_m, local=False)
+    both = (
+        lines
+        if lines is not None
+        else both_sides_thickness(
+            centrelines, plan_thickness_m, placed, valid_range_m, default_m, local=False
+        )
+    )
     thick, source = both.thickness_m.copy(), both.source.astype(object)
     for i, (left, right) in enumerate(both.sides):
         vals = [per_room[r] for r in (left, right) if r is not None and per_room.get(r) is not None]

@@ -562,6 +562,16 @@ def backed_bridges(walls: NDArray, origin: NDArray, xy: NDArray, cfg: WallsConfi
     return np.array(out).reshape(-1, 4)
 
 
+def _collinear_with(
+    lines: NDArray, ang: NDArray, normal: NDArray, j: int, cos_tol: float, offset_tol_m: float
+) -> NDArray[np.bool_]:
+    """(M,) lines parallel to line j (within acos(cos_tol)) whose midpoints lie within offset_tol_m of its
+    line: its collinear pieces, j itself among them."""
+    mid = 0.5 * (lines[:, :2] + lines[:, 2:])
+    par = np.abs(np.cos(ang - ang[j])) >= cos_tol
+    return par & (np.abs((mid - lines[j, :2]) @ normal[j]) <= offset_tol_m)
+
+
 def furniture_in_front(
     lines: NDArray, interior: NDArray | None, cfg: WallsConfig, angle_tol_deg: float
 ) -> NDArray[np.bool_]:
@@ -569,12 +579,14 @@ def furniture_in_front(
     above it (a handheld scan cut at 1.3-2 m, no ceiling), where a cabinet, a shelf or a plant reaches the
     slice top like the walls and the top-reach test cannot tell them apart:
     - a front: a line at most `furniture_max_length_m` long, parallel to a line ("the wall") and
-      `furniture_min_depth_m` to `furniture_max_depth_m` in front of it on the room's side (towards `interior`), with the wall's line
-      (its collinear pieces together, longer than the front: the wall behind the furniture is hidden in
-      the slice, so its pieces either side may each be shorter) running along the whole of it;
-    - a side: a line perpendicular to such a wall, `furniture_min_depth_m` to `furniture_max_depth_m` long, from the wall's
-      line (not at its ends: a corner) into the room, in line with no other line, whose inner end is free (within `thin_wall_end_tol_m` of no line but the wall
-      and the fronts): a partition stub is longer than furniture is deep, and one shorter meets a wall.
+      `furniture_min_depth_m` to `furniture_max_depth_m` in front of it on the room's side (towards
+      `interior`), with the wall's line (its collinear pieces together, longer than the front: the wall
+      behind the furniture is hidden in the slice, so its pieces either side may each be shorter) running
+      along at least half of it;
+    - a side: a line perpendicular to such a wall, `furniture_min_depth_m` to `furniture_max_depth_m` long,
+      from the wall's line (not at its ends: a corner) into the room, in line with no other line, whose
+      inner end is free (within `thin_wall_end_tol_m` of no line but the wall and the fronts): a partition
+      stub is longer than furniture is deep, and one shorter meets a wall.
     A pilaster of a furniture's size in front of a wall is dropped as well: without a ceiling nothing
     tells them apart (with one, the top-reach test keeps it)."""
     m = len(lines)
@@ -622,10 +634,8 @@ def furniture_in_front(
                 break
     front = out.copy()
     for k in np.flatnonzero((L >= d_lo) & (L <= d_hi + tol) & ~front):
-        par_k = np.abs(np.cos(ang - ang[k])) >= cos_tol
-        off_k = np.abs((0.5 * (lines[:, :2] + lines[:, 2:]) - lines[k, :2]) @ n[k])
-        par_k[k] = False
-        inline = par_k & ~front & (off_k <= cfg.lines.offset_tol_m)
+        inline = _collinear_with(lines, ang, n, k, cos_tol, cfg.lines.offset_tol_m) & ~front
+        inline[k] = False
         if inline.any():
             gap = point_segment_distances(lines[k].reshape(2, 2), lines[inline]).min()
             if gap <= cfg.lines.max_gap_m:
@@ -646,10 +656,7 @@ def furniture_in_front(
             others = np.ones(m, dtype=bool)
             others[[k, j]] = False
             others &= ~front
-            # the wall's collinear pieces are the wall too
-            par = np.abs(np.cos(ang - ang[j])) >= cos_tol
-            off = np.abs((0.5 * (lines[:, :2] + lines[:, 2:]) - lines[j, :2]) @ n[j])
-            others &= ~(par & (off <= cfg.lines.offset_tol_m))
+            others &= ~_collinear_with(lines, ang, n, j, cos_tol, cfg.lines.offset_tol_m)  # the wall too
             if others.any():
                 near = point_segment_distances(inner[None], lines[others]).min() <= cfg.thin_wall_end_tol_m
                 if near:
@@ -695,11 +702,7 @@ def beyond_the_room(
         cand = ~shallow & (np.abs(np.cos(ang - ang[w])) >= cos_tol) & ~out & (L < L[w])
         cand[w] = False
         for c in np.flatnonzero(cand):
-            mid = 0.5 * (lines[:, :2] + lines[:, 2:])
-            same = (np.abs(np.cos(ang - ang[c])) >= cos_tol) & (
-                np.abs((mid - lines[c, :2]) @ normal[c]) <= cfg.lines.offset_tol_m
-            )
-            others = ~same & ~out
+            others = ~_collinear_with(lines, ang, normal, c, cos_tol, cfg.lines.offset_tol_m) & ~out
             others[w] = True
             mine = owner == c
             lo, hi = float(t[mine].min()), float(t[mine].max())
