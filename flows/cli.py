@@ -405,20 +405,39 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     saved = planning.save_resolved_config(work, cfg, argv)
     if rows is None:
         from flows import prefect_env
+        from flows.ahead import Ahead
 
         prefect_env.apply()
+        # While Prefect's server starts in another process, this one imports the flows and computes the
+        # stages that are ready and short (flows/ahead.py); with a running server there is no wait to fill.
+        ahead = None if prefect_env.api_url_configured() else Ahead(req)
 
-        def import_flows() -> None:  # while Prefect's server starts in another process
+        def import_flows() -> None:
+            if ahead is not None:
+                ahead.start()
+                ahead.planned.wait()  # it has read the stages' code versions
             from flows import pipeline  # noqa: F401  (Prefect's import)
 
-            planning.read_code_versions()
-            planning.save_code_memo(work)
+            if ahead is None:
+                planning.read_code_versions()
+                planning.save_code_memo(work)
 
-        # Prefect's server lives and dies with this run
-        with prefect_env.embedded_server(work, meanwhile=import_flows) as embedded:
-            from flows import pipeline
+        try:
+            # Prefect's server lives and dies with this run
+            with prefect_env.embedded_server(work, meanwhile=import_flows) as embedded:
+                from flows import pipeline
 
-            rows = pipeline.run_survey(req, runner, address, heartbeats=embedded is None)
+                done = ahead.finish() if ahead is not None else {}
+                if done:
+                    print(
+                        f"{len(done)} stage runs computed while Prefect's server started "
+                        f"({time.perf_counter() - started:.1f} s)",
+                        file=sys.stderr,
+                    )
+                rows = pipeline.run_survey(req, runner, address, heartbeats=embedded is None, ahead=done)
+        finally:
+            if ahead is not None:
+                ahead.finish()
     else:
         planning.save_code_memo(work)
         print("every stage is current: nothing to compute (Prefect not started)", file=sys.stderr)

@@ -164,27 +164,37 @@ def _current(item: PlannedStage, upstream: dict[str, Any], fan_in: FanIn) -> Exe
 
 
 def _settled_row(item: PlannedStage, done: Executed) -> StageOutcome:
+    if done.how == "computed":  # computed while Prefect's server started (flows/ahead.py)
+        return StageOutcome(item.call.room, item.call.stage, "computed", done.seconds, "", done.result)
     return StageOutcome(item.call.room, item.call.stage, "cached", 0.0, "", done.result)
 
 
-def settled_stages(plan: SurveyPlan) -> dict[tuple[str, str], Executed]:
+def settled_stages(
+    plan: SurveyPlan, ahead: dict[tuple[str, str], float] | None = None
+) -> dict[tuple[str, str], Executed]:
     """The stage runs of a plan that are current before the run starts (not forced, every input current,
     a verified artefact for their key in the store): they are read, not run, so the run creates no
-    Prefect task for them. What follows a forced or changed stage is left to the run: its key is known
+    Prefect task for them. `ahead`: the stages computed before the flow started (forced ones among them),
+    reported as computed. What follows a forced or changed stage is left to the run: its key is known
     only once that stage has written its artefacts."""
-    found = current_results(plan, plan.rooms, skip=lambda item: item.call.force)
-    return {ref: Executed(result, "stored", 0.0) for ref, result in found.items()}
+    ahead = ahead or {}
+    found = current_results(plan, plan.rooms, skip=lambda item: item.call.force and item.ref not in ahead)
+    return {
+        ref: Executed(result, "computed", ahead[ref]) if ref in ahead else Executed(result, "stored", 0.0)
+        for ref, result in found.items()
+    }
 
 
 @flow(name="building", log_prints=False, validate_parameters=False, persist_result=False)
-def building_flow(req: RunRequest) -> list[StageOutcome]:
+def building_flow(req: RunRequest, ahead: list[tuple[str, str, float]] | None = None) -> list[StageOutcome]:
     """All rooms of a survey (or those in `req.rooms`): the building's stages before the rooms, the rooms
-    concurrently, then the building-after stages over every room."""
+    concurrently, then the building-after stages over every room. `ahead`: (room, stage, seconds) of the
+    stages computed while Prefect's server started (flows/ahead.py)."""
     cfg = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets))
     survey = cfgmod.load_survey(Path(req.survey))
     profile = cfgmod.load_sensor_profile(survey.sensor)
     plan = plan_survey(req, cfg, survey, profile)
-    settled = settled_stages(plan)
+    settled = settled_stages(plan, {(room, stage): seconds for room, stage, seconds in ahead or []})
     before = {item.ref: _submit(item, {}) for item in plan.before if item.ref not in settled}
     wait(list(before.values()))
     rows = [_settled_row(item, settled[item.ref]) for item in plan.before if item.ref in settled]
@@ -267,10 +277,15 @@ def outcomes(futures: dict[tuple[str, str], PrefectFuture]) -> list[StageOutcome
 
 
 def run_survey(
-    req: RunRequest, runner: str = "threads", dask_address: str | None = None, heartbeats: bool = True
+    req: RunRequest,
+    runner: str = "threads",
+    dask_address: str | None = None,
+    heartbeats: bool = True,
+    ahead: dict[tuple[str, str], float] | None = None,
 ) -> list[StageOutcome]:
     """Run the building flow and report every stage's outcome; rooms run on `runner` ("threads" or
-    "dask", see flows/runners.py), `flow.max_workers` at once.
+    "dask", see flows/runners.py), `flow.max_workers` at once. `ahead`: (room, stage) -> seconds of the
+    stages already computed for this request (flows/ahead.py).
 
     `heartbeats=False` (a run on its own embedded server, which dies with it): no flow-run heartbeats.
     They tell a long-lived server that a run crashed; the flow's heartbeat thread is also joined when
@@ -282,7 +297,8 @@ def run_survey(
     workers = cfgmod.load_config([Path(p) for p in req.config_files], list(req.sets)).flow.max_workers
     store_for(req.work).sweep_temporaries()
     flow_ = building_flow.with_options(task_runner=task_runner(runner, workers, dask_address))
+    done = [(room, stage, seconds) for (room, stage), seconds in sorted((ahead or {}).items())]
     if heartbeats:
-        return flow_(req)
+        return flow_(req, done)
     with temporary_settings(updates={PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
-        return flow_(req)
+        return flow_(req, done)

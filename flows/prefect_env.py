@@ -77,7 +77,7 @@ def _profile_settings() -> dict[str, object]:
     return settings if isinstance(settings, dict) else {}
 
 
-def _api_url_configured() -> bool:
+def api_url_configured() -> bool:
     """Whether Prefect is told to use a running server (the environment, an active profile, or a test
     harness' settings), in which case a run starts none."""
     if os.environ.get("PREFECT_API_URL"):
@@ -331,7 +331,7 @@ def embedded_server(work: Path, meanwhile: Callable[[], object] | None = None) -
     when the run ends, and recorded in WORK/prefect-server.json so that the next run in the work dir
     stops one that a dead run left (e.g. where no parent-death signal exists). Call it from the main
     thread: the signal follows the thread that started the server."""
-    if _api_url_configured():
+    if api_url_configured():
         if meanwhile is not None:
             meanwhile()
         yield None
