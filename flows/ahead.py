@@ -128,4 +128,5 @@ class Ahead:
                 log.debug("[%s] %s: not computed ahead: %s", item.call.room, item.call.stage, exc)
                 return
             found[item.ref] = done.result
-            self.computed[item.ref] = done.seconds
+            if done.how == "computed":  # else current once what it reads was (same bytes): a store hit
+                self.computed[item.ref] = done.seconds
