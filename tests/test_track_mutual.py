@@ -70,6 +70,12 @@ def _placement(truth: dict[int, np.ndarray], placed: dict[int, np.ndarray]) -> _
     return plan
 
 
+def _sparse(cam: np.ndarray) -> np.ndarray:
+    """A frame's points at one height, 2 cm apart: under `line_min_count` in every 3 cm line cell, so no wall
+    line (a frame far from its walls)."""
+    return cam[np.abs(cam[:, 2] - (1.0 - 1.4)) < 1e-6][::2]
+
+
 def test_agreement_counts_the_points_near_the_others():
     x = np.linspace(0.0, 4.0, 101)
     line = np.column_stack([x, np.zeros_like(x)])
@@ -129,3 +135,53 @@ def test_a_frame_no_placement_confirms_is_left_unplaced():
     assert metrics["unplaced"] == [4]
     assert metrics["turned_deg"] == {}
     assert metrics["median_agreement"] > 0.95
+
+
+def test_a_frame_another_placement_refutes_is_left_unplaced_without_wall_lines():
+    """The frame at the corridor's end, its depth too sparse for a wall line (too far from its walls), fitted
+    to the plan 20 degrees off: the others' faces are smeared over some centimetres (a Kinect's at 3-4 m), so
+    part of its U still lands on them and the share rule keeps it, but its true placement, found by the turn
+    search, agrees with the others more than twice as well. Without a wall line that placement cannot be
+    checked against the plan's directions, so the frame is not turned but left unplaced: its points would
+    draw a diagonal wall nobody else saw."""
+    truth = {k: _pose(1.5 + 1.5 * k, 1.0, 10.0 * k) for k in range(8)}
+    truth[8] = _pose(13.0, 1.0, 20.0)
+    placed = {**truth, 8: _turned(truth[8], -20.0, (0.03, 0.02))}
+    plan = _placement(truth, placed)
+    rng = np.random.default_rng(0)
+    for k in range(8):
+        plan.cam_points[k] = plan.cam_points[k] + np.array([1.0, 1.0, 0.0], np.float32) * rng.normal(
+            0.0, 0.05, (len(plan.cam_points[k]), 1)
+        ).astype(np.float32)
+    plan.cam_points[8] = _sparse(plan.cam_points[8])
+    assert not plan.parallel_to_plan(8, truth[8])
+    metrics = plan.check_with_neighbours()
+    typical = metrics["median_agreement"]
+    assert 0.25 * typical <= metrics["agreement_before"][-1] < 0.5 * typical  # the share rule alone keeps it
+    assert metrics["turned_deg"] == {}
+    assert metrics["refuted"] == [8]
+    assert metrics["unplaced"] == [8]
+    assert np.array_equal(plan.fit[8].T, placed[8])
+
+
+def test_a_frame_seeing_more_than_the_others_is_kept():
+    """A frame placed right whose wall points mostly lie where no other frame looked (the others see 1.6 m
+    around them, it sees 4 m beyond their last) agrees little, but no other placement agrees twice as well:
+    it stays where it is."""
+    truth = {k: _pose(1.0 + 0.8 * k, 1.0, 0.0) for k in range(8)}
+    truth[8] = _pose(9.0, 1.0, 0.0)
+    plan = _placement(truth, truth)
+    world = _corridor_points()
+    for k in range(8):
+        plan.cam_points[k] = _seen_from(truth[k], world, radius_m=1.6)
+    plan.cam_points[8] = _sparse(_seen_from(truth[8], world, radius_m=4.0))
+    metrics = plan.check_with_neighbours()
+    assert (
+        0.25 * metrics["median_agreement"]
+        <= metrics["agreement_before"][-1]
+        < 0.5 * metrics["median_agreement"]
+    )
+    assert metrics["unplaced"] == []
+    assert metrics["refuted"] == []
+    assert metrics["turned_deg"] == {}
+    assert np.array_equal(plan.fit[8].T, truth[8])

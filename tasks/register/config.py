@@ -144,7 +144,8 @@ class RegisterConfig:
     (`check_with_neighbours`): a frame whose wall points land on the walls the others saw for less than half
     the capture's typical share (a corner fits the coarse plan as well turned by a quarter) is turned about
     its camera onto the others' points where one placement clearly agrees, and left unplaced where it
-    still agrees with under a quarter of that share."""
+    still agrees with under a quarter of that share or where a distinct placement it cannot take agrees
+    twice as well."""
     track_mutual_tol_m: float = 0.05
     """Mutual check: a frame's wall point agrees with the other frames when one of theirs lies this close (a
     Kinect's wall noise at 3-4 m and a placement's few centimetres)."""

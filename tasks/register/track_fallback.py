@@ -549,10 +549,13 @@ class _PlanPlacement:
         a corridor's end fits the plan as well turned by a quarter). It is turned about its camera in steps
         of 30 degrees and each start fitted to the others' points (`icp_to_points`); the placement most of
         its points agree on is taken when no distinct placement agrees almost as well (a frame seeing one
-        corner close up fits every corner) and its wall lines run along the plan's walls. A frame that then still agrees with under a quarter of that
-        share is left unplaced: its points would stand in the cloud as walls nobody else saw, placed by
-        the coarse plan alone. Returns metrics: the capture's median agreement, each frame's before and
-        after, the frames turned (degrees) and those left unplaced."""
+        corner close up fits every corner) and its wall lines run along the plan's walls. A frame that then
+        still agrees with under a quarter of that share is left unplaced: its points would stand in the cloud
+        as walls nobody else saw, placed by the coarse plan alone. So is one that a distinct placement
+        (`_distinct`) refutes, agreeing at least twice as well and with half the typical share, when that
+        placement cannot be taken (a frame too far from its walls to show a wall line cannot be checked
+        against the plan's directions). Returns metrics: the capture's median agreement, each frame's
+        before and after, the frames turned (degrees), those refuted and those left unplaced."""
         cfg, order = self.cfg, self.order
         tol = cfg.track_mutual_tol_m
         clouds = {f: self.wall_xy(f) for f in order}
@@ -561,6 +564,7 @@ class _PlanPlacement:
         typical = float(np.median(list(share.values()))) if share else 0.0
         turned: dict[int, float] = {}
         suspect = {f for f in order if share[f] < 0.5 * typical}
+        refuted: set[int] = set()
         for _sweep in range(2):  # the second with the frames the first turned among the reference
             reference = {f: c for f, c in clouds.items() if f not in suspect}
             for f in sorted(suspect, key=lambda g: -share[g]):
@@ -577,7 +581,13 @@ class _PlanPlacement:
                 got, best = max(tried, key=lambda c: c[0])
                 rivals = [T for g, T in tried if g >= got - 0.1 and _distinct(T, best)]
                 if got < max(share[f] + 0.1, 0.5 * typical) or rivals or not self.parallel_to_plan(f, best):
+                    # another placement, turned or shifted well away, agreeing twice as well refutes this
+                    # one even when it cannot be confirmed itself (a frame too far from its walls to show
+                    # a wall line): the frame is left unplaced
+                    if got >= max(2.0 * share[f], 0.5 * typical) and _distinct(best, self.fit[f].T):
+                        refuted.add(f)
                     continue
+                refuted.discard(f)
                 rel = best[:3, :3] @ self.fit[f].T[:3, :3].T
                 turn = float(np.arctan2(rel[1, 0], rel[0, 0]))
                 turned[f] = round(float(np.degrees(turn)) + turned.get(f, 0.0), 1)
@@ -585,12 +595,13 @@ class _PlanPlacement:
                 clouds[f] = reference[f] = self.wall_xy(f)
                 share[f] = got
             suspect = {f for f in suspect if share[f] < 0.5 * typical}
-        dropped = [f for f in order if share[f] < 0.25 * typical]
+        dropped = [f for f in order if share[f] < 0.25 * typical or (f in refuted and f in suspect)]
         return {
             "median_agreement": round(typical, 3),
             "agreement_before": before,
             "agreement_after": [round(share[f], 2) for f in order],
             "turned_deg": {str(f): v for f, v in turned.items()},
+            "refuted": sorted(f for f in refuted if f in suspect),
             "unplaced": dropped,
         }
 
