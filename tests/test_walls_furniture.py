@@ -123,8 +123,9 @@ def test_a_wardrobe_in_a_corner_whose_wall_the_sensor_never_saw_above_it_is_no_w
 def test_a_box_beside_a_wall_s_seen_end_is_furniture_and_a_step_with_one_side_stays():
     """A cabinet 0.9 m wide and 0.5 m deep stands against the south wall just past where the capture saw
     that wall (the wall behind it and beyond it unseen): no wall line runs along its front, but both its
-    ends are joined to the wall's line by sides, so it is a box standing on the wall. A step of the same
-    depth with one side only (the room's outline jogs in) stays."""
+    ends are joined to the wall's line by sides, so it is a box standing on the wall; so is one with a side
+    at one end and the room's corner beyond the other. A step of the same depth with one side only and no
+    wall of the room reaching the line behind it (the room's outline jogs in) stays."""
     room = [
         [0, 0, 2, 0],  # south, seen up to x = 2
         [6, 0, 6, 4],  # east, north, west
@@ -137,6 +138,10 @@ def test_a_box_beside_a_wall_s_seen_end_is_furniture_and_a_step_with_one_side_st
     assert np.flatnonzero(found).tolist() == [4, 5, 6]
     step = np.array([*room, [2.0, 0.5, 3.5, 0.5], [2.0, 0.0, 2.0, 0.5]], dtype=float)
     assert not furniture_in_front(step, np.array([3.0, 2.0]), CFG, 3.0).any()
+    # a cabinet with one side seen, 0.5 m from the room's corner: the east wall reaches the south wall's
+    # line beyond its other end, so the room goes on behind it
+    corner = np.array([*room, [4.2, 0.5, 5.5, 0.5], [4.2, 0.0, 4.2, 0.5]], dtype=float)
+    assert np.flatnonzero(furniture_in_front(corner, np.array([3.0, 2.0]), CFG, 3.0)).tolist() == [4, 5]
 
 
 def test_a_long_wall_beyond_a_short_wall_at_a_corner_and_an_oblique_one_go_and_an_island_s_wall_stays():

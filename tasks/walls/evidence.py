@@ -622,23 +622,36 @@ def furniture_in_front(
     end_tol = cfg.thin_wall_end_tol_m
 
     def boxed(i: int, j: int, dd: NDArray) -> bool:
-        """Is each end of line i (standing dd in front of line j) joined to j's line by a side: a line
-        perpendicular to j from within `thin_wall_end_tol_m` of the end to within that of j's line? A box
-        standing on the wall beside the wall's seen end (the wall behind it hidden in the slice)."""
+        """Is line i (standing dd in front of line j) a box on j's line: each of its ends joined to j's line
+        by a side (a line perpendicular to j from within `thin_wall_end_tol_m` of the end to within that of
+        j's line), or one end so and, beyond the other within `lines.max_gap_m`, a wall of the room running
+        into the room from j's line (the corner the box stands in: the room goes on behind it there)? The
+        wall behind the box and beside it is unseen in the slice; an alcove's or a step's wall beside it has
+        the room's walls meeting its own line, not the line behind it."""
+        t_i = (lines[i].reshape(2, 2) - lines[j, :2]) @ u[j]
+        sides = 0
         for e in range(2):
             p = lines[i, 2 * e : 2 * e + 2]
-            ok = False
-            for k in np.flatnonzero((L >= d_lo - end_tol) & (L <= d_hi + end_tol)):
-                if k in (i, j) or abs(math.cos(ang[k] - ang[j])) > sin_loose:
+            side = corner = False
+            for k in np.flatnonzero(np.abs(np.cos(ang - ang[j])) <= sin_loose):
+                if k in (i, j):
                     continue
                 dk = depth(k, j)
+                if dk.min() > end_tol:
+                    continue  # k stands off j's line
                 near_end = point_segment_distances(p[None], lines[k : k + 1])[0, 0] <= end_tol
-                if near_end and dk.min() <= end_tol and abs(dk.max() - dd[e]) <= end_tol:
-                    ok = True
+                if near_end and L[k] <= d_hi + end_tol and abs(dk.max() - dd[e]) <= end_tol:
+                    side = True
                     break
-            if not ok:
+                # beyond the end (outward along j), within the gap a wall may be unseen, past the box's depth
+                foot = (lines[k, :2] if dk[0] <= dk[1] else lines[k, 2:]) - lines[j, :2]
+                beyond = (foot @ u[j] - t_i[e]) * np.sign(t_i[e] - t_i[1 - e])
+                corner |= bool(0 <= beyond <= cfg.lines.max_gap_m and dk.max() > dd[e] + end_tol)
+            if side:
+                sides += 1
+            elif not corner:
                 return False
-        return True
+        return sides >= 1
 
     for i in np.flatnonzero(L <= cfg.furniture_max_length_m):
         for j in np.argsort(-L):
