@@ -118,3 +118,53 @@ def test_a_wardrobe_in_a_corner_whose_wall_the_sensor_never_saw_above_it_is_no_w
     model = model_walls(pts, 0.0, 2.7, CFG)
     ev = evaluate_walls(model.walls, truth)
     assert model.closed and len(model.walls) == 4 and ev["correctness"] == 1.0, (ev, model.walls)
+
+
+def test_a_box_beside_a_wall_s_seen_end_is_furniture_and_a_step_with_one_side_stays():
+    """A cabinet 0.9 m wide and 0.5 m deep stands against the south wall just past where the capture saw
+    that wall (the wall behind it and beyond it unseen): no wall line runs along its front, but both its
+    ends are joined to the wall's line by sides, so it is a box standing on the wall; so is one with a side
+    at one end and the room's corner beyond the other. A step of the same depth with one side only and no
+    wall of the room reaching the line behind it (the room's outline jogs in) stays."""
+    room = [
+        [0, 0, 2, 0],  # south, seen up to x = 2
+        [6, 0, 6, 4],  # east, north, west
+        [6, 4, 0, 4],
+        [0, 4, 0, 0],
+    ]
+    box = [[2.1, 0.5, 3.0, 0.5], [2.1, 0.02, 2.1, 0.5], [3.0, 0.5, 3.0, 0.04]]
+    lines = np.array([*room, *box], dtype=float)
+    found = furniture_in_front(lines, np.array([3.0, 2.0]), CFG, 3.0)
+    assert np.flatnonzero(found).tolist() == [4, 5, 6]
+    step = np.array([*room, [2.0, 0.5, 3.5, 0.5], [2.0, 0.0, 2.0, 0.5]], dtype=float)
+    assert not furniture_in_front(step, np.array([3.0, 2.0]), CFG, 3.0).any()
+    # a cabinet with one side seen, 0.5 m from the room's corner: the east wall reaches the south wall's
+    # line beyond its other end, so the room goes on behind it
+    corner = np.array([*room, [4.2, 0.5, 5.5, 0.5], [4.2, 0.0, 4.2, 0.5]], dtype=float)
+    assert np.flatnonzero(furniture_in_front(corner, np.array([3.0, 2.0]), CFG, 3.0)).tolist() == [4, 5]
+
+
+def test_a_long_wall_beyond_a_short_wall_at_a_corner_and_an_oblique_one_go_and_an_island_s_wall_stays():
+    """Seen through a door in the south wall, of which only the 1.5 m by the south-east corner was seen:
+    the next room's wall 2 m beyond is longer than that piece, and a sparse one is drawn 12 degrees off.
+    Both lie wholly beyond the room's line with nothing of the room between: gone. A 1.5 m counter in the
+    middle of the room (free ends, no corner) with the room's wall 1.5 m behind it keeps that wall."""
+    from tasks.walls.evidence import beyond_the_room
+
+    room = np.array(
+        [
+            [3.5, 0, 5, 0],  # south, seen only by the south-east corner
+            [5, 0, 5, 4],  # east, north, west (its south end unseen)
+            [5, 4, 0, 4],
+            [0, 4, 0, 2.0],
+            [0.5, -2.0, 3.0, -2.0],  # the next room's wall, 2.5 m
+            [0.4, -2.8, 1.4, -2.59],  # and one of its walls drawn from a few points, 12 degrees off
+        ],
+        dtype=float,
+    )
+    found = beyond_the_room(room, np.array([2.5, 2.0]), CFG, 3.0)
+    assert found.tolist() == [False] * 4 + [True, True]
+    island = np.array(
+        [[1.5, 1.5, 3.0, 1.5], [0, 0, 4, 0], [0, 4, 4, 4], [0, 3.0, 0, 4], [4, 3.0, 4, 4]], dtype=float
+    )
+    assert not beyond_the_room(island, np.array([2.0, 3.0]), CFG, 3.0).any()

@@ -87,10 +87,10 @@ class WallsConfig:
     furniture_max_depth_m: float = 0.75
     """...and no deeper than furniture is (wardrobes and kitchen units 0.6 m)."""
     beyond_room_min_depth_m: float = 0.75
-    """In a slice with nothing seen above it, a line wholly this far behind the line of a parallel wall of the
-    room, along which the room's lines run and between which and that wall nothing of the room lies, was
-    seen through a door whose own wall the capture barely saw (`evidence.beyond_the_room`): a wall of the
-    next room; 0 switches that off."""
+    """In a slice with nothing seen above it, a line wholly this far behind the line of a wall of the room that
+    bounds it, running along that wall, along which the room's lines run and between which and that wall
+    nothing of the room lies, was seen through a door whose own wall the capture barely saw
+    (`evidence.beyond_the_room`): a wall of the next room; 0 switches that off."""
     below_slice_min_share: float = 0.5
     """A partition stub (a wall with a free end standing on another at a T) whose second face the slice does
     not hold takes it from the levelled cloud under the slice (`evidence.faces_below_slice`: a face seen only

@@ -582,9 +582,11 @@ def furniture_in_front(
       `furniture_min_depth_m` to `furniture_max_depth_m` in front of it on the room's side (towards
       `interior`), with the wall's line (its collinear pieces together, longer than the front: the wall
       behind the furniture is hidden in the slice, so its pieces either side may each be shorter) running
-      along at least half of it;
+      along at least half of it, or with both its ends joined to the wall's line by sides (a box standing
+      on the wall just past where the capture saw it: the wall behind and beyond it unseen);
     - a side: a line perpendicular to such a wall, `furniture_min_depth_m` to `furniture_max_depth_m` long,
-      from the wall's line (not at its ends: a corner) into the room, in line with no other line, whose
+      from the wall's line (not at its ends: a corner, unless a front ends it) into the room, in line with
+      no other line, whose
       inner end is free (within `thin_wall_end_tol_m` of no line but the wall and the fronts): a partition
       stub is longer than furniture is deep, and one shorter meets a wall.
     A pilaster of a furniture's size in front of a wall is dropped as well: without a ceiling nothing
@@ -617,6 +619,40 @@ def furniture_in_front(
         side = 1.0 if float((interior - lines[j, :2]) @ n[j]) >= 0 else -1.0
         return side * np.array([(lines[k, :2] - lines[j, :2]) @ n[j], (lines[k, 2:] - lines[j, :2]) @ n[j]])
 
+    end_tol = cfg.thin_wall_end_tol_m
+
+    def boxed(i: int, j: int, dd: NDArray) -> bool:
+        """Is line i (standing dd in front of line j) a box on j's line: each of its ends joined to j's line
+        by a side (a line perpendicular to j from within `thin_wall_end_tol_m` of the end to within that of
+        j's line), or one end so and, beyond the other within `lines.max_gap_m`, a wall of the room running
+        into the room from j's line (the corner the box stands in: the room goes on behind it there)? The
+        wall behind the box and beside it is unseen in the slice; an alcove's or a step's wall beside it has
+        the room's walls meeting its own line, not the line behind it."""
+        t_i = (lines[i].reshape(2, 2) - lines[j, :2]) @ u[j]
+        sides = 0
+        for e in range(2):
+            p = lines[i, 2 * e : 2 * e + 2]
+            side = corner = False
+            for k in np.flatnonzero(np.abs(np.cos(ang - ang[j])) <= sin_loose):
+                if k in (i, j):
+                    continue
+                dk = depth(k, j)
+                if dk.min() > end_tol:
+                    continue  # k stands off j's line
+                near_end = point_segment_distances(p[None], lines[k : k + 1])[0, 0] <= end_tol
+                if near_end and L[k] <= d_hi + end_tol and abs(dk.max() - dd[e]) <= end_tol:
+                    side = True
+                    break
+                # beyond the end (outward along j), within the gap a wall may be unseen, past the box's depth
+                foot = (lines[k, :2] if dk[0] <= dk[1] else lines[k, 2:]) - lines[j, :2]
+                beyond = (foot @ u[j] - t_i[e]) * np.sign(t_i[e] - t_i[1 - e])
+                corner |= bool(0 <= beyond <= cfg.lines.max_gap_m and dk.max() > dd[e] + end_tol)
+            if side:
+                sides += 1
+            elif not corner:
+                return False
+        return sides >= 1
+
     for i in np.flatnonzero(L <= cfg.furniture_max_length_m):
         for j in np.argsort(-L):
             if j == i or abs(math.cos(ang[i] - ang[j])) < cos_loose:
@@ -629,7 +665,7 @@ def furniture_in_front(
             # the wall's line runs along at least half the front (a wardrobe in a corner hides the wall
             # behind it up to the corner; an alcove's mouth beside the alcove's back wall runs along none)
             overlap = min(t.max(), t1) - max(t.min(), t0)
-            if t1 - t0 > L[i] + tol and overlap >= 0.5 * L[i]:
+            if t1 - t0 > L[i] + tol and (overlap >= 0.5 * L[i] or boxed(i, j, dd)):
                 out[i] = True
                 break
     front = out.copy()
@@ -644,15 +680,17 @@ def furniture_in_front(
             if j == k or front[j] or abs(math.cos(ang[k] - ang[j])) > sin_loose:
                 continue
             dd = depth(k, j)
-            if not ((dd >= -tol) & (dd <= d_hi + tol)).all() or dd.min() > tol:
+            inner = lines[k, 2:] if dd[1] > dd[0] else lines[k, :2]
+            # a side that joins a front to the wall may stop short of both by as much as their ends may lie apart
+            at_front = front.any() and point_segment_distances(inner[None], lines[front]).min() <= end_tol
+            if not ((dd >= -tol) & (dd <= d_hi + tol)).all() or dd.min() > (end_tol if at_front else tol):
                 continue
             t0, t1 = wall_extent(j)
             if t1 - t0 <= L[k]:
                 continue
             tk = float((0.5 * (lines[k, :2] + lines[k, 2:]) - lines[j, :2]) @ u[j])
-            if not t0 + d_lo <= tk <= t1 - d_lo:
-                continue  # at the wall's end: a corner of the room
-            inner = lines[k, 2:] if dd[1] > dd[0] else lines[k, :2]
+            if not t0 + d_lo <= tk <= t1 - d_lo and not at_front:
+                continue  # at the wall's end: a corner of the room (unless a furniture front ends it)
             others = np.ones(m, dtype=bool)
             others[[k, j]] = False
             others &= ~front
@@ -672,11 +710,17 @@ def beyond_the_room(
     """(M,) lines seen beyond the room, for a slice with nothing seen above it (a handheld scan): a wall of
     the next room seen through a door whose own wall the capture barely saw (`seen_through_gaps` needs that
     wall's data in front of it). A line L is such a wall when it lies wholly more than
-    `beyond_room_min_depth_m` behind the line of a parallel line W of the room (on its side away from the
-    room's `interior`: deeper than furniture stands before a wall), the room's other lines run along the
-    whole of L, and no line of the room lies between W's line and L's (more than `thin_wall_max_m` from
+    `beyond_room_min_depth_m` behind the line of a line W of the room (on its side away from the room's
+    `interior`: deeper than furniture stands before a wall) and runs along W (within 45°: a wall drawn from
+    the few points seen through a door may lie some degrees off), the room's other lines run along the
+    whole of L (to within `thin_wall_max_m`: the next room's wall goes on past this room's by the partition's
+    thickness), and no line of the room lies between W's line and L's (more than `thin_wall_max_m` from
     either) within `lines.max_gap_m` of L's span: an L-shaped room's far wing or an alcove is joined to the
-    rest by its side walls, which lie there. `beyond_room_min_depth_m` 0 switches the test off."""
+    rest by its side walls, which lie there. W must bound the room: no line of the room runs on from W's
+    line to behind it (the room goes on there: an L-room's wing, the far side of a partition), and L is
+    shorter than W or W's collinear pieces together (a wall with a door in it), or W ends at a corner (a
+    line across it at one of its ends, running into the room only: a free-standing counter has none).
+    `beyond_room_min_depth_m` 0 switches the test off."""
     lines = np.asarray(lines, dtype=np.float64)
     m = len(lines)
     out = np.zeros(m, dtype=bool)
@@ -691,15 +735,40 @@ def beyond_the_room(
     back[((np.asarray(interior) - lines[:, :2]) * back).sum(axis=1) > 0] *= -1
     ang = angles(lines)
     cos_tol = math.cos(math.radians(angle_tol_deg))
+    sin_loose = math.sin(math.radians(2 * angle_tol_deg))
     pts, owner = sample_segments(lines, 0.05)
     thin = cfg.thin_wall_max_m
+    end_tol = cfg.thin_wall_end_tol_m
     for w in np.argsort(-L):
         if not ok[w] or out[w]:
             continue
         rel = pts - lines[w, :2]
         depth, t = rel @ back[w], rel @ u[w]
+        deepest = np.full(m, -np.inf)
+        np.maximum.at(deepest, owner, depth)
+        nearest = np.full(m, np.inf)
+        np.minimum.at(nearest, owner, depth)
+        crossing = (nearest <= end_tol) & (deepest > thin)
+        crossing[w] = False
+        if crossing.any():
+            continue  # a line of the room runs on from W's line behind it: the room goes on there
         shallow = np.bincount(owner, depth <= cfg.beyond_room_min_depth_m, m) > 0
-        cand = ~shallow & (np.abs(np.cos(ang - ang[w])) >= cos_tol) & ~out & (L < L[w])
+        # W is the room's boundary, not a free-standing thing in it, when it is longer than L, its collinear
+        # pieces (a wall with a door in it) together are, or it ends at a corner: a line across it at one of
+        # its ends that runs into the room only
+        same = _collinear_with(lines, ang, normal, w, cos_tol, cfg.lines.offset_tol_m)
+        span = np.concatenate(
+            [(lines[same, :2] - lines[w, :2]) @ u[w], (lines[same, 2:] - lines[w, :2]) @ u[w]]
+        )
+        across = (np.abs(np.cos(ang - ang[w])) <= sin_loose) & (deepest <= end_tol)
+        across[w] = False
+        corner = bool(across.any()) and bool(
+            (point_segment_distances(lines[w].reshape(2, 2), lines[across]) <= end_tol).any()
+        )
+        # L runs along W (closer to its direction than to its normal; a wall drawn from the few points seen
+        # through a door may lie some degrees off), not across it: a line across W's line is a wall joining it
+        along = np.abs(np.cos(ang - ang[w])) >= math.sqrt(0.5)
+        cand = ~shallow & ~out & along & ((L < max(L[w], float(np.ptp(span)))) | corner)
         cand[w] = False
         for c in np.flatnonzero(cand):
             others = ~_collinear_with(lines, ang, normal, c, cos_tol, cfg.lines.offset_tol_m) & ~out
@@ -707,7 +776,7 @@ def beyond_the_room(
             mine = owner == c
             lo, hi = float(t[mine].min()), float(t[mine].max())
             rest = others[owner]
-            if not rest.any() or t[rest].min() > lo or t[rest].max() < hi:
+            if not rest.any() or t[rest].min() > lo + thin or t[rest].max() < hi - thin:
                 continue  # beyond the end of the room's lines: an L-room's wing
             far = float(depth[mine].min())
             between = (
