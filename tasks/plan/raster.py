@@ -361,18 +361,25 @@ def _network_cells(mask: NDArray[np.bool_], join_px: float, cell_px: int) -> int
 
 
 def _thin_line_openings(
-    walls: NDArray[np.bool_], thin: NDArray[np.bool_], span_px: int, grow_px: int
+    walls: NDArray[np.bool_], thin: NDArray[np.bool_], span_px: int, grow_px: int, across_px: int = 1
 ) -> NDArray:
     """Wall openings drawn in thin lines (a window's frame and glass lines across a heavy-pen wall's gap)
-    are wall: a gap between two wall pieces along a row or column, up to span_px long, that the thin ink
-    (grown by grow_px) covers for the most part. A door's gap holds only the ends of its swing."""
+    are wall: a gap between two wall pieces along a row or column, up to span_px long and at least
+    across_px wide across (a wall's thickness: two walls whose ends pass each other by a pixel, the
+    corridor between them and a door leaf drawn along it, leave a sliver, not an opening), that the
+    thin ink (grown by grow_px) covers for the most part. A door's gap holds only the ends of its swing."""
     if span_px < 3:
         return walls
     w8 = walls.astype(np.uint8)
     cover = cv2.dilate(thin.astype(np.uint8), np.ones((2 * grow_px + 1,) * 2, np.uint8)).astype(bool)
     out = walls.copy()
-    for kernel in (np.ones((1, span_px | 1), np.uint8), np.ones((span_px | 1, 1), np.uint8)):
+    a = max(1, across_px)
+    for kernel, across in (
+        (np.ones((1, span_px | 1), np.uint8), np.ones((a, 1), np.uint8)),
+        (np.ones((span_px | 1, 1), np.uint8), np.ones((1, a), np.uint8)),
+    ):
         gaps = closing(w8, kernel).astype(bool) & ~walls
+        gaps = cv2.morphologyEx(gaps.astype(np.uint8), cv2.MORPH_OPEN, across).astype(bool)
         n, lab = cv2.connectedComponents(gaps.astype(np.uint8), connectivity=4)
         if n <= 1:
             continue
@@ -507,6 +514,16 @@ def _heavy_strokes(found: InkMasks, hp: int, core_share: float) -> NDArray[np.bo
     return cv2.dilate(heavy, np.ones((3, 3), np.uint8)).astype(bool) & found.ink
 
 
+def faint_ink(found: InkMasks, px: float) -> NDArray[np.bool_]:
+    """Thin ink read against the paper around it (mean of a 0.5 m block, 12 grey levels darker), symbols
+    excluded: a photo's glare pales a window's or a swing's thin lines below the whole sheet's ink
+    threshold, not below the paper beside them."""
+    grey = cv2.cvtColor(found.image, cv2.COLOR_RGB2GRAY)
+    block = max(3, round(0.5 * px) | 1)
+    faint = cv2.adaptiveThreshold(grey, 1, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, block, 12)
+    return faint.astype(bool) & ~found.symbols_any
+
+
 @dataclass(frozen=True)
 class WallRaster:
     """The ink that draws walls, and what was taken out on the way."""
@@ -585,7 +602,10 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
         walls_h = cv2.morphologyEx(
             _fill_outline_walls(heavy, cfg.max_outline_width_m * px).astype(np.uint8), cv2.MORPH_OPEN, box
         ).astype(bool)
-        walls_r = _thin_line_openings(walls_h, ink, round(cfg.door_max_m * px), max(1, round(0.04 * px)))
+        # a window's thin lines are read against the paper around them (glare pales them)
+        walls_r = _thin_line_openings(
+            walls_h, ink | faint_ink(found, px), round(cfg.door_max_m * px), max(1, round(0.04 * px)), k
+        )
     walls_big, more_text = _remove_small_components(walls_r, cfg.text_max_size_m * px)
     dropped = (ink_all & ~ink) | (walls_r & ~walls_big)
     walls_r = walls_big
