@@ -43,8 +43,8 @@ def swing_share(
     """How much of a door swing the thin ink `thin_f` (h, w) draws over the gap p -> q (pixels): the
     best, over the two jambs as hinge, the two sides of the wall, the hinge's place along the gap (a
     quarter of it inwards to a tenth outwards, two pixels apart: a jamb's end may be found short or long)
-    and the radius (0.7 to 1.2 times the hinge's distance to the far jamb, a pixel apart: the leaf spans
-    the opening), of the share of angles (0.2 rad to the quarter
+    and the radius (0.7 to 1.2 times the hinge's distance to the far jamb: the leaf spans the opening;
+    and 0.55 to 1.1 times the gap; a pixel apart), of the share of angles (0.2 rad to the quarter
     turn less 0.1 rad) at which ink lies on the arc of that radius about the hinge (on the wall's face,
     `half_thick` off the centreline), within a pixel and a half. A swing is one continuous stroke: the
     share is that of the longest run of angles with ink (a single angle without it bridged, where glare
@@ -63,7 +63,7 @@ def swing_share(
         for side in (n, -n):
             dirs = np.outer(np.cos(ts), along) + np.outer(np.sin(ts), side)  # (A, 2)
             for sh in shifts:
-                radii = np.arange(0.7 * (w - sh), 1.2 * (w - sh) + 1.0, 1.0)
+                radii = np.arange(max(0.55 * w, 0.7 * (w - sh)), min(1.1 * w, 1.2 * (w - sh)) + 1.0, 1.0)
                 r = radii[:, None] + band[None, :]  # (R, B)
                 c = hinge + side * half_thick + along * sh
                 pts = c + r[:, :, None, None] * dirs[None, None, :, :]  # (R, B, A, 2)
