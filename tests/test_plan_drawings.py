@@ -518,3 +518,22 @@ def test_faint_ink_reads_pale_lines_against_their_paper():
     faint = faint_ink(found, 50.0)
     assert faint[50, 30:170].all() and not dark[50].any()
     assert not faint[60:140].any()
+
+
+def test_faint_window_lines_must_span_the_gap():
+    """Known answer (pixels): two wall gaps 60 px long in a wall 9 px thick; the ink threshold saw no
+    thin line in either. In the first, faint (glare-paled) window lines run across the whole gap: it is
+    filled. In the second, faint ink is a plant pot's two rings and short chair edges inside the gap:
+    it stays open, though the rings and edges, grown, cover most of it."""
+    walls = np.zeros((200, 400), bool)
+    walls[96:105, 0:100] = walls[96:105, 160:250] = walls[96:105, 310:400] = True
+    faint = np.zeros(walls.shape, np.uint8)
+    faint[[96, 100, 104], 100:160] = 1
+    cv2.circle(faint, (280, 100), 4, 1, 1)
+    cv2.circle(faint, (280, 100), 2, 1, 1)
+    for u in (252, 262, 290, 300):
+        faint[96:105:2, u : u + 8] = 1
+    thin = np.zeros_like(walls)
+    out = _thin_line_openings(walls, thin, 110, 2, 5, faint.astype(bool), 25)
+    assert out[96:105, 100:160].all()
+    assert not out[96:105, 265:275].any()
