@@ -15,7 +15,7 @@ import shapely
 from tasks.plan.config import PlanConfig, PlanScale
 from tasks.plan.doors import _find_doors, _ink_cover, swing_share
 from tasks.plan.parse import _scaled_image, parse_plan
-from tasks.plan.raster import InkMasks, _fill_outline_walls, _heavy_strokes
+from tasks.plan.raster import InkMasks, _fill_outline_walls, _heavy_strokes, _thin_line_openings, faint_ink
 from tasks.plan.sheet import (
     _bar_blocks,
     _bar_candidates,
@@ -469,3 +469,71 @@ def test_window_read_pale_and_a_swung_gap_stays_a_door():
     assert n_windows == 1
     assert doors.shape == (1, 4)
     np.testing.assert_allclose(sorted(doors[0, ::2]), [249, 295], atol=1.0)
+
+
+def test_swing_is_one_arc_that_spans_the_gap():
+    """Known answer (pixels): a gap from (100, 100) to (180, 100) in a wall 8 px thick. The quarter circle
+    of radius 80 about the left jamb drawn in three pieces with two gaps of 0.25 rad (a table and a chair
+    that the arc happens to cross) is no swing, though its pieces cover 70 % of the arc's angles; nor is
+    a whole quarter circle of radius 45 about a point 20 px beyond the right jamb (its leaf would reach
+    only a third of the way across). The whole arc of radius 80 is a swing."""
+    p, q = np.array([100.0, 100.0]), np.array([180.0, 100.0])
+    whole = np.zeros((300, 300), np.uint8)
+    _arc(whole, (100, 104), 80, 0.0, math.pi / 2)
+    assert swing_share(p, q, 4.0, whole.astype(np.float32)) >= 0.95
+    pieces = np.zeros_like(whole)
+    for a0, a1 in ((0.0, 0.45), (0.7, 1.0), (1.25, math.pi / 2)):
+        _arc(pieces, (100, 104), 80, a0, a1)
+    assert swing_share(p, q, 4.0, pieces.astype(np.float32)) < 0.6
+    short = np.zeros_like(whole)
+    _arc(short, (200, 104), 45, math.pi / 2, math.pi)
+    assert swing_share(p, q, 4.0, short.astype(np.float32)) < 0.5
+
+
+def test_thin_line_openings_need_a_wall_thick_gap():
+    """Known answer (pixels): a wall 9 px thick along v = 100 with a 40 px gap spanned by a window's
+    three thin lines: the gap is filled. A corridor between walls at v = 200 and v = 300 whose ends pass
+    each other by one pixel (the north wall starts at u = 400, the south wall ends at u = 400) with a door
+    leaf drawn down the corridor beside them: the one-pixel sliver across the corridor is not a window."""
+    walls = np.zeros((400, 600), bool)
+    walls[96:105, 0:200] = walls[96:105, 240:600] = True
+    walls[196:205, 400:600] = True
+    walls[296:305, 0:401] = True
+    thin = np.zeros_like(walls)
+    thin[[96, 100, 104], 200:240] = True
+    thin[205:296, 397] = True  # the leaf, 3 px beside the sliver's column
+    out = _thin_line_openings(walls, thin, 110, 2, 5)
+    assert out[96:105, 200:240].all()
+    assert not out[210:290, 395:402].any()
+
+
+def test_faint_ink_reads_pale_lines_against_their_paper():
+    """A 1 px line of grey 200 on paper 245 (a window's line paled by glare) is faint ink, on a sheet
+    whose ink threshold (dark lines of grey 20) misses it; the paper is not."""
+    img = np.full((200, 200, 3), 245, np.uint8)
+    img[50, 20:180] = 200
+    img[150:155, 20:180] = 20
+    dark = (255 - img.min(axis=2)) > 100
+    found = InkMasks(img, {}, [], 100.0, dark, np.zeros_like(dark), dark, np.zeros_like(dark))
+    faint = faint_ink(found, 50.0)
+    assert faint[50, 30:170].all() and not dark[50].any()
+    assert not faint[60:140].any()
+
+
+def test_faint_window_lines_must_span_the_gap():
+    """Known answer (pixels): two wall gaps 60 px long in a wall 9 px thick; the ink threshold saw no
+    thin line in either. In the first, faint (glare-paled) window lines run across the whole gap: it is
+    filled. In the second, faint ink is a plant pot's two rings and short chair edges inside the gap:
+    it stays open, though the rings and edges, grown, cover most of it."""
+    walls = np.zeros((200, 400), bool)
+    walls[96:105, 0:100] = walls[96:105, 160:250] = walls[96:105, 310:400] = True
+    faint = np.zeros(walls.shape, np.uint8)
+    faint[[96, 100, 104], 100:160] = 1
+    cv2.circle(faint, (280, 100), 4, 1, 1)
+    cv2.circle(faint, (280, 100), 2, 1, 1)
+    for u in (252, 262, 290, 300):
+        faint[96:105:2, u : u + 8] = 1
+    thin = np.zeros_like(walls)
+    out = _thin_line_openings(walls, thin, 110, 2, 5, faint.astype(bool), 25)
+    assert out[96:105, 100:160].all()
+    assert not out[96:105, 265:275].any()

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from tasks import lines
 from tasks.plan.config import PlanConfig
-from tasks.plan.raster import InkMasks
+from tasks.plan.raster import InkMasks, faint_ink
 from tasks.plan.vectorize import first_wall_hit, free_ends, sample_mask
 
 
@@ -41,31 +41,48 @@ def swing_share(
     p: NDArray, q: NDArray, half_thick: float, thin_f: NDArray[np.float32], n_angles: int = 24
 ) -> float:
     """How much of a door swing the thin ink `thin_f` (h, w) draws over the gap p -> q (pixels): the
-    best, over the two jambs as hinge, the two sides of the wall and the radius (0.55 to 1.1 times the
-    gap, a pixel apart) and the hinge's place along the gap (a quarter of it inwards to a tenth outwards, two
-    pixels apart: a jamb's end may be found short or long), of the share of angles (0.2 rad to the quarter
+    best, over the two jambs as hinge, the two sides of the wall, the hinge's place along the gap (a
+    quarter of it inwards to a tenth outwards, two pixels apart: a jamb's end may be found short or long)
+    and the radius (0.7 to 1.2 times the hinge's distance to the far jamb: the leaf spans the opening;
+    and 0.55 to 1.1 times the gap; a pixel apart), of the share of angles (0.2 rad to the quarter
     turn less 0.1 rad) at which ink lies on the arc of that radius about the hinge (on the wall's face,
-    `half_thick` off the centreline), within a pixel and a half."""
+    `half_thick` off the centreline), within a pixel and a half. A swing is one continuous stroke: the
+    share is that of the longest run of angles with ink (a single angle without it bridged, where glare
+    pales the arc), so the edges of a table and its chairs that the arc happens to cross in pieces do not
+    add up to a swing."""
     w = float(np.hypot(*(q - p)))
     if w <= 0:
         return 0.0
     u = (q - p) / w
     n = np.array([-u[1], u[0]])
     ts = np.linspace(0.2, math.pi / 2 - 0.1, n_angles)
-    radii = np.arange(0.55 * w, 1.1 * w + 1.0, 1.0)
     band = np.array([-1.5, -0.75, 0.0, 0.75, 1.5])
     best = 0.0
     shifts = np.arange(-0.25 * w, 0.1 * w + 1.0, 2.0)  # the jamb's end found short or long
-    r = radii[:, None] + band[None, :]  # (R, B)
     for hinge, along in ((p, u), (q, -u)):
         for side in (n, -n):
             dirs = np.outer(np.cos(ts), along) + np.outer(np.sin(ts), side)  # (A, 2)
             for sh in shifts:
+                radii = np.arange(max(0.55 * w, 0.7 * (w - sh)), min(1.1 * w, 1.2 * (w - sh)) + 1.0, 1.0)
+                r = radii[:, None] + band[None, :]  # (R, B)
                 c = hinge + side * half_thick + along * sh
                 pts = c + r[:, :, None, None] * dirs[None, None, :, :]  # (R, B, A, 2)
                 ink = sample_mask(thin_f, pts.reshape(-1, 2)).reshape(len(radii), len(band), len(ts)) > 0.5
-                best = max(best, float(ink.any(axis=1).mean(axis=1).max()))
+                best = max(best, _longest_run(ink.any(axis=1)) / len(ts))
     return best
+
+
+def _longest_run(hit: NDArray[np.bool_]) -> int:
+    """The longest run of True along the last axis of (R, A) `hit`, over its rows, a single False between
+    two True counted as True."""
+    hit = hit.copy()
+    hit[:, 1:-1] |= hit[:, :-2] & hit[:, 2:]
+    run = np.zeros(hit.shape[0], np.int64)
+    longest = 0
+    for a in range(hit.shape[1]):
+        run = (run + 1) * hit[:, a]
+        longest = max(longest, int(run.max()))
+    return longest
 
 
 def _ink_cover(gap: NDArray, ink_f: NDArray[np.float32], half_width: float = 0.0) -> float:
@@ -207,10 +224,9 @@ def doors_and_windows(
     if heavy_pen and cfg.door_swing_share > 0:
         # a swing is thin ink off the walls, read against the paper around it (a photo's glare pales it
         # below the whole sheet's ink threshold)
-        grey = cv2.cvtColor(found.image, cv2.COLOR_RGB2GRAY)
-        block = max(3, round(0.5 * px) | 1)
-        faint = cv2.adaptiveThreshold(grey, 1, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, block, 12)
-        faint = cv2.dilate(faint & ~sym_any.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
+        faint = cv2.dilate(faint_ink(found, px).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(
+            np.float32
+        )
         off_walls = np.where(mask_f > 0.5, 0.0, np.maximum(thin, faint)).astype(np.float32)
         # a window's thin lines are read against the paper around them too (glare pales them as well)
         thin = np.maximum(thin, faint).astype(np.float32)

@@ -361,26 +361,55 @@ def _network_cells(mask: NDArray[np.bool_], join_px: float, cell_px: int) -> int
 
 
 def _thin_line_openings(
-    walls: NDArray[np.bool_], thin: NDArray[np.bool_], span_px: int, grow_px: int
+    walls: NDArray[np.bool_],
+    thin: NDArray[np.bool_],
+    span_px: int,
+    grow_px: int,
+    across_px: int = 1,
+    faint: NDArray[np.bool_] | None = None,
+    faint_run_px: int = 0,
 ) -> NDArray:
     """Wall openings drawn in thin lines (a window's frame and glass lines across a heavy-pen wall's gap)
-    are wall: a gap between two wall pieces along a row or column, up to span_px long, that the thin ink
-    (grown by grow_px) covers for the most part. A door's gap holds only the ends of its swing."""
+    are wall: a gap between two wall pieces along a row or column, up to span_px long and at least
+    across_px wide across (a wall's thickness: two walls whose ends pass each other by a pixel, the
+    corridor between them and a door leaf drawn along it, leave a sliver, not an opening), that the
+    thin ink (grown by grow_px) covers for the most part. A door's gap holds only the ends of its swing.
+    `faint` (ink read against the paper around it, where glare paled a window's lines) counts only in
+    straight runs along the gap at least 80 % of its length (from faint_run_px up, lengths doubling): a
+    window's lines span it; a plant pot's rings and the edges of chairs and shelves beside a wall do not."""
     if span_px < 3:
         return walls
     w8 = walls.astype(np.uint8)
-    cover = cv2.dilate(thin.astype(np.uint8), np.ones((2 * grow_px + 1,) * 2, np.uint8)).astype(bool)
+    grow = np.ones((2 * grow_px + 1,) * 2, np.uint8)
     out = walls.copy()
-    for kernel in (np.ones((1, span_px | 1), np.uint8), np.ones((span_px | 1, 1), np.uint8)):
+    a = max(1, across_px)
+    runs = [] if faint is None or faint_run_px < 1 else [faint_run_px]
+    while runs and 2 * runs[-1] <= span_px:
+        runs.append(2 * runs[-1])
+    for axis, kernel, across in (
+        (1, np.ones((1, span_px | 1), np.uint8), np.ones((a, 1), np.uint8)),
+        (0, np.ones((span_px | 1, 1), np.uint8), np.ones((1, a), np.uint8)),
+    ):
         gaps = closing(w8, kernel).astype(bool) & ~walls
-        n, lab = cv2.connectedComponents(gaps.astype(np.uint8), connectivity=4)
+        n, lab, stats, _c = cv2.connectedComponentsWithStats(gaps.astype(np.uint8), connectivity=4)
         if n <= 1:
             continue
+        length = stats[:, cv2.CC_STAT_WIDTH if axis == 1 else cv2.CC_STAT_HEIGHT]
         size = np.bincount(lab.ravel(), minlength=n)
+        cover = cv2.dilate(thin.astype(np.uint8), grow)
         covered = np.bincount(lab.ravel(), weights=cover.ravel().astype(np.float64), minlength=n)
-        fill = covered >= 0.7 * np.maximum(size, 1)
+        for r in runs:  # the faint lines at least r long, for the gaps at least r / 0.8 long
+            shape = (1, r) if axis == 1 else (r, 1)
+            long_ = cv2.morphologyEx(faint.astype(np.uint8), cv2.MORPH_OPEN, np.ones(shape, np.uint8))
+            c_r = np.bincount(
+                lab.ravel(), weights=(cv2.dilate(long_, grow) | cover).ravel().astype(np.float64), minlength=n
+            )
+            covered = np.where(0.8 * length >= r, np.maximum(covered, c_r), covered)
+        # wall-thick somewhere across (a sliver is not), and covered as a whole; its wall-thick part filled
+        opened = cv2.morphologyEx(gaps.astype(np.uint8), cv2.MORPH_OPEN, across).astype(bool)
+        fill = (covered >= 0.7 * np.maximum(size, 1)) & (np.bincount(lab[opened], minlength=n) > 0)
         fill[0] = False
-        out |= fill[lab]
+        out |= fill[lab] & opened
     return out
 
 
@@ -507,6 +536,16 @@ def _heavy_strokes(found: InkMasks, hp: int, core_share: float) -> NDArray[np.bo
     return cv2.dilate(heavy, np.ones((3, 3), np.uint8)).astype(bool) & found.ink
 
 
+def faint_ink(found: InkMasks, px: float) -> NDArray[np.bool_]:
+    """Thin ink read against the paper around it (mean of a 0.5 m block, 12 grey levels darker), symbols
+    excluded: a photo's glare pales a window's or a swing's thin lines below the whole sheet's ink
+    threshold, not below the paper beside them."""
+    grey = cv2.cvtColor(found.image, cv2.COLOR_RGB2GRAY)
+    block = max(3, round(0.5 * px) | 1)
+    faint = cv2.adaptiveThreshold(grey, 1, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, block, 12)
+    return faint.astype(bool) & ~found.symbols_any
+
+
 @dataclass(frozen=True)
 class WallRaster:
     """The ink that draws walls, and what was taken out on the way."""
@@ -585,7 +624,16 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
         walls_h = cv2.morphologyEx(
             _fill_outline_walls(heavy, cfg.max_outline_width_m * px).astype(np.uint8), cv2.MORPH_OPEN, box
         ).astype(bool)
-        walls_r = _thin_line_openings(walls_h, ink, round(cfg.door_max_m * px), max(1, round(0.04 * px)))
+        # a window's thin lines are read against the paper around them (glare pales them)
+        walls_r = _thin_line_openings(
+            walls_h,
+            ink,
+            round(cfg.door_max_m * px),
+            max(1, round(0.04 * px)),
+            k,
+            faint_ink(found, px),
+            round(cfg.door_min_m * px),
+        )
     walls_big, more_text = _remove_small_components(walls_r, cfg.text_max_size_m * px)
     dropped = (ink_all & ~ink) | (walls_r & ~walls_big)
     walls_r = walls_big
