@@ -276,6 +276,31 @@ def test_density_aware_outlier_filter_on_plane_with_scattered_points(rng):
         statistical_outliers(points, 20, 2.0, "nearby")  # type: ignore[arg-type]
 
 
+def test_outlier_search_is_the_same_whatever_its_bound_threads_and_chunks(rng, monkeypatch):
+    """The K-NN search is bounded (a row left short is searched again) and shared among threads in fixed
+    chunks: no bound, a bound that leaves every row short, one that leaves none, one thread or two and
+    smaller chunks give the same keep-mask and statistics; and the global statistic is the mean distance
+    to the K nearest, written out."""
+    wall = _range_sampled_wall() + rng.normal(0, 0.002, (len(_range_sampled_wall()), 3))
+    points = np.concatenate([wall, rng.uniform(-5, 5, (300, 3)) + np.array([3.0, 12.0, 0.0])])
+    results = []
+    for ratio, threads, entries in (
+        (np.inf, 1, 1_000_000),
+        (1e-6, 2, 1_000_000),
+        (1e6, 2, 20_000),
+        (1.5, 3, 7_000),
+    ):
+        monkeypatch.setattr(filters, "_BOUND_RATIO", ratio)
+        monkeypatch.setattr(filters, "_THREADS", threads)
+        monkeypatch.setattr(filters, "_CHUNK_ENTRIES", entries)
+        results.append(statistical_outliers(points, 20, 2.0, "local"))
+    for keep, stats in results[1:]:
+        assert np.array_equal(keep, results[0][0]) and stats == results[0][1]
+    d = np.sqrt(((points[:, None, :] - points[None, :, :]) ** 2).sum(axis=2))
+    mean_dist = np.sort(d, axis=1)[:, 1:21].mean(axis=1)
+    assert results[0][1]["outlier_knn_mean_unclipped_m"] == pytest.approx(mean_dist.mean(), rel=1e-12)
+
+
 def _noisy_plane(rng, n=60_000, sigma=0.005, size=3.0):
     normal = np.array([0.1, 0.2, 1.0]) / np.linalg.norm([0.1, 0.2, 1.0])
     xy = rng.random((n, 2)) * size

@@ -78,12 +78,15 @@ wall-clock seconds are indicative and CPU seconds are given too):
   4.2 -> 3.1 CPU s, levelling 0.53 -> 0.09 (load 9-17 on 2 cores, so wall seconds are 2-3x the CPU's).
   The outlier test's tree unbalanced and queried in its leaf order (the same neighbours, the same bytes
   out): its CPU 3.9 -> 3.5 and 4.9 -> 3.8 s on 5 M points (two pairs), within the noise of a shared
-  machine. Tried and not kept: one MLS plane per support cell (each voxel projected onto its cell's
+  machine. Its search in fixed chunks, one thread each with the chunk's statistics, bounded at 1.5x a
+  sample's median K-th distance (short rows searched again): the same bytes, its CPU 3.19 -> 2.98 s
+  (median of 8 interleaved runs). Tried and not kept: one MLS plane per support cell (each voxel projected onto its cell's
   plane; 2.8 voxels a cell) cut MLS
   3.4 -> 1.2 CPU s with the output as close to the truth (median 0.11 -> 0.12 mm, p99 8.3 mm) and
   `bench.walls_survey`'s 60 rooms' completeness, correctness and corner F1 unchanged, but data/mini's
   corridor got a 1.7 cm step in its smeared north face (corner F1 1.00 -> 0.86). What is left is the
-  outlier test's K-NN search (~3 CPU s; Open3D's search is no faster) and the voxel grid (~1 s, most
+  two searches (~2.3 CPU s each; Open3D's, scikit-learn's and scipy's dual-tree pairs are no faster)
+  and the voxel grid (~1 s, most
   of it hashing a grid that far outliers stretch past an occupancy array: a dense box plus a sort of
   the points outside it was slower still).
   The output is the same bytes on one thread or two (`--threads-check`).
