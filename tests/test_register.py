@@ -243,17 +243,18 @@ def test_track_fallback_levels_places_and_fixes_heading_by_plan_walls():
     assert yaw_errors(plain).max() > 15  # eq 3.17 takes the walking direction, not where the sensor looks
     for k, T in enumerate(poses):
         assert np.linalg.norm(plain[k][:3, 3] - T[:3, 3]) < 0.02  # eq 3.18 + levelled height
-    fixed, metrics = place_by_track(iter(frames), track, calib, RegisterConfig(), CORRIDOR_WALLS)
+    plain_cfg = RegisterConfig(track_joint_icp=False)
+    fixed, metrics = place_by_track(iter(frames), track, calib, plain_cfg, CORRIDOR_WALLS)
     assert yaw_errors(fixed).max() < 1.0
     assert metrics["track_frames"] == 10
     # a track drifted across the corridor by 25 cm: the wall faces pull every frame back
     drifted = track.copy()
     drifted[:, 2] += 0.25
-    fixed, _ = place_by_track(iter(frames), drifted, calib, RegisterConfig(), CORRIDOR_WALLS)
+    fixed, _ = place_by_track(iter(frames), drifted, calib, plain_cfg, CORRIDOR_WALLS)
     err = [np.linalg.norm(fixed[k][:2, 3] - T[:2, 3]) for k, T in enumerate(poses)]
     assert max(err) < 0.05
-    # with the joint ICP of the frames (off by default): they stay as well placed, and it ran on their pairs
-    cfg = RegisterConfig(track_joint_icp=True)
+    # with the joint ICP of the frames (the default): they stay as well placed, and it ran on their pairs
+    cfg = RegisterConfig()
     joint, metrics = place_by_track(iter(frames), drifted, calib, cfg, CORRIDOR_WALLS)
     assert metrics["joint_icp"]["pairs"] >= len(poses) - 1
     assert max(np.linalg.norm(joint[k][:2, 3] - T[:2, 3]) for k, T in enumerate(poses)) < 0.05

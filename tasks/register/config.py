@@ -149,12 +149,13 @@ class RegisterConfig:
     track_mutual_tol_m: float = 0.05
     """Mutual check: a frame's wall point agrees with the other frames when one of theirs lies this close (a
     Kinect's wall noise at 3-4 m and a placement's few centimetres)."""
-    track_joint_icp: bool = False
+    track_joint_icp: bool = True
     """After the fallback's placement on the plan walls, one joint ICP of all its frames (`joint_icp`, issue
     #15): every frame moved in x, y and heading so that the walls neighbouring frames share coincide, in the
-    directions each pair pins, each frame held near its plan placement by a prior. Off by default: on seed
-    813's hallway it removes the doubled north face (fusion 2.23 -> 1.17 cm, thickness 6.6 -> 3.4 cm), but on
-    seed 814's the walls stage then lost a wall niche (thickness 1.3 -> 5.2 cm)."""
+    directions each pair pins, each frame held near its plan placement by a prior. On since the mutual check
+    leaves a frame that a distinct placement refutes unplaced (seeds 811-818 and data/mini, fusion: corridors
+    within 2 cm 8/9 -> 9/9, 813's 2.03 -> 1.24 cm; walls within 2 cm from both sides 43/45 -> 44/45, 813's
+    5.27 -> 2.23 cm, 815's 3.00 -> 1.22 cm); before that check it lost a wall niche of 814's corridor."""
     track_joint_iterations: int = 10
     """Joint ICP: iterations (each matches the frames again)."""
     track_joint_max_dist_m: tuple[float, float] = (0.15, 0.04)

@@ -215,7 +215,7 @@ def place_by_track(
     """The track-based fallback (3.2.2): frames (frame_id, t_ns, (H, W) depth m) are levelled by their floor
     (3.2.2.4), placed by the track (eq 3.17 heading toward the next track point, eq 3.18 translation) and,
     with plan walls ((M, 4) x0 y0 x1 y1 or (M, 5) with thickness, plan frame), their heading corrected by
-    line parallelism (3.2.2.6); then, beyond the thesis and only with `cfg.track_joint_icp` (off by
+    line parallelism (3.2.2.6); then, beyond the thesis and with `cfg.track_joint_icp` (on by
     default), all frames aligned to each other by a joint ICP (`joint_icp`) on their points with the
     capture's radial depth error `radial_k` (1/m at the image corner, `RadialDepthError`) taken out.
     Returns (frame_id -> (4, 4) depth camera → plan, metrics)."""
