@@ -27,28 +27,18 @@ from flows.planning import (
     current_results,
     execute,
     plan_survey,
+    ready_inputs,
     save_code_memo,
     store_for,
 )
 from tasks import config as cfgmod
-from tasks.artefacts import ArtefactError, StageResult, read_json
+from tasks.artefacts import ArtefactError, read_json
 
 log = logging.getLogger("indoor_survey")
 
 MAX_SECONDS = 10.0
 """A stage is started ahead only when its last run took at most this long (its `compute_seconds`): about
 twice the server's start, so that the flow waits little for a stage in progress."""
-
-
-def ready_inputs(
-    item: PlannedStage, found: dict[tuple[str, str], StageResult]
-) -> dict[str, StageResult] | None:
-    """The inputs the flow would give `item` when every one of them is current (its plan's upstream map:
-    an optional input that the flow would pass, e.g. the plan to a room's register, is required here too,
-    since running without it is another key); None when any is not."""
-    if any(ref not in found for ref in item.upstream.values()):
-        return None
-    return {name: found[ref] for name, ref in item.upstream.items()}
 
 
 def last_seconds(item: PlannedStage) -> float | None:

@@ -466,6 +466,17 @@ def fan_in_for(
     return fan
 
 
+def ready_inputs(
+    item: PlannedStage, found: dict[tuple[str, str], StageResult]
+) -> dict[str, StageResult] | None:
+    """The inputs the flow gives `item` when every one of them is in `found` (its upstream map: an optional
+    input the flow would pass, e.g. the plan to a room's register, is required too, since running without
+    it is another key); None when any is not."""
+    if any(ref not in found for ref in item.upstream.values()):
+        return None
+    return {name: found[ref] for name, ref in item.upstream.items()}
+
+
 def current_results(
     plan: SurveyPlan,
     chains: dict[str, list[PlannedStage]],
@@ -477,11 +488,12 @@ def current_results(
     found: dict[tuple[str, str], StageResult] = {}
     for item in [*plan.before, *(i for chain in chains.values() for i in chain)]:
         call = item.call
-        if any(ref not in found for ref in item.upstream.values()) or (skip is not None and skip(item)):
+        upstream = ready_inputs(item, found)
+        if upstream is None or (skip is not None and skip(item)):
             continue
         store = store_for(call.work)
         try:
-            key = cache_key(call, {n: found[r] for n, r in item.upstream.items()})
+            key = cache_key(call, upstream)
         except (ArtefactError, OSError):  # another room's capture gone or unreadable: it has no result
             continue
         hit = store.lookup(call.room, call.stage, key)

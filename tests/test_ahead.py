@@ -33,10 +33,10 @@ def test_a_room_stage_that_reads_the_plan_waits_for_a_current_plan(tmp_path):
     assert "plan" in register.optional  # the flow may run it without: so must not ahead
     [ingest] = [item for item in plan.rooms["hall"] if item.call.stage == "ingest"]
     found = {ref: object() for ref in register.upstream.values()}
-    assert set(aheadmod.ready_inputs(register, found)) == set(register.upstream)
+    assert set(planning.ready_inputs(register, found)) == set(register.upstream)
     del found[(BUILDING, "plan")]
-    assert aheadmod.ready_inputs(register, found) is None
-    assert aheadmod.ready_inputs(ingest, {}) == {}
+    assert planning.ready_inputs(register, found) is None
+    assert planning.ready_inputs(ingest, {}) == {}
     assert aheadmod.last_seconds(ingest) is None  # never run: a cold run's stages are the flow's
 
 

@@ -381,6 +381,7 @@ def _thin_line_openings(
         return walls
     w8 = walls.astype(np.uint8)
     grow = np.ones((2 * grow_px + 1,) * 2, np.uint8)
+    cover = cv2.dilate(thin.astype(np.uint8), grow)
     out = walls.copy()
     a = max(1, across_px)
     runs = [] if faint is None or faint_run_px < 1 else [faint_run_px]
@@ -396,7 +397,6 @@ def _thin_line_openings(
             continue
         length = stats[:, cv2.CC_STAT_WIDTH if axis == 1 else cv2.CC_STAT_HEIGHT]
         size = np.bincount(lab.ravel(), minlength=n)
-        cover = cv2.dilate(thin.astype(np.uint8), grow)
         covered = np.bincount(lab.ravel(), weights=cover.ravel().astype(np.float64), minlength=n)
         for r in runs:  # the faint lines at least r long, for the gaps at least r / 0.8 long
             shape = (1, r) if axis == 1 else (r, 1)

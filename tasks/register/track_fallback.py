@@ -595,13 +595,14 @@ class _PlanPlacement:
                 clouds[f] = reference[f] = self.wall_xy(f)
                 share[f] = got
             suspect = {f for f in suspect if share[f] < 0.5 * typical}
-        dropped = [f for f in order if share[f] < 0.25 * typical or (f in refuted and f in suspect)]
+        refuted &= suspect  # those still below half the typical share
+        dropped = [f for f in order if share[f] < 0.25 * typical or f in refuted]
         return {
             "median_agreement": round(typical, 3),
             "agreement_before": before,
             "agreement_after": [round(share[f], 2) for f in order],
             "turned_deg": {str(f): v for f, v in turned.items()},
-            "refuted": sorted(f for f in refuted if f in suspect),
+            "refuted": sorted(refuted),
             "unplaced": dropped,
         }
 
