@@ -824,3 +824,30 @@ def test_joint_icp_makes_the_walls_frames_share_one_surface():
     # already consistent frames do not move
     same, _ = joint_icp(views, truth, JointIcpSettings())
     assert max(np.linalg.norm(same[k][:3, 3] - truth[k][:3, 3]) for k in truth) < 0.005
+
+
+def test_track_drift_does_not_take_a_scale_from_one_wrong_jamb():
+    # a corridor walked out and back: only the frames at the far end see an end wall (the near end is an
+    # opening in the plan); one frame near the open end matched a door jamb 0.7 m from the one it sees (a
+    # moved door). The true scale is 1: the model must not stretch the walk to that one jamb.
+    out = np.column_stack([np.linspace(2.0, 15.0, 12), np.full(12, -7.8)])
+    back = np.column_stack([np.linspace(15.0, 2.0, 12), np.full(12, -8.3)])
+    truth = np.vstack([out, back])
+    t_s = np.arange(len(truth)) * 3.0
+    steps = np.diff(truth, axis=0)
+    meas = np.array([_rot2(-4.5) @ d for d in steps])
+    track = np.vstack([truth[:1], truth[0] + np.cumsum(meas, axis=0)]) + np.array([-0.35, 0.6])
+    info = np.tile(np.diag([0.0, 1.0]), (len(truth), 1, 1))
+    ends = [10, 11, 12, 13]
+    info[ends] = np.eye(2)
+    placed = truth.copy()
+    free = np.setdiff1d(np.arange(len(truth)), ends)
+    placed[free, 0] = track[free, 0]
+    wrong = 19
+    placed[wrong, 0] = truth[wrong, 0] + 0.7
+    info[wrong] = np.eye(2)
+    model, metrics = track_drift(track, t_s, placed, info, RegisterConfig())
+    err = np.linalg.norm(model - truth, axis=1)
+    assert np.linalg.norm(track - truth, axis=1).max() > 0.5
+    assert err.max() < 0.1, err
+    assert metrics["scale"] == pytest.approx(1.0, abs=0.02)

@@ -120,12 +120,19 @@ class RegisterConfig:
     capture is fitted (a 2D similarity and a heading drift) to the directions the frames' walls pin (`track_drift`), and
     every frame is placed by it and fitted to the walls once more, within `track_refit_max_shift_m`."""
     track_drift_prior: tuple[float, float] = (0.05, 5.0)
-    """Drift model prior: standard deviations of its scale/rotation terms (fraction, radians) and of its
-    shift (m) around the track itself; they hold what no frame pins."""
+    """Drift model prior: standard deviations of its rotation (radians) and of its shift (m) around the
+    track itself; they hold what no frame pins."""
+    track_scale_prior: float = 0.02
+    """Drift model prior: standard deviation of the track's scale error (fraction of the distance walked).
+    A foot-mounted IMU with zero-velocity updates keeps its stride scale within about 1-2 %; a scale far
+    from 1 is then only taken where several frames pin it, not from one frame that matched a wrong jamb."""
     track_heading_rate_prior_deg_s: float = 0.05
     """Drift model: standard deviation of its heading drift rate (the gyro z bias of a MEMS IMU, deg/s)."""
     track_drift_sigma_m: float = 0.05
     """Drift model: standard deviation of a frame's plan-fitted position in a pinned direction."""
+    track_pin_outlier_z: float = 3.0
+    """Drift model: a frame is dropped from the model when the model of the other frames (with the priors)
+    puts it more than this many standard deviations from its plan-fitted position."""
     track_drift_rounds: int = 3
     """Drift model: rounds of fitting the model and fitting the frames placed by it to the walls again."""
     track_pin_length_m: float = 1.0

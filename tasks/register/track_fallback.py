@@ -724,27 +724,50 @@ def track_drift(
     d = np.asarray(placed_xy, dtype=np.float64) - track_xy
     H = np.asarray(information, dtype=np.float64)
     used = np.trace(H, axis1=1, axis2=2) > 0
-    sig_s, sig_t = cfg.track_drift_prior
+    sig_r, sig_t = cfg.track_drift_prior
     sig_rate = np.radians(cfg.track_heading_rate_prior_deg_s)
-    prior = np.diag([1 / sig_s**2, 1 / sig_s**2, 1 / sig_t**2, 1 / sig_t**2, 1 / sig_rate**2])
+    prior = np.diag([1 / sig_r**2, 1 / sig_r**2, 1 / sig_t**2, 1 / sig_t**2, 1 / sig_rate**2])
     line_var = cfg.track_drift_sigma_m**2
-    w = np.ones(n)
-    theta = np.zeros(5)
-    r = np.zeros(n)
     locked = prior.copy()
     locked[4, 4] = 1e12
-    # the similarity first (its rate locked), then with the heading drift: from the track alone the drift
-    # rate is the weakest term and would otherwise absorb the first passes' outliers
-    for i, robust_m in enumerate(np.geomspace(16 * cfg.track_drift_sigma_m, 2 * cfg.track_drift_sigma_m, 20)):
+
+    def normal_equations(theta: NDArray, w: NDArray, rate: bool) -> tuple[NDArray, NDArray]:
         psi0 = np.arctan2(theta[1], 1 + theta[0])
         rot = np.array([[np.cos(psi0), -np.sin(psi0)], [np.sin(psi0), np.cos(psi0)]])
         rows[:, :, 4] = swept @ rot.T
-        A = (locked if i < 10 else prior) + np.einsum("n,nji,njk,nkl->il", w / line_var, rows, H, rows)
+        A = (prior if rate else locked) + np.einsum("n,nji,njk,nkl->il", w / line_var, rows, H, rows)
         b = np.einsum("n,nji,njk,nk->i", w / line_var, rows, H, d)
+        # the scale s = |(1 + a, b)| near 1, linearized along the current rotation ψ0: the rotation
+        # itself is held only by the weak prior above
+        radial = np.array([np.cos(psi0), np.sin(psi0)])
+        A[:2, :2] += np.outer(radial, radial) / cfg.track_scale_prior**2
+        b[:2] += radial * (1.0 - radial[0]) / cfg.track_scale_prior**2
+        return A, b
+
+    w = np.ones(n)
+    theta = np.zeros(5)
+    # the similarity first (its rate locked), then with the heading drift: from the track alone the drift
+    # rate is the weakest term and would otherwise absorb the first passes' outliers
+    for i, robust_m in enumerate(np.geomspace(16 * cfg.track_drift_sigma_m, 2 * cfg.track_drift_sigma_m, 20)):
+        A, b = normal_equations(theta, w, rate=i >= 10)
         theta = np.linalg.solve(A, b)
-        e = np.einsum("nij,j->ni", rows, theta) - d
-        r = np.sqrt(np.maximum(np.einsum("ni,nij,nj->n", e, H, e), 0.0))
+        r = _pinned_residuals(rows, theta, d, H)
         w = 1.0 / (1.0 + (r / robust_m) ** 2)  # Cauchy, annealed: frames fitted to a wrong wall lose weight
+    # A frame that alone pins what the others leave to the priors (the one frame seeing a jamb along a
+    # corridor) keeps its Cauchy weight however wrong it is: the model bends to it. Such a frame is
+    # tested against the model of all the others (a deletion residual) and dropped when they and the
+    # priors put it more than `track_pin_outlier_z` standard deviations from its fitted position.
+    rejected: list[int] = []
+    for _ in range(n):
+        z = _deletion_z(A, b, rows, H, d, w, line_var)
+        k = int(np.argmax(z))
+        if z[k] <= cfg.track_pin_outlier_z:
+            break
+        w[k] = 0.0
+        rejected.append(k)
+        A, b = normal_equations(theta, w, rate=True)
+        theta = np.linalg.solve(A, b)
+    r = _pinned_residuals(rows, theta, d, H)
     model = track_xy + np.einsum("nij,j->ni", rows, theta)
 
     eig = np.linalg.eigvalsh(H[used].sum(axis=0)) if used.any() else np.zeros(2)
@@ -757,5 +780,33 @@ def track_drift(
         "residual_spread_m": round(float(1.4826 * np.median(r[used])), 4) if used.any() else None,
         "frames_pinned_both_ways": int((np.linalg.eigvalsh(H)[:, 0] > 0.5).sum()),
         "pinning_eigenvalues": [round(float(v), 2) for v in eig],
+        "frames_rejected": sorted(rejected),
     }
     return model, metrics
+
+
+def _pinned_residuals(rows: NDArray, theta: NDArray, d: NDArray, H: NDArray) -> NDArray[np.float64]:
+    """(N,) each frame's misfit to the drift model in the directions it pins (m)."""
+    e = np.einsum("nij,j->ni", rows, theta) - d
+    return np.sqrt(np.maximum(np.einsum("ni,nij,nj->n", e, H, e), 0.0))
+
+
+def _deletion_z(
+    A: NDArray, b: NDArray, rows: NDArray, H: NDArray, d: NDArray, w: NDArray, line_var: float
+) -> NDArray[np.float64]:
+    """(N,) for each frame with weight, its misfit to the drift model fitted without it, in standard
+    deviations (its own position's, `line_var` over its pinning, plus the model's prediction's), in the
+    direction it pins worst; 0 for frames without weight or pinning."""
+    z = np.zeros(len(d))
+    for i in np.flatnonzero((w > 0) & (np.trace(H, axis1=1, axis2=2) > 0)):
+        own = w[i] / line_var
+        Ai = A - own * rows[i].T @ H[i] @ rows[i]
+        bi = b - own * rows[i].T @ H[i] @ d[i]
+        cov = np.linalg.inv(Ai)
+        e = rows[i] @ (cov @ bi) - d[i]
+        lam, vec = np.linalg.eigh(H[i])
+        for lv, v in zip(lam, vec.T, strict=True):
+            if lv > 0.2:
+                var = line_var / lv + v @ rows[i] @ cov @ rows[i].T @ v
+                z[i] = max(z[i], abs(float(v @ e)) / np.sqrt(var))
+    return z
