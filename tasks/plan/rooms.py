@@ -71,19 +71,30 @@ def free_space_rooms(
     sp: float,
     cfg: PlanConfig,
     seal_px: int = 0,
+    ink: NDArray[np.bool_] | None = None,
 ) -> list[Polygon]:
     """Room polygons (working pixels): the free space the walls (M, 4) and door lines (D, 4) enclose, in
     components of at least `min_room_area_m2` at `sp` metres per working pixel. With `seal_px`, the
     outside is what stays joined to the image's border once the walls are closed by a seal_px square:
     a room whose outer wall has an opening no door line closed (a window read as a gap, a bay whose short
-    walls were lost) keeps its free space instead of leaking out."""
+    walls were lost) keeps its free space instead of leaking out.
+
+    The walls close the raster's gaps: each line's 3 px core everywhere, its full width across stretches
+    where the raster has no wall pixel (`_raster_gaps`) and, with `ink` (the drawing's dark pixels),
+    wherever that width covers ink (a strip of the wall the raster left out, a window's line along it);
+    never onto blank paper beside the raster, where a line drawn thicker than its wall (one thickness for
+    collinear pieces of two) would move the room's face into the wall."""
     closed = walls_r.astype(np.uint8)
+    fat = np.zeros_like(closed)
     for sg, th in zip(segs, thick, strict=True):
         width = max(1, round(th) - 2)
         ends = [tuple(int(v) for v in np.round(p)) for p in (sg[:2], sg[2:])]
         cv2.line(closed, ends[0], ends[1], 1, min(width, 3))  # its core: inside the raster wall
-        for p, q in _raster_gaps(walls_r, sg, width):  # its full width only where the raster has none
+        cv2.line(fat, ends[0], ends[1], 1, width)
+        for p, q in _raster_gaps(walls_r, sg, width):  # its full width where the raster has none
             cv2.line(closed, p, q, 1, width)
+    if ink is not None:
+        closed[(fat > 0) & ink] = 1
     for dr in doors:  # one 8-connected pixel line separates 4-connected free space
         cv2.line(
             closed, tuple(int(v) for v in np.round(dr[:2])), tuple(int(v) for v in np.round(dr[2:])), 1, 1
