@@ -606,3 +606,14 @@ def test_free_space_rooms_keep_the_raster_face_of_a_wall_drawn_thicker_than_it_i
     hit = room.exterior.intersection(line)
     ys = [p.y for p in getattr(hit, "geoms", [hit])]
     assert min(ys) <= 148.0
+    # ink the raster left out beside the thin piece (rows 146-147, x 90-110) is covered where the line's
+    # full width (rows 146-158) reaches it: the face moves onto the ink's edge; ink beyond that width (a
+    # text line, rows 136-147 at x 30-50) is covered only to the line's edge; blank paper not at all
+    ink = walls.copy()
+    ink[146:148, 90:110] = True
+    ink[136:148, 30:50] = True
+    room = free_space_rooms(walls, segs, thick, np.zeros((0, 4)), 0.02, PlanConfig(), ink=ink)[0]
+    for x, face in ((100.0, 146.0), (40.0, 146.0), (80.0, 148.0), (200.0, 146.0)):
+        hit = room.exterior.intersection(shapely.LineString([(x, 100.0), (x, 199.0)]))
+        ys = [p.y for p in getattr(hit, "geoms", [hit])]
+        assert abs(min(ys) - face) <= 0.5, (x, ys)
