@@ -204,6 +204,46 @@ def test_the_derived_truth_keeps_walls_parallel_to_a_jogged_face() -> None:
     assert shift < 0.01  # the model's north wall between the jog's two levels, its south wall on its face
 
 
+def test_completeness_leaves_out_the_unseen_face_of_an_added_partition_only() -> None:
+    """truth.knowable_samples: a 4 x 4 m room with a new 12 cm partition stub (not in the plan: a true
+    "added" change) from the west wall, x 0-1.5 at y 2.0-2.12; the capture saw its south face and its end,
+    never its north face. The model holds the shell and the south face. Of the north face only the 5 cm by
+    the seen end (and by the west wall) is asked for; over every true face the model misses the north
+    face's 1.4 m beyond 10 cm of the west wall, of 4 * 4 + 1.5 + 1.5 + 0.12 m. A planned wall counts
+    seen or not (gap filling gives it from the plan)."""
+    from tasks.fuse.truth import completeness_on, knowable_samples
+    from tasks.lines import point_segment_distances
+
+    shell = ring_segments(box(0.0, 0.0, 4.0, 4.0))
+    truth = np.vstack([shell, [[0.0, 2.12, 1.5, 2.12], [1.5, 2.12, 1.5, 2.0], [1.5, 2.0, 0.0, 2.0]]])
+    model = np.vstack([shell, [[1.5, 2.0, 0.0, 2.0]]])
+    rng = np.random.default_rng(0)
+    seen = [(0.0, 4.0, 0.0, 0.0), (4.0, 4.0, 0.0, 4.0), (0.0, 4.0, 4.0, 4.0), (0.0, 0.0, 0.0, 4.0)]
+    seen += [(0.0, 1.5, 2.0, 2.0), (1.5, 1.5, 2.0, 2.12)]  # the shell, the south face, the end
+    cloud = np.vstack(
+        [np.column_stack([rng.uniform(a, b, 4000), rng.uniform(c, d, 4000)]) for a, b, c, d in seen]
+    )
+    cloud += rng.normal(0.0, 0.003, cloud.shape)
+    added = np.array([[0.0, 2.06, 1.5, 2.06]])
+    samples, knowable = knowable_samples(truth, cloud, added)
+    left_out = samples[~knowable]
+    assert np.allclose(left_out[:, 1], 2.12)  # the north face, nothing else
+    assert left_out[:, 0].min() > 0.04 and left_out[:, 0].max() < 1.46  # but its ends by seen surfaces
+    assert 1.37 <= len(left_out) * 0.01 <= 1.43
+    asked = samples[knowable]
+    missed = asked[point_segment_distances(asked, model).min(axis=1) > 0.10]
+    # the north face by the end and the end's top: the model has no face there
+    assert (missed[:, 1] > 2.1).all() and missed[:, 0].min() > 1.44
+    assert abs(completeness_on(asked, model) - (1.0 - len(missed) / len(asked))) < 1e-12
+    assert len(missed) <= 10  # 9: 6 of the north face, 3 of the end
+    assert abs(completeness_on(samples, model) - (1.0 - 1.4 / 19.12)) < 0.005
+    # the north face seen: it is asked for
+    cloud2 = np.vstack([cloud, np.column_stack([rng.uniform(0.0, 1.5, 4000), np.full(4000, 2.12)])])
+    assert knowable_samples(truth, cloud2, added)[1].all()
+    # with no added change there (the plan holds the wall) every sample is asked for, seen or not
+    assert knowable_samples(truth, cloud, np.zeros((0, 4)))[1].all()
+
+
 def test_correspondence_prefers_the_face_the_ray_meets_among_parallel_ones() -> None:
     faces = polygon_faces(L_ROOM)
     wall = np.array([[1.0, 4.95, 3.0, 4.95]])  # the top of the tall leg, 5 cm low

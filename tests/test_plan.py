@@ -572,3 +572,48 @@ def test_wall_piece_between_two_symbols_is_kept():
     res = parse_plan(img, PlanScale(m_per_px=S), PlanConfig())
     truth = np.array([[2.0, -6.0, 7.0, -6.0]])
     assert evaluate_walls(res.walls, truth, tol_m=0.05)["completeness"] > 0.97
+
+
+def test_free_space_rooms_keep_the_raster_face_of_a_wall_drawn_thicker_than_it_is() -> None:
+    """rooms.free_space_rooms: a 200 x 120 px box room whose south wall is two collinear pieces, 8 px
+    thick (x 20-120) and 13 px (x 120-220), vectorized as one line 14 px thick (the vectorizer gave the
+    whole line the thicker piece's width), with a 6 px break in the raster of the thin piece (text wiped
+    out). The room's south edge stays on the raster's faces (the thin piece's, 2.5 px north of where the
+    14 px line would put it; the thick one's), and the break is closed: one room."""
+    from tasks.plan.rooms import free_space_rooms
+
+    walls = np.zeros((200, 260), dtype=bool)
+    walls[20:28, 20:220] = True  # north, 8 px
+    walls[20:160, 20:28] = True  # west
+    walls[20:160, 212:220] = True  # east
+    walls[148:156, 20:120] = True  # south, thin piece: rows 148-155, centre row 151.5
+    walls[146:159, 120:220] = True  # south, thick piece: rows 146-158, centre row 152
+    walls[148:156, 60:66] = False  # a break in the thin piece's raster
+    segs = np.array([[24.0, 24.0, 216.0, 24.0], [24.0, 24.0, 24.0, 152.0], [216.0, 24.0, 216.0, 152.0]])
+    segs = np.vstack([segs, [[24.0, 152.0, 216.0, 152.0]]])
+    thick = np.array([8.0, 8.0, 8.0, 14.0])
+    rooms = free_space_rooms(walls, segs, thick, np.zeros((0, 4)), 0.02, PlanConfig())
+    assert len(rooms) == 1
+    room = rooms[0]
+    # the south edge, sampled along x: on the thin piece at the raster's face (row 148), the thick one 146
+    for x, face in ((40.0, 148.0), (90.0, 148.0), (160.0, 146.0), (200.0, 146.0)):
+        line = shapely.LineString([(x, 100.0), (x, 199.0)])
+        hit = room.exterior.intersection(line)
+        ys = [p.y for p in getattr(hit, "geoms", [hit])]
+        assert abs(min(ys) - face) <= 0.5, (x, ys)
+    # across the break the line closes it at its full width
+    line = shapely.LineString([(63.0, 100.0), (63.0, 199.0)])
+    hit = room.exterior.intersection(line)
+    ys = [p.y for p in getattr(hit, "geoms", [hit])]
+    assert min(ys) <= 148.0
+    # ink the raster left out beside the thin piece (rows 146-147, x 90-110) is covered where the line's
+    # full width (rows 146-158) reaches it: the face moves onto the ink's edge; ink beyond that width (a
+    # text line, rows 136-147 at x 30-50) is covered only to the line's edge; blank paper not at all
+    ink = walls.copy()
+    ink[146:148, 90:110] = True
+    ink[136:148, 30:50] = True
+    room = free_space_rooms(walls, segs, thick, np.zeros((0, 4)), 0.02, PlanConfig(), ink=ink)[0]
+    for x, face in ((100.0, 146.0), (40.0, 146.0), (80.0, 148.0), (200.0, 146.0)):
+        hit = room.exterior.intersection(shapely.LineString([(x, 100.0), (x, 199.0)]))
+        ys = [p.y for p in getattr(hit, "geoms", [hit])]
+        assert abs(min(ys) - face) <= 0.5, (x, ys)

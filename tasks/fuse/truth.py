@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import pyarrow.compute as pc
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from tasks import artefacts as art
 from tasks.evaluate import evaluate_walls
@@ -151,6 +152,49 @@ def both_sides_truth(
     return out
 
 
+def knowable_samples(
+    truth_faces: Segments,
+    cloud_xy: NDArray | None,
+    added: Segments,
+    step_m: float = 0.01,
+    seen_tol_m: float = 0.05,
+    min_points: int = 10,
+    added_tol_m: float = 0.10,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """The truth faces' step_m samples and which of them a fused model can be asked for: every sample a
+    plan wall stands on (gap filling supplies it from the plan's shell where the capture did not look)
+    and every sample of a wall the plan does not hold (an added wall's face, within added_tol_m of a true
+    "added" change's centreline) that the capture saw: at least min_points of the room's wall-height
+    points (cloud_xy, plan frame) within seen_tol_m. The face of a new partition that the camera never
+    looked at is known to nobody, as the issue has it for changes ("unknown, not removed"). cloud_xy None:
+    every sample counts."""
+    samples, _ = sample_segments(as_segments(truth_faces), step_m)
+    knowable = np.ones(len(samples), dtype=bool)
+    added = as_segments(added)
+    if cloud_xy is None or len(samples) == 0 or len(added) == 0:
+        return samples, knowable
+    unplanned = point_segment_distances(samples, added).min(axis=1) <= added_tol_m
+    if unplanned.any():
+        seen = np.zeros(len(samples), dtype=bool)
+        if len(cloud_xy):
+            count = cKDTree(np.asarray(cloud_xy)[:, :2]).query_ball_point(
+                samples[unplanned], seen_tol_m, return_length=True
+            )
+            seen[unplanned] = count >= min_points
+        knowable = ~unplanned | seen
+    return samples, knowable
+
+
+def completeness_on(samples: NDArray, pred: Segments, tol_m: float = 0.10) -> float:
+    """Share of the samples within tol_m of a predicted wall (the evaluation's completeness)."""
+    pred = as_segments(pred)
+    if len(samples) == 0:
+        return 0.0
+    if len(pred) == 0:
+        return 0.0
+    return float((point_segment_distances(samples, pred).min(axis=1) <= tol_m).mean())
+
+
 def change_scores(
     pred: list[dict[str, Any]], truth: list[dict[str, Any]], tol_m: float = 0.30
 ) -> dict[str, Any]:
@@ -207,12 +251,20 @@ def fusion_figures(
     truth_dir: Path, rooms: dict, fuse: art.StageResult, changes: art.StageResult | None
 ) -> dict[str, Any]:
     """metrics.json's fusion figures: per room, the correspondence, registration error against the
-    derived true transform, fit score, closure and the walls in the plan frame against truth/walls;
+    derived true transform, fit score, closure and the walls in the plan frame against truth/walls
+    (completeness over what the capture or the plan could give, `knowable_samples`; `completeness_all`
+    over every true face, `unknowable_m` the length left out);
     the thickness errors of both methods on walls captured from both sides; change precision and
     recall. `rooms`: room id -> {stage name -> result}."""
     report = art.read_json(fuse.file("fuse.json"))
     cfg = FuseConfig()
     out: dict[str, Any] = {"rooms": {}}
+    added = np.zeros((0, 4))
+    if (truth_dir / "changes.parquet").is_file():
+        true_changes = art.read_table(truth_dir / "changes.parquet").to_pylist()
+        added = np.array(
+            [[c["x0"], c["y0"], c["x1"], c["y1"]] for c in true_changes if c["kind"] == "added"], dtype=float
+        ).reshape(-1, 4)
     for rid, rep in report["rooms"].items():
         row: dict[str, Any] = {
             k: rep.get(k)
@@ -240,6 +292,16 @@ def fusion_figures(
             segs, _ = art.read_segments(fuse.file(f"{rid}.walls.parquet"))
             ev = evaluate_walls(segs, tw)
             row.update({k: ev[k] for k in ("completeness", "correctness", "accuracy_mean_m")})
+            # completeness over what the capture or the plan could give (knowable_samples)
+            cloud = None
+            if room.points is not None:
+                z = room.points[:, 2]
+                band = (z >= room.floor_z + 0.15) & (z <= room.ceiling_z - 0.10)
+                cloud = true.points(room.points[band, :2])
+            samples, knowable = knowable_samples(tw, cloud, added)
+            row["completeness_all"] = row["completeness"]
+            row["completeness"] = completeness_on(samples[knowable], segs)
+            row["unknowable_m"] = round(float((~knowable).sum()) * 0.01, 2)
         out["rooms"][rid] = row
     # thickness
     tc, tt = art.read_segments(truth_dir / "plan_walls.parquet")

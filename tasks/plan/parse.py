@@ -133,7 +133,7 @@ def parse_plan(
         segs, thick, thick_faces, mask_f, found, px, cfg, raster.heavy_pen
     )
     seal = round(cfg.door_max_m * px) if raster.heavy_pen and cfg.seal_heavy_pen_outline else 0
-    rooms_px = free_space_rooms(walls_r, segs, thick, doors, sp, cfg, seal)
+    rooms_px = free_space_rooms(walls_r, segs, thick, doors, sp, cfg, seal, found.dark)
     rooms_m = rooms_in_metres(rooms_px, f, s, labels)
     timings["rooms_s"] = time.perf_counter() - t
     if not rooms_m:
