@@ -189,6 +189,22 @@ def _pinhole_view(image: np.ndarray, tilt_deg: tuple[float, float], f_share: flo
     return view, Hc
 
 
+def test_jamb_past_a_corner_followed():
+    """Known answer: a wall (13 px thick) whose segment ends at a junction (the crossing wall's end) while
+    its ink runs on 40 px past it (a door's jamb on the far side of a T-junction) is prolonged to the
+    ink's end (x = 40); where the ink stops at the crossing wall's outer face (a true corner) it stays."""
+    from tasks.plan.vectorize import jambs_past_corners
+
+    for ink_from, end_x in ((40, 40.0), (74, 80.0)):
+        mask = np.zeros((200, 400), np.float32)
+        mask[94:107, ink_from:301] = 1.0  # the wall, 13 px
+        mask[20:107, 75:86] = 1.0  # the crossing wall, 11 px, ending at the first one
+        segs = np.array([[80.0, 100.0, 300.0, 100.0], [80.0, 100.0, 80.0, 20.0]])
+        out = jambs_past_corners(segs, np.array([13.0, 11.0]), mask, 75.0)
+        assert out[0, 0] == pytest.approx(end_x, abs=1.0)
+        assert out[1].tolist() == pytest.approx([80.0, 100.0, 80.0, 20.0], abs=1.0)
+
+
 def test_window_drawn_as_its_faces_covers_the_gap():
     """Known answer: a window drawn as its wall's two faces (thin lines 5 px either side of the
     centreline) running on across a 100 px opening: the centreline alone is bare (cover 0), within half

@@ -206,6 +206,51 @@ def follow_ink_to_ends(
     return out
 
 
+def jambs_past_corners(
+    segs: NDArray, thick: NDArray, mask_f: NDArray[np.float32], max_px: float
+) -> NDArray[np.float64]:
+    """Wall ends (M, 4) at a corner whose own ink runs straight on past the other wall's far face by at
+    least half the wall's thickness (a jamb beside a door or window on the far side of a junction that
+    the skeleton turned at, or that the line connection trimmed back to it: the junction is a T, not an
+    L) prolonged to where that ink ends, at most max_px. At a true corner the ink stops at the other
+    wall's outer face."""
+    out = segs.copy()
+    if len(segs) < 2:
+        return out
+    step = 0.5
+    ts = np.arange(step, max_px + step, step)
+    ang = lines.angles(segs)
+    free = set(free_ends(segs, 1.0))
+    for i in range(len(segs)):
+        for e in (0, 1):
+            if (i, e) in free:
+                continue
+            a, b = segs[i, :2], segs[i, 2:]
+            p, q = (b, a) if e else (a, b)
+            u = (p - q) / max(float(np.hypot(*(p - q))), 1e-9)
+            others = np.delete(np.arange(len(segs)), i)
+            at_p = lines.point_segment_distances(p[None], segs[others])[0] <= 1.0
+            turn = np.abs(np.sin(np.asarray(lines.angle_difference(ang[others], ang[i]))))
+            # only a corner: the walls met there all cross this one, and one of them ends there
+            if not at_p.any() or (turn[at_p] < math.sin(math.radians(60.0))).any():
+                continue
+            met = others[at_p]
+            if min(min(np.hypot(*(segs[j, :2] - p)), np.hypot(*(segs[j, 2:] - p))) for j in met) > 1.0:
+                continue
+            pts = p + ts[:, None] * u
+            on_ink = sample_mask(mask_f, pts) > 0.5
+            # and no other wall on the way (its ink is not this wall's)
+            rest = others[~at_p]
+            if len(rest):
+                on_ink &= ~(lines.point_segment_distances(pts, segs[rest]) <= 1.0).any(axis=1)
+            n = len(ts) if on_ink.all() else int(np.argmin(on_ink))
+            reach = n * step - step / 2 if n < len(ts) else ts[-1]
+            if n == 0 or reach < float(thick[met].max() + thick[i]) / 2:
+                continue
+            out[i, 2 * e : 2 * e + 2] = p + reach * u
+    return out
+
+
 def _join_hidden_junctions(
     segs: NDArray, thick: NDArray, support: NDArray[np.float32], door_min_px: float
 ) -> NDArray[np.float64]:
@@ -379,6 +424,10 @@ def vector_walls(
     keep &= _spur_free(segs, keep, cfg.short_wall_length_ratio * thick)
     segs, thick, thick_faces = segs[keep], thick[keep], thick_faces[keep]
     segs = follow_ink_to_ends(segs, thick, mask_f, cfg.end_follow_max_m * px)
+    if heavy_pen:
+        # a door's jamb past a T-junction decides whether its gap fits the swing; on the survey
+        # generator's evacuation plans (no swings) this moved wall ends the fusion was not checked on
+        segs = jambs_past_corners(segs, thick, mask_f, cfg.end_follow_max_m * px)
     hidden_max = (cfg.door_max_m if heavy_pen else cfg.door_min_m) * px
     segs = _join_hidden_junctions(segs, thick, support, hidden_max)
     return segs, thick, thick_faces
