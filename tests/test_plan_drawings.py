@@ -189,6 +189,22 @@ def _pinhole_view(image: np.ndarray, tilt_deg: tuple[float, float], f_share: flo
     return view, Hc
 
 
+def test_jamb_past_a_corner_followed():
+    """Known answer: a wall (13 px thick) whose segment ends at a junction (the crossing wall's end) while
+    its ink runs on 40 px past it (a door's jamb on the far side of a T-junction) is prolonged to the
+    ink's end (x = 40); where the ink stops at the crossing wall's outer face (a true corner) it stays."""
+    from tasks.plan.vectorize import jambs_past_corners
+
+    for ink_from, end_x in ((40, 40.0), (74, 80.0)):
+        mask = np.zeros((200, 400), np.float32)
+        mask[94:107, ink_from:301] = 1.0  # the wall, 13 px
+        mask[20:107, 75:86] = 1.0  # the crossing wall, 11 px, ending at the first one
+        segs = np.array([[80.0, 100.0, 300.0, 100.0], [80.0, 100.0, 80.0, 20.0]])
+        out = jambs_past_corners(segs, np.array([13.0, 11.0]), mask, 75.0)
+        assert out[0, 0] == pytest.approx(end_x, abs=1.0)
+        assert out[1].tolist() == pytest.approx([80.0, 100.0, 80.0, 20.0], abs=1.0)
+
+
 def test_window_drawn_as_its_faces_covers_the_gap():
     """Known answer: a window drawn as its wall's two faces (thin lines 5 px either side of the
     centreline) running on across a 100 px opening: the centreline alone is bare (cover 0), within half
@@ -488,6 +504,101 @@ def test_swing_is_one_arc_that_spans_the_gap():
     short = np.zeros_like(whole)
     _arc(short, (200, 104), 45, math.pi / 2, math.pi)
     assert swing_share(p, q, 4.0, short.astype(np.float32)) < 0.5
+
+
+def test_swing_under_a_pen_mark():
+    """Known answer (pixels): the quarter circle of radius 80 about the left jamb of a gap (100, 100) to
+    (180, 100), with 0.3 rad of it taken out where a red pen stroke crossed it (the stroke is a removed
+    symbol: `hidden`). Read without what hides it, the arc falls apart (below the 0.7 share); with it, the
+    arc runs on under the stroke and its ink draws most of the swing. The stroke alone, with no arc, is
+    no swing, nor are the table-and-chair pieces with nothing hiding their gaps."""
+    p, q = np.array([100.0, 100.0]), np.array([180.0, 100.0])
+    cut = np.zeros((300, 300), np.uint8)
+    for a0, a1 in ((0.0, 0.75), (1.05, math.pi / 2)):
+        _arc(cut, (100, 104), 80, a0, a1)
+    stroke = np.zeros_like(cut)
+    c = np.array([100.0, 104.0]) + 80.0 * np.array([math.cos(0.9), math.sin(0.9)])
+    cv2.line(stroke, (int(c[0] - 30), int(c[1] + 25)), (int(c[0] + 30), int(c[1] - 25)), 1, 15)
+    assert swing_share(p, q, 4.0, cut.astype(np.float32)) < 0.7
+    assert swing_share(p, q, 4.0, cut.astype(np.float32), hidden_f=stroke.astype(np.float32)) >= 0.75
+    assert swing_share(p, q, 4.0, np.zeros_like(cut, np.float32), hidden_f=stroke.astype(np.float32)) == 0.0
+
+
+def test_hough_leaves_no_straight_skeleton_run():
+    """Known answer: walls 12 px thick (a frame and six walls with T-junctions; 50 px per metre, so the
+    Hough pieces are at least 8 px). The probabilistic transform alone leaves a straight stretch of the
+    skeleton of 64 px (here) with no segment over it: its walk along a line a fraction of a degree off
+    left the skeleton, and the pixels beyond had already voted. Every straight skeleton run of 8 px or
+    more is under a segment once the skeleton left over gets its own pass (what stays bare is a bend
+    where two walls' inks overlap, a few pixels)."""
+    from skimage.morphology import skeletonize
+
+    from tasks.plan.vectorize import hough_lines
+
+    walls = np.zeros((400, 400), np.uint8)
+    cv2.rectangle(walls, (20, 20), (380, 380), 1, 12)
+    for a, b in (
+        ((65, 144), (65, 281)),
+        ((104, 323), (313, 323)),
+        ((258, 105), (258, 177)),
+        ((154, 157), (154, 336)),
+        ((39, 335), (200, 335)),
+        ((116, 238), (185, 238)),
+    ):
+        cv2.line(walls, a, b, 1, 12)
+    raw = hough_lines(walls.astype(bool), 50.0, PlanConfig())
+    covered = np.zeros_like(walls)
+    for sg in np.round(raw).astype(int):
+        cv2.line(covered, (int(sg[0]), int(sg[1])), (int(sg[2]), int(sg[3])), 1, 3)
+    bare = skeletonize(walls.astype(bool)) & ~covered.astype(bool)
+    n, _lab, stats, _ = cv2.connectedComponentsWithStats(bare.astype(np.uint8), connectivity=8)
+    assert max((max(stats[k, 2], stats[k, 3]) for k in range(1, n)), default=0) < 8
+
+
+def test_junction_under_a_pen_mark_in_a_heavy_pen_drawing():
+    """Known answer (50 px per metre): a room with 10 px walls, a partition at u = 150 down from the north
+    wall whose last 1.4 m (70 px) before the south wall's face lies under a removed pen stroke. In a
+    drawing in a heavy pen (black, doors shown by their swings) the hidden stretch is wall and the
+    partition runs on into the south wall (v 275-285); in an evacuation plan, whose signs stand in
+    doorways, a hidden stretch wider than the smallest door (0.5 m) stays open: it ends where the stroke
+    begins."""
+    from tasks.plan.vectorize import hough_lines, vector_walls
+
+    walls = np.zeros((300, 300), np.uint8)
+    cv2.rectangle(walls, (20, 20), (280, 280), 1, 10)
+    cv2.line(walls, (150, 20), (150, 280), 1, 10)
+    mark = np.zeros_like(walls)
+    cv2.line(mark, (150, 205), (150, 276), 1, 16)
+    walls[mark > 0] = 0
+    walls_r, sym = walls.astype(bool), mark.astype(bool)
+    cfg = PlanConfig()
+    raw = hough_lines(walls_r, 50.0, cfg)
+    for heavy, lo, hi in ((True, 275.0, 285.0), (False, 190.0, 206.0)):
+        segs, _t, _f = vector_walls(raw, walls_r, walls_r.astype(np.float32), sym, 50.0, cfg, heavy)
+        part = segs[(np.abs(segs[:, 0] - 150) < 2) & (np.abs(segs[:, 2] - 150) < 2)]
+        assert len(part) == 1
+        assert lo <= part[0, 1::2].max() <= hi, (heavy, part)
+
+
+def test_plan_region_keeps_wings_in_the_walls_pen():
+    """Known answer (pixels): a plan of 12 px walls (two rooms), a second wing of 12 px walls beside it
+    and, to the left, a legend panel's frame drawn 3 px wide and joined to the sheet's long edge, a
+    network as large as the wing. The wing is plan, the frame is not (its strokes are a quarter as wide
+    as the walls); without the width test the frame stays."""
+    from tasks.plan.raster import plan_region
+
+    walls = np.zeros((600, 1000), np.uint8)
+    cv2.rectangle(walls, (400, 100), (800, 400), 1, 12)
+    cv2.line(walls, (600, 100), (600, 400), 1, 12)
+    cv2.rectangle(walls, (860, 100), (980, 300), 1, 12)  # the wing, beyond a 60 px gap
+    cv2.rectangle(walls, (40, 60), (250, 330), 1, 3)  # the legend's frame
+    cv2.line(walls, (30, 20), (30, 580), 1, 3)  # the sheet's edge, joining it
+    walls_r = walls.astype(bool)
+    kept, box = plan_region(walls_r, 80.0, 6, 0.3, 100.0, 0.5)
+    assert box[0] >= 390 and box[2] >= 980
+    assert not kept[:, :300].any() and kept[:, 850:].any()
+    kept_all, box_all = plan_region(walls_r, 80.0, 6, 0.3, 100.0, 0.0)
+    assert box_all[0] <= 40 and kept_all[:, :300].any()
 
 
 def test_thin_line_openings_need_a_wall_thick_gap():

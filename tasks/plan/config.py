@@ -91,6 +91,10 @@ class PlanConfig:
     the largest one and spanning both directions are part of the plan (other wings); smaller ones
     outside their box (legend panels, scale bars, title blocks) are not. In other drawings every network
     is."""
+    region_min_width_ratio: float = 0.5
+    """Such another network is plan only when its strokes' median width is at least this share of the
+    largest network's (the walls' pen): a legend panel's frame joined to the sheet's edge spans as much,
+    drawn thin. 0 disables."""
     free_wall_min_m: float = 2.5
     """In a drawing whose walls are drawn in a heavy pen, a piece of wall not joined to the largest one is
     at least this long (or a column); shorter pieces are furniture drawn in double lines."""

@@ -38,7 +38,12 @@ def _on_other_wall(p: NDArray, q: NDArray, segs: NDArray, i: int, jamb: tuple[in
 
 
 def swing_share(
-    p: NDArray, q: NDArray, half_thick: float, thin_f: NDArray[np.float32], n_angles: int = 24
+    p: NDArray,
+    q: NDArray,
+    half_thick: float,
+    thin_f: NDArray[np.float32],
+    n_angles: int = 24,
+    hidden_f: NDArray[np.float32] | None = None,
 ) -> float:
     """How much of a door swing the thin ink `thin_f` (h, w) draws over the gap p -> q (pixels): the
     best, over the two jambs as hinge, the two sides of the wall, the hinge's place along the gap (a
@@ -49,7 +54,8 @@ def swing_share(
     `half_thick` off the centreline), within a pixel and a half. A swing is one continuous stroke: the
     share is that of the longest run of angles with ink (a single angle without it bridged, where glare
     pales the arc), so the edges of a table and its chairs that the arc happens to cross in pieces do not
-    add up to a swing."""
+    add up to a swing. With `hidden_f` (h, w), the removed symbols: a stretch of arc under one (a pen
+    mark drawn across the swing) does not break the run, but only the angles with ink count."""
     w = float(np.hypot(*(q - p)))
     if w <= 0:
         return 0.0
@@ -67,20 +73,26 @@ def swing_share(
                 r = radii[:, None] + band[None, :]  # (R, B)
                 c = hinge + side * half_thick + along * sh
                 pts = c + r[:, :, None, None] * dirs[None, None, :, :]  # (R, B, A, 2)
-                ink = sample_mask(thin_f, pts.reshape(-1, 2)).reshape(len(radii), len(band), len(ts)) > 0.5
-                best = max(best, _longest_run(ink.any(axis=1)) / len(ts))
+                flat = pts.reshape(-1, 2)
+                ink = sample_mask(thin_f, flat).reshape(len(radii), len(band), len(ts)) > 0.5
+                hidden = None
+                if hidden_f is not None:
+                    hidden = (sample_mask(hidden_f, flat).reshape(ink.shape) > 0.5).any(axis=1)
+                best = max(best, _longest_run(ink.any(axis=1), hidden) / len(ts))
     return best
 
 
-def _longest_run(hit: NDArray[np.bool_]) -> int:
+def _longest_run(hit: NDArray[np.bool_], hidden: NDArray[np.bool_] | None = None) -> int:
     """The longest run of True along the last axis of (R, A) `hit`, over its rows, a single False between
-    two True counted as True."""
+    two True counted as True. With `hidden` (R, A), those angles do not break a run but add nothing to
+    it (an arc passing under a removed symbol)."""
     hit = hit.copy()
     hit[:, 1:-1] |= hit[:, :-2] & hit[:, 2:]
+    go_on = hit if hidden is None else hit | hidden
     run = np.zeros(hit.shape[0], np.int64)
     longest = 0
     for a in range(hit.shape[1]):
-        run = (run + 1) * hit[:, a]
+        run = (run + hit[:, a]) * go_on[:, a]
         longest = max(longest, int(run.max()))
     return longest
 
@@ -107,11 +119,13 @@ def _find_doors(
 ) -> NDArray[np.float64]:
     """Door gaps: a free wall end whose prolongation meets another wall (its collinear continuation or a
     crossing wall) after a gap between door_min and door_max. With `swing` (the thin ink (h, w) off the
-    walls and the share of a swing's arc it must draw; optionally the thin ink (h, w) and the share of a
-    gap it covers in a window), a gap is taken only where its swing is drawn, or a window spans it."""
+    walls and the share of a swing's arc it must draw; the thin ink (h, w) and the share of a gap it
+    covers in a window; the removed symbols (h, w) that may hide part of a swing), a gap is taken only
+    where its swing is drawn, or a window spans it."""
 
     def swung(p: NDArray, q: NDArray, i: int) -> bool:
-        if swing is None or swing_share(p, q, thick[i] / 2, swing[0]) >= swing[1]:
+        hidden = swing[4] if swing is not None and len(swing) > 4 else None
+        if swing is None or swing_share(p, q, thick[i] / 2, swing[0], hidden_f=hidden) >= swing[1]:
             return True
         return len(swing) > 2 and _ink_cover(np.concatenate([p, q]), swing[2], thick[i] / 2 - 1) >= swing[3]
 
@@ -230,7 +244,9 @@ def doors_and_windows(
         off_walls = np.where(mask_f > 0.5, 0.0, np.maximum(thin, faint)).astype(np.float32)
         # a window's thin lines are read against the paper around them too (glare pales them as well)
         thin = np.maximum(thin, faint).astype(np.float32)
-        swing = (off_walls, cfg.door_swing_share, thin, cfg.window_ink_share)
+        # a pen mark or pictogram drawn across a swing hides that stretch of it
+        hidden = sym_any.astype(np.float32)
+        swing = (off_walls, cfg.door_swing_share, thin, cfg.window_ink_share, hidden)
     doors = _find_doors(
         segs, thick, {"door_min": cfg.door_min_m * px, "door_max": cfg.door_max_m * px}, mask_f, swing
     )
@@ -243,7 +259,10 @@ def doors_and_windows(
             window[n] = _ink_cover(dr, thin, thick[jamb[n]] / 2 - 1) >= cfg.window_ink_share
             if window[n] and swing is not None:
                 # a gap whose swing is drawn is a door, whatever runs along it (a counter by the wall)
-                window[n] = swing_share(dr[:2], dr[2:], thick[jamb[n]] / 2, swing[0]) < cfg.door_swing_share
+                window[n] = (
+                    swing_share(dr[:2], dr[2:], thick[jamb[n]] / 2, swing[0], hidden_f=swing[4])
+                    < cfg.door_swing_share
+                )
         if window.any():
             near = lines.point_segment_distances(doors[window][:, :2], segs).argmin(axis=1)
             segs = np.concatenate([segs, doors[window]])

@@ -119,11 +119,15 @@ def parse_plan(
     ink_area = _check_wall_raster(walls_r, s, sp, cfg, name)
 
     t = time.perf_counter()
-    raw = hough_lines(walls_r, px, cfg)
+    # the second pass is taken in heavy-pen drawings only: on the survey generator's evacuation plans it
+    # moves walls by millimetres and joins split pieces, which the fusion downstream was not checked on
+    raw = hough_lines(walls_r, px, cfg, second_pass=raster.heavy_pen)
     timings["skeleton_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    segs, thick, thick_faces = vector_walls(raw, walls_r, raster.lines_f, found.symbols_any, px, cfg)
+    segs, thick, thick_faces = vector_walls(
+        raw, walls_r, raster.lines_f, found.symbols_any, px, cfg, raster.heavy_pen
+    )
     timings["vectorize_s"] = time.perf_counter() - t
     coverage = _check_walls(segs, thick, walls_r, ink_area, sp, cfg, name)
 

@@ -353,6 +353,19 @@ def _networks(
     return n, np.where(mask, full, 0).astype(np.int32), cells
 
 
+def network_stroke_widths(walls: NDArray[np.bool_], lab: NDArray[np.int32], n: int) -> NDArray[np.float64]:
+    """(n,) median stroke width (pixels) of each network of `lab` (h, w): twice the distance to the paper
+    along the strokes' ridges (where the distance transform peaks across the stroke), 0 without any."""
+    dt = cv2.distanceTransform(walls.astype(np.uint8), cv2.DIST_L2, 5)
+    ridge = walls & (dt >= cv2.dilate(dt, np.ones((3, 3), np.uint8)))
+    out = np.zeros(n)
+    owner = lab[ridge]
+    vals = dt[ridge]
+    for k in np.unique(owner):
+        out[k] = 2.0 * float(np.median(vals[owner == k]))
+    return out
+
+
 def _network_cells(mask: NDArray[np.bool_], join_px: float, cell_px: int) -> int:
     """How many cell_px grid cells the largest stroke network of the mask touches (its span)."""
     if not mask.any():
@@ -414,13 +427,20 @@ def _thin_line_openings(
 
 
 def plan_region(
-    walls: NDArray[np.bool_], join_px: float, cell_px: int, min_share: float, long_px: float
+    walls: NDArray[np.bool_],
+    join_px: float,
+    cell_px: int,
+    min_share: float,
+    long_px: float,
+    min_width_ratio: float = 0.0,
 ) -> tuple[NDArray[np.bool_], tuple[int, int, int, int]]:
     """The drawing's plan: the box of the largest network of wall strokes (strokes closer than join_px
     joined, so across doors; size in cell_px cells) and the networks at least min_share as large that
-    span both directions (other wings, neighbouring flats; a scale bar is one bar); min_share 0 keeps every network. Legend panels,
-    title blocks, scale bars and frames beside the plan go. Returns the walls kept and the box (u0, v0,
-    u1, v1)."""
+    span both directions and whose strokes are at least min_width_ratio as wide as the largest one's
+    (other wings, neighbouring flats, drawn in the walls' pen; a scale bar is one bar, a legend panel's
+    frame and the sheet's edge are drawn thinner); min_share 0 keeps every network. Legend panels, title
+    blocks, scale bars and frames beside the plan go. Returns the walls kept and the box (u0, v0, u1,
+    v1)."""
     if not walls.any():
         return walls, (0, 0, walls.shape[1], walls.shape[0])
     n, lab, cells = _networks(walls, join_px, cell_px)
@@ -433,8 +453,12 @@ def plan_region(
     np.maximum.at(hi_u, lab[ys, xs], xs)
     np.maximum.at(hi_v, lab[ys, xs], ys)
     two_d = np.minimum(hi_u - lo_u, hi_v - lo_v) >= join_px
-    big = np.flatnonzero((cells >= min_share * cells.max()) & (two_d | (min_share <= 0)))
-    big = np.union1d(big, [int(np.argmax(cells))])
+    largest = int(np.argmax(cells))
+    big = (cells >= min_share * cells.max()) & (two_d | (min_share <= 0))
+    if min_width_ratio > 0 and big.sum() > 1:
+        width = network_stroke_widths(walls, lab, n)
+        big &= width >= min_width_ratio * width[largest]
+    big = np.union1d(np.flatnonzero(big), [largest])
     ys, xs = np.nonzero(np.isin(lab, big))
     u0, v0, u1, v1 = int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
     # in that box: the pieces of wall at least long_px across (the largest among them), and columns
@@ -663,5 +687,6 @@ def wall_raster(found: InkMasks, px: float, cfg: PlanConfig) -> WallRaster:
         cell,
         cfg.region_min_share if heavy_pen else 0.0,
         cfg.free_wall_min_m * px * heavy_pen,
+        cfg.region_min_width_ratio if heavy_pen else 0.0,
     )
     return WallRaster(walls_r, lines_f, text_px, wall_layers, layer_evidence, region, heavy_pen)

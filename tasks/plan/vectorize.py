@@ -206,11 +206,56 @@ def follow_ink_to_ends(
     return out
 
 
+def jambs_past_corners(
+    segs: NDArray, thick: NDArray, mask_f: NDArray[np.float32], max_px: float
+) -> NDArray[np.float64]:
+    """Wall ends (M, 4) at a corner whose own ink runs straight on past the other wall's far face by at
+    least half the wall's thickness (a jamb beside a door or window on the far side of a junction that
+    the skeleton turned at, or that the line connection trimmed back to it: the junction is a T, not an
+    L) prolonged to where that ink ends, at most max_px. At a true corner the ink stops at the other
+    wall's outer face."""
+    out = segs.copy()
+    if len(segs) < 2:
+        return out
+    step = 0.5
+    ts = np.arange(step, max_px + step, step)
+    ang = lines.angles(segs)
+    free = set(free_ends(segs, 1.0))
+    for i in range(len(segs)):
+        for e in (0, 1):
+            if (i, e) in free:
+                continue
+            a, b = segs[i, :2], segs[i, 2:]
+            p, q = (b, a) if e else (a, b)
+            u = (p - q) / max(float(np.hypot(*(p - q))), 1e-9)
+            others = np.delete(np.arange(len(segs)), i)
+            at_p = lines.point_segment_distances(p[None], segs[others])[0] <= 1.0
+            turn = np.abs(np.sin(np.asarray(lines.angle_difference(ang[others], ang[i]))))
+            # only a corner: the walls met there all cross this one, and one of them ends there
+            if not at_p.any() or (turn[at_p] < math.sin(math.radians(60.0))).any():
+                continue
+            met = others[at_p]
+            if min(min(np.hypot(*(segs[j, :2] - p)), np.hypot(*(segs[j, 2:] - p))) for j in met) > 1.0:
+                continue
+            pts = p + ts[:, None] * u
+            on_ink = sample_mask(mask_f, pts) > 0.5
+            # and no other wall on the way (its ink is not this wall's)
+            rest = others[~at_p]
+            if len(rest):
+                on_ink &= ~(lines.point_segment_distances(pts, segs[rest]) <= 1.0).any(axis=1)
+            n = len(ts) if on_ink.all() else int(np.argmin(on_ink))
+            reach = n * step - step / 2 if n < len(ts) else ts[-1]
+            if n == 0 or reach < float(thick[met].max() + thick[i]) / 2:
+                continue
+            out[i, 2 * e : 2 * e + 2] = p + reach * u
+    return out
+
+
 def _join_hidden_junctions(
     segs: NDArray, thick: NDArray, support: NDArray[np.float32], door_min_px: float
 ) -> NDArray[np.float64]:
-    """Free wall ends whose prolongation meets another wall after a gap narrower than the smallest door
-    and drawn (ink or a removed symbol over all of it): the junction is hidden under a symbol, and the
+    """Free wall ends whose prolongation meets another wall after a gap narrower than door_min_px and
+    drawn (ink or a removed symbol over all of it): the junction is hidden under a symbol, and the
     wall is prolonged to the other wall's centreline. A gap of paper stays open."""
     out = segs.copy()
     for i, e in free_ends(segs, 1.0, thick):
@@ -292,19 +337,39 @@ def first_wall_hit(
     return best
 
 
-def hough_lines(walls_r: NDArray[np.bool_], px: float, cfg: PlanConfig) -> NDArray[np.float64]:
-    """Probabilistic Hough segments (K, 4) in working pixels of the wall raster's (h, w) skeleton."""
+def hough_lines(
+    walls_r: NDArray[np.bool_], px: float, cfg: PlanConfig, second_pass: bool = True
+) -> NDArray[np.float64]:
+    """Probabilistic Hough segments (K, 4) in working pixels of the wall raster's (h, w) skeleton; with
+    `second_pass`, also those of the skeleton that no segment of the first pass covers."""
     skel = skeletonize(walls_r).astype(np.uint8) * 255
     min_len = max(3, round(cfg.hough_min_length_m * px))
-    hough = cv2.HoughLinesP(
-        skel,
-        1,
-        np.pi / 720,
-        max(3, min_len // 2),
-        minLineLength=min_len,
-        maxLineGap=max(1, round(cfg.hough_max_gap_m * px)),
-    )
-    raw = hough.reshape(-1, 4).astype(np.float64) if hough is not None else np.zeros((0, 4))
+
+    def hough(img: NDArray[np.uint8]) -> NDArray[np.float64]:
+        found = cv2.HoughLinesP(
+            img,
+            1,
+            np.pi / 720,
+            max(3, min_len // 2),
+            minLineLength=min_len,
+            maxLineGap=max(1, round(cfg.hough_max_gap_m * px)),
+        )
+        return found.reshape(-1, 4).astype(np.float64) if found is not None else np.zeros((0, 4))
+
+    raw = hough(skel)
+    # The probabilistic transform walks a line at the angle of the accumulator cell that first reached
+    # its threshold, which depends on the order pixels were drawn in, i.e. on the whole image: a walk a
+    # fraction of a degree off leaves the skeleton and stops, and the pixels beyond it have already voted,
+    # so they never form a line (a wall's stub past a T-junction lost that way left a door gap too wide
+    # for its swing). The skeleton no segment passed over gets a second pass of its own.
+    if not second_pass:
+        return raw
+    covered = np.zeros_like(skel)
+    for sg in np.round(raw).astype(int):
+        cv2.line(covered, (int(sg[0]), int(sg[1])), (int(sg[2]), int(sg[3])), 255, 3)
+    rest = cv2.bitwise_and(skel, cv2.bitwise_not(covered))
+    if rest.any():
+        raw = np.vstack([raw, hough(rest)])
     return raw
 
 
@@ -315,11 +380,17 @@ def vector_walls(
     sym_any: NDArray[np.bool_],
     px: float,
     cfg: PlanConfig,
+    heavy_pen: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Straight walls from the Hough segments `raw` (K, 4): merged, regularized, centred on their ink,
     connected (extensions backed by walls or symbols), spurs dropped, free ends prolonged to the wall
     face and hidden junctions joined. Returns the walls (M, 4), their raster thickness (M,) and their
-    thickness between drawn faces (M,), in working pixels."""
+    thickness between drawn faces (M,), in working pixels.
+
+    A junction hidden under a symbol is joined across less than the smallest door: an evacuation plan
+    draws its signs in doorways. In a drawing in a heavy pen (`heavy_pen`) the drawing itself is black
+    and a coloured stroke over it is someone's pen mark, and a door shows as paper with its swing: there
+    a wall's prolongation hidden all the way to another wall is joined up to the largest door."""
     lcfg = cfg.lines.scaled(px)
     mask_f = walls_r.astype(np.float32)
     support = (walls_r | sym_any).astype(np.float32)
@@ -353,5 +424,10 @@ def vector_walls(
     keep &= _spur_free(segs, keep, cfg.short_wall_length_ratio * thick)
     segs, thick, thick_faces = segs[keep], thick[keep], thick_faces[keep]
     segs = follow_ink_to_ends(segs, thick, mask_f, cfg.end_follow_max_m * px)
-    segs = _join_hidden_junctions(segs, thick, support, cfg.door_min_m * px)
+    if heavy_pen:
+        # a door's jamb past a T-junction decides whether its gap fits the swing; on the survey
+        # generator's evacuation plans (no swings) this moved wall ends the fusion was not checked on
+        segs = jambs_past_corners(segs, thick, mask_f, cfg.end_follow_max_m * px)
+    hidden_max = (cfg.door_max_m if heavy_pen else cfg.door_min_m) * px
+    segs = _join_hidden_junctions(segs, thick, support, hidden_max)
     return segs, thick, thick_faces
