@@ -3,6 +3,7 @@ the slice top like the walls, so its faces are told by where they stand (`eviden
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -168,3 +169,32 @@ def test_a_long_wall_beyond_a_short_wall_at_a_corner_and_an_oblique_one_go_and_a
         [[1.5, 1.5, 3.0, 1.5], [0, 0, 4, 0], [0, 4, 4, 4], [0, 3.0, 0, 4], [4, 3.0, 4, 4]], dtype=float
     )
     assert not beyond_the_room(island, np.array([2.0, 3.0]), CFG, 3.0).any()
+
+
+def test_a_free_standing_front_past_a_slanted_wall_s_seen_end_is_furniture_and_a_jog_in_line_stays():
+    """A slanted east wall (70°) seen only on its southern half; a cabinet's front, 0.9 m long, stands 0.4 m
+    in front of its unseen northern half, both ends free and in line with nothing: the wall's line runs
+    behind it between the room's corners (where the south and north walls meet that line), so it is
+    furniture. The same front with a piece of wall in line with it (a jog of the wall, its pieces seen
+    apart) stays, and so does a free line standing beyond the room's corner."""
+    u = np.array([math.cos(math.radians(70)), math.sin(math.radians(70))])
+    inward = np.array([-u[1], u[0]])
+    corner = np.array([5.0, 0.0]) + 4.0 / u[1] * u  # where the east wall meets the north wall's line
+    room = [
+        [0, 0, 5, 0],  # south
+        [5.0, 0.0, *(np.array([5.0, 0.0]) + 2.1 * u)],  # east, seen up to 2.1 m along it
+        [*corner, 0, 4],  # north, west
+        [0, 4, 0, 0],
+    ]
+
+    def along(t0: float, t1: float, depth: float) -> list[float]:
+        a = np.array([5.0, 0.0]) + t0 * u + depth * inward
+        return [*a, *(a + (t1 - t0) * u)]
+
+    centre = np.array([2.5, 2.0])
+    front = np.array([*room, along(2.6, 3.5, 0.4)], dtype=float)
+    assert np.flatnonzero(furniture_in_front(front, centre, CFG, 3.0)).tolist() == [4]
+    jog = np.array([*room, along(2.6, 3.5, 0.4), along(3.6, 3.9, 0.4)], dtype=float)
+    assert not furniture_in_front(jog, centre, CFG, 3.0)[4]
+    past = np.array([*room, along(4.6, 5.4, 0.4)], dtype=float)
+    assert not furniture_in_front(past, centre, CFG, 3.0).any()

@@ -653,6 +653,38 @@ def furniture_in_front(
                 return False
         return sides >= 1
 
+    def isolated(i: int, j: int, t: NDArray, t0: float, t1: float) -> bool:
+        """Is line i (in front of line j, spanning t along j's line, whose pieces span t0..t1) a free-standing
+        front beyond where j was seen: both its ends free (within `thin_wall_end_tol_m` of no other line), in
+        line with no other line, and its span on j's line within the room's corners either side of j's seen
+        extent (where the nearest lines across j's line meet it), which lie further apart than it is long? The wall runs on unseen behind it (a
+        handheld capture misses a fifth of the walls); a wall of the room so short, standing alone, would
+        meet the room's other walls or run on in line with one of them. A line no longer than furniture is
+        deep may be a side seen alone as well as a front: the side rule judges it."""
+        if L[i] <= d_hi:
+            return False
+        others = np.ones(m, dtype=bool)
+        others[i] = False
+        if point_segment_distances(lines[i].reshape(2, 2), lines[others]).min() <= end_tol:
+            return False
+        inline = _collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
+        inline[i] = False
+        if inline.any():
+            return False
+        # where the lines across j's line meet it (beyond j's seen extent): the corners of the room
+        across = np.flatnonzero(np.abs(np.cos(ang - ang[j])) <= math.sqrt(0.5))
+        denom = u[across] @ n[j]  # along a crossing line, the rate of moving off j's line
+        s = ((lines[j, :2] - lines[across, :2]) @ n[j]) / denom
+        meet = lines[across, :2] + s[:, None] * u[across]
+        tm = (meet - lines[j, :2]) @ u[j]
+        lo, hi = float(t.min()), float(t.max())
+        after, before = tm[tm >= t1 - tol], tm[tm <= t0 + tol]
+        if not len(after) or not len(before):
+            return False  # no corner on one side: nothing bounds the wall j would be a piece of
+        # past j's seen ends, up to the corners, and the wall between them longer than the front
+        c0, c1 = float(before.max()), float(after.min())
+        return c0 - tol <= lo and hi <= c1 + tol and c1 - c0 > L[i] + tol
+
     for i in np.flatnonzero(L <= cfg.furniture_max_length_m):
         for j in np.argsort(-L):
             if j == i or abs(math.cos(ang[i] - ang[j])) < cos_loose:
@@ -665,7 +697,9 @@ def furniture_in_front(
             # the wall's line runs along at least half the front (a wardrobe in a corner hides the wall
             # behind it up to the corner; an alcove's mouth beside the alcove's back wall runs along none)
             overlap = min(t.max(), t1) - max(t.min(), t0)
-            if t1 - t0 > L[i] + tol and (overlap >= 0.5 * L[i] or boxed(i, j, dd)):
+            if (t1 - t0 > L[i] + tol and (overlap >= 0.5 * L[i] or boxed(i, j, dd))) or isolated(
+                i, j, t, t0, t1
+            ):
                 out[i] = True
                 break
     front = out.copy()
