@@ -198,3 +198,43 @@ def test_a_free_standing_front_past_a_slanted_wall_s_seen_end_is_furniture_and_a
     assert not furniture_in_front(jog, centre, CFG, 3.0)[4]
     past = np.array([*room, along(4.6, 5.4, 0.4)], dtype=float)
     assert not furniture_in_front(past, centre, CFG, 3.0).any()
+
+
+def test_a_cabinet_s_short_side_drawn_some_degrees_off_is_still_its_side():
+    """A cabinet's side 0.45 m long, drawn 8° off the perpendicular from its few noisy points (each end good
+    to a few cm), joins its 1.45 m front to the east wall: it is the cabinet's side, not a wall."""
+    room = [[0, 0, 6, 0], [6, 0, 6, 4], [6, 4, 0, 4], [0, 4, 0, 0]]
+    tilt = math.tan(math.radians(8.0)) * 0.45
+    cabinet = [[5.5, 1.0, 5.5, 2.45], [5.52, 2.45, 5.97, 2.45 + tilt]]
+    lines = np.array([*room, *cabinet], dtype=float)
+    assert np.flatnonzero(furniture_in_front(lines, np.array([3.0, 2.0]), CFG, 3.0)).tolist() == [4, 5]
+
+
+def test_a_plant_s_facets_are_lone_directions_and_a_wall_at_its_own_angle_is_not():
+    """A plant's pot, a decagon 0.3 m in radius, in a room's corner gives short lines at directions no wall
+    takes; the room's walls, its slanted wall (seen over 2 m in two pieces) and the facets that happen to
+    lie along the walls' directions are not lone."""
+    from tasks.walls.evidence import lone_directions
+
+    u = np.array([math.cos(math.radians(70)), math.sin(math.radians(70))])
+    room = [
+        [0, 0, 5, 0],
+        [5.0, 0.0, *(np.array([5.0, 0.0]) + 1.2 * u)],
+        [*(np.array([5.0, 0.0]) + 2.0 * u), *(np.array([5.0, 0.0]) + 2.9 * u)],
+        [0, 4, 0, 0],
+    ]
+    k = np.arange(11) * 2 * math.pi / 10
+    ring = np.column_stack([0.6 + 0.3 * np.cos(k), 3.4 + 0.3 * np.sin(k)])
+    facets = [[*ring[i], *ring[i + 1]] for i in range(10)]
+    lines = np.array([*room, *facets], dtype=float)
+    lone = lone_directions(lines, CFG.furniture_lone_direction_m, 3.0, 0.02)
+    assert not lone[:4].any()
+    d = ring[1:] - ring[:-1]
+    facet_deg = np.degrees(np.arctan2(d[:, 1], d[:, 0])) % 180
+    off = np.abs((facet_deg[:, None] - np.array([0.0, 70.0, 90.0])[None, :] + 90) % 180 - 90)
+    along_walls = off.min(axis=1) <= 3.0  # the facets at 0° and 72°
+    assert (lone[4:] == ~along_walls).all() and lone[4:].sum() == 6
+    # the same slanted wall seen over 0.5 m only is lone under a 0.75 m total; a zero total switches it off
+    short = np.array([room[0], [5.0, 0.0, *(np.array([5.0, 0.0]) + 0.5 * u)], room[3]], dtype=float)
+    assert lone_directions(short, 0.75, 3.0, 0.02).tolist() == [False, True, False]
+    assert not lone_directions(short, 0.0, 3.0, 0.02).any()
