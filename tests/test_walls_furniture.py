@@ -3,6 +3,7 @@ the slice top like the walls, so its faces are told by where they stand (`eviden
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -168,3 +169,72 @@ def test_a_long_wall_beyond_a_short_wall_at_a_corner_and_an_oblique_one_go_and_a
         [[1.5, 1.5, 3.0, 1.5], [0, 0, 4, 0], [0, 4, 4, 4], [0, 3.0, 0, 4], [4, 3.0, 4, 4]], dtype=float
     )
     assert not beyond_the_room(island, np.array([2.0, 3.0]), CFG, 3.0).any()
+
+
+def test_a_free_standing_front_past_a_slanted_wall_s_seen_end_is_furniture_and_a_jog_in_line_stays():
+    """A slanted east wall (70°) seen only on its southern half; a cabinet's front, 0.9 m long, stands 0.4 m
+    in front of its unseen northern half, both ends free and in line with nothing: the wall's line runs
+    behind it between the room's corners (where the south and north walls meet that line), so it is
+    furniture. The same front with a piece of wall in line with it (a jog of the wall, its pieces seen
+    apart) stays, and so does a free line standing beyond the room's corner."""
+    u = np.array([math.cos(math.radians(70)), math.sin(math.radians(70))])
+    inward = np.array([-u[1], u[0]])
+    corner = np.array([5.0, 0.0]) + 4.0 / u[1] * u  # where the east wall meets the north wall's line
+    room = [
+        [0, 0, 5, 0],  # south
+        [5.0, 0.0, *(np.array([5.0, 0.0]) + 2.1 * u)],  # east, seen up to 2.1 m along it
+        [*corner, 0, 4],  # north, west
+        [0, 4, 0, 0],
+    ]
+
+    def along(t0: float, t1: float, depth: float) -> list[float]:
+        a = np.array([5.0, 0.0]) + t0 * u + depth * inward
+        return [*a, *(a + (t1 - t0) * u)]
+
+    centre = np.array([2.5, 2.0])
+    front = np.array([*room, along(2.6, 3.5, 0.4)], dtype=float)
+    assert np.flatnonzero(furniture_in_front(front, centre, CFG, 3.0)).tolist() == [4]
+    jog = np.array([*room, along(2.6, 3.5, 0.4), along(3.6, 3.9, 0.4)], dtype=float)
+    assert not furniture_in_front(jog, centre, CFG, 3.0)[4]
+    past = np.array([*room, along(4.6, 5.4, 0.4)], dtype=float)
+    assert not furniture_in_front(past, centre, CFG, 3.0).any()
+
+
+def test_a_cabinet_s_short_side_drawn_some_degrees_off_is_still_its_side():
+    """A cabinet's side 0.45 m long, drawn 8° off the perpendicular from its few noisy points (each end good
+    to a few cm), joins its 1.45 m front to the east wall: it is the cabinet's side, not a wall."""
+    room = [[0, 0, 6, 0], [6, 0, 6, 4], [6, 4, 0, 4], [0, 4, 0, 0]]
+    tilt = math.tan(math.radians(8.0)) * 0.45
+    cabinet = [[5.5, 1.0, 5.5, 2.45], [5.52, 2.45, 5.97, 2.45 + tilt]]
+    lines = np.array([*room, *cabinet], dtype=float)
+    assert np.flatnonzero(furniture_in_front(lines, np.array([3.0, 2.0]), CFG, 3.0)).tolist() == [4, 5]
+
+
+def test_a_plant_s_facets_are_lone_directions_and_a_wall_at_its_own_angle_is_not():
+    """A plant's pot, a decagon 0.3 m in radius, in a room's corner gives short lines at directions no wall
+    takes; the room's walls, its slanted wall (seen over 2 m in two pieces) and the facets that happen to
+    lie along the walls' directions are not lone."""
+    from tasks.walls.evidence import lone_directions
+
+    u = np.array([math.cos(math.radians(70)), math.sin(math.radians(70))])
+    room = [
+        [0, 0, 5, 0],
+        [5.0, 0.0, *(np.array([5.0, 0.0]) + 1.2 * u)],
+        [*(np.array([5.0, 0.0]) + 2.0 * u), *(np.array([5.0, 0.0]) + 2.9 * u)],
+        [0, 4, 0, 0],
+    ]
+    k = np.arange(11) * 2 * math.pi / 10
+    ring = np.column_stack([0.6 + 0.3 * np.cos(k), 3.4 + 0.3 * np.sin(k)])
+    facets = [[*ring[i], *ring[i + 1]] for i in range(10)]
+    lines = np.array([*room, *facets], dtype=float)
+    lone = lone_directions(lines, CFG.furniture_lone_direction_m, 3.0, 0.02)
+    assert not lone[:4].any()
+    d = ring[1:] - ring[:-1]
+    facet_deg = np.degrees(np.arctan2(d[:, 1], d[:, 0])) % 180
+    off = np.abs((facet_deg[:, None] - np.array([0.0, 70.0, 90.0])[None, :] + 90) % 180 - 90)
+    along_walls = off.min(axis=1) <= 3.0  # the facets at 0° and 72°
+    assert (lone[4:] == ~along_walls).all() and lone[4:].sum() == 6
+    # the same slanted wall seen over 0.5 m only is lone under a 0.75 m total; a zero total switches it off
+    short = np.array([room[0], [5.0, 0.0, *(np.array([5.0, 0.0]) + 0.5 * u)], room[3]], dtype=float)
+    assert lone_directions(short, 0.75, 3.0, 0.02).tolist() == [False, True, False]
+    assert not lone_directions(short, 0.0, 3.0, 0.02).any()

@@ -86,6 +86,10 @@ class WallsConfig:
     """...deeper than a jog or a thin partition's faces."""
     furniture_max_depth_m: float = 0.75
     """...and no deeper than furniture is (wardrobes and kitchen units 0.6 m)."""
+    furniture_lone_direction_m: float = 0.5
+    """In a slice with nothing seen above it, a line whose direction the slice's lines show over less than
+    this in all is a rounded or faceted furniture face (a plant's pot: 0.2 m facets, two per direction;
+    `evidence.lone_directions`); 0 switches that off."""
     beyond_room_min_depth_m: float = 0.75
     """In a slice with nothing seen above it, a line wholly this far behind the line of a wall of the room that
     bounds it, running along that wall, along which the room's lines run and between which and that wall

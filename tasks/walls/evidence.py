@@ -653,6 +653,38 @@ def furniture_in_front(
                 return False
         return sides >= 1
 
+    def isolated(i: int, j: int, t: NDArray, t0: float, t1: float) -> bool:
+        """Is line i (in front of line j, spanning t along j's line, whose pieces span t0..t1) a free-standing
+        front beyond where j was seen: both its ends free (within `thin_wall_end_tol_m` of no other line), in
+        line with no other line, and its span on j's line within the room's corners either side of j's seen
+        extent (where the nearest lines across j's line meet it), which lie further apart than it is long? The wall runs on unseen behind it (a
+        handheld capture misses a fifth of the walls); a wall of the room so short, standing alone, would
+        meet the room's other walls or run on in line with one of them. A line no longer than furniture is
+        deep may be a side seen alone as well as a front: the side rule judges it."""
+        if L[i] <= d_hi:
+            return False
+        others = np.ones(m, dtype=bool)
+        others[i] = False
+        if point_segment_distances(lines[i].reshape(2, 2), lines[others]).min() <= end_tol:
+            return False
+        inline = _collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
+        inline[i] = False
+        if inline.any():
+            return False
+        # where the lines across j's line meet it (beyond j's seen extent): the corners of the room
+        across = np.flatnonzero(np.abs(np.cos(ang - ang[j])) <= math.sqrt(0.5))
+        denom = u[across] @ n[j]  # along a crossing line, the rate of moving off j's line
+        s = ((lines[j, :2] - lines[across, :2]) @ n[j]) / denom
+        meet = lines[across, :2] + s[:, None] * u[across]
+        tm = (meet - lines[j, :2]) @ u[j]
+        lo, hi = float(t.min()), float(t.max())
+        after, before = tm[tm >= t1 - tol], tm[tm <= t0 + tol]
+        if not len(after) or not len(before):
+            return False  # no corner on one side: nothing bounds the wall j would be a piece of
+        # past j's seen ends, up to the corners, and the wall between them longer than the front
+        c0, c1 = float(before.max()), float(after.min())
+        return c0 - tol <= lo and hi <= c1 + tol and c1 - c0 > L[i] + tol
+
     for i in np.flatnonzero(L <= cfg.furniture_max_length_m):
         for j in np.argsort(-L):
             if j == i or abs(math.cos(ang[i] - ang[j])) < cos_loose:
@@ -665,7 +697,9 @@ def furniture_in_front(
             # the wall's line runs along at least half the front (a wardrobe in a corner hides the wall
             # behind it up to the corner; an alcove's mouth beside the alcove's back wall runs along none)
             overlap = min(t.max(), t1) - max(t.min(), t0)
-            if t1 - t0 > L[i] + tol and (overlap >= 0.5 * L[i] or boxed(i, j, dd)):
+            if (t1 - t0 > L[i] + tol and (overlap >= 0.5 * L[i] or boxed(i, j, dd))) or isolated(
+                i, j, t, t0, t1
+            ):
                 out[i] = True
                 break
     front = out.copy()
@@ -676,8 +710,11 @@ def furniture_in_front(
             gap = point_segment_distances(lines[k].reshape(2, 2), lines[inline]).min()
             if gap <= cfg.lines.max_gap_m:
                 continue  # a piece of a wall, in line with another
+        # a side is short: each of its ends is good to `support_tol_m`, so its direction to about
+        # 2 support_tol_m / its length (0.4 m: 14°), looser than a long line's
+        sin_side = max(sin_loose, math.sin(math.atan2(2 * tol, L[k])))
         for j in np.argsort(-L):
-            if j == k or front[j] or abs(math.cos(ang[k] - ang[j])) > sin_loose:
+            if j == k or front[j] or abs(math.cos(ang[k] - ang[j])) > sin_side:
                 continue
             dd = depth(k, j)
             inner = lines[k, 2:] if dd[1] > dd[0] else lines[k, :2]
@@ -790,3 +827,22 @@ def beyond_the_room(
             if not between.any():
                 out[c] = True
     return out
+
+
+def lone_directions(
+    lines: NDArray, min_total_m: float, angle_tol_deg: float, grid_m: float
+) -> NDArray[np.bool_]:
+    """(M,) lines whose direction the slice shows over less than `min_total_m` in all: the lines within
+    `angle_tol_deg` of it (itself among them), or within what its ends' two grid cells allow a short line
+    (0.4 m at 2 cm: 5.7°), are that short together. In a slice with nothing seen above it the faceted or
+    rounded face of furniture that reached the cut (a plant's pot, a chair's back) gives short lines at
+    directions no wall of the room takes; a wall at its own angle is seen over more (a handheld capture
+    misses a fifth of the walls, not most of one)."""
+    lines = np.asarray(lines, dtype=np.float64)
+    if len(lines) == 0 or min_total_m <= 0:
+        return np.zeros(len(lines), dtype=bool)
+    L = lengths(lines)
+    ang = angles(lines)
+    tol = np.maximum(math.radians(angle_tol_deg), np.arctan2(2 * grid_m, np.maximum(L, 1e-12)))
+    near = np.abs(np.sin(ang[:, None] - ang[None, :])) <= np.sin(tol)[:, None]
+    return (near * L[None, :]).sum(axis=1) < min_total_m

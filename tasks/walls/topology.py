@@ -30,6 +30,7 @@ from tasks.walls.evidence import (
     beyond_the_room,
     extend_to_data,
     furniture_in_front,
+    lone_directions,
     refine_offsets,
     seen_through_gaps,
     support_sampler,
@@ -207,6 +208,8 @@ def _topology(
         if proj.open_top and cfg.furniture_max_length_m > 0:
             # nothing seen above the slice: furniture reached its top too
             furniture = furniture_in_front(lines, _centre(lines[keep]), cfg, lcfg.angle_tol_deg)
+            # and a direction the slice shows over only a few decimetres is a rounded or faceted furniture face
+            furniture |= lone_directions(lines, cfg.furniture_lone_direction_m, lcfg.angle_tol_deg, grid.size)
             furniture[~keep] = False
             furniture_lines = int(furniture.sum())
             keep &= ~furniture
