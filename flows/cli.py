@@ -424,9 +424,12 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
             if ahead is not None:
                 ahead.start()
                 ahead.planned.wait()  # it has read the stages' code versions
-            from flows import pipeline  # (Prefect's import)
+            from flows import memory
 
-            pipeline.preload()
+            with memory.few_collections():
+                from flows import pipeline  # (Prefect's import)
+
+                pipeline.preload()
             if ahead is None:
                 planning.read_code_versions()
                 planning.save_code_memo(work)

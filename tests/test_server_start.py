@@ -118,3 +118,35 @@ def test_a_rerun_refused_after_launching_its_server_stops_it(
     [server] = stand_in
     assert server.returncode is not None  # stopped and reaped
     assert not (work / prefect_env.SERVER_RECORD).exists()
+
+
+def test_few_collections_raises_the_threshold_inside_only() -> None:
+    import gc
+
+    from flows.memory import few_collections
+
+    usual = gc.get_threshold()
+    with pytest.raises(KeyError), few_collections():
+        assert gc.get_threshold()[0] > 10 * usual[0]
+        raise KeyError("inside")
+    assert gc.get_threshold() == usual
+
+
+@pytest.mark.slow
+def test_the_launched_server_is_prefects_and_answers(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The launcher runs uvicorn on Prefect's app factory (collecting rarely until the app is built): the
+    API answers, and the process is named as the reaping of a dead run's server expects."""
+    import json
+    import urllib.request
+
+    import prefect
+
+    monkeypatch.setattr(prefect_env, "api_url_configured", lambda: False)
+    monkeypatch.delenv("PREFECT_API_URL", raising=False)
+    with prefect_env.embedded_server(tmp_path) as url:
+        assert url is not None
+        with urllib.request.urlopen(url + "/admin/version", timeout=30) as reply:
+            assert json.loads(reply.read()) == prefect.__version__
+        pid = json.loads((tmp_path / prefect_env.SERVER_RECORD).read_text())["server_pid"]
+        assert b"prefect.server.api.server:create_app" in Path(f"/proc/{pid}/cmdline").read_bytes()
+    assert not Path(f"/proc/{pid}").exists()  # stopped and reaped
