@@ -120,6 +120,32 @@ def test_a_rerun_refused_after_launching_its_server_stops_it(
     assert not (work / prefect_env.SERVER_RECORD).exists()
 
 
+def test_the_command_ends_without_teardown_but_runs_exit_handlers_and_flushes(tmp_path: Path) -> None:
+    marker = tmp_path / "atexit-ran"
+    script = (
+        "import atexit, sys\n"
+        f"atexit.register(lambda: open({str(marker)!r}, 'w').write('ran'))\n"
+        "from flows.cli import entry\n"
+        "entry(sys.argv[1:])\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    done = subprocess.run(
+        [sys.executable, "-c", script, "config"], env=env, cwd=REPO, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    assert marker.read_text() == "ran"
+    assert done.stdout.startswith("flow:") and done.stdout.endswith("\n")  # all of it, flushed
+    bad = subprocess.run(
+        [sys.executable, "-m", "flows.cli", "status", str(tmp_path / "s"), "--work", str(tmp_path / "none")],
+        env=env,
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+    )
+    assert bad.returncode == 2
+    assert bad.stderr.startswith("error: --work") and bad.stderr.count("\n") == 1
+
+
 def test_few_collections_raises_the_threshold_inside_only() -> None:
     import gc
 
