@@ -94,7 +94,7 @@ def test_prefect_reads_the_servers_url_before_it_answers_and_a_request_warms_it(
 def test_a_server_that_never_answers_is_stopped_and_its_record_removed(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, stand_in: list[subprocess.Popen[bytes]]
 ) -> None:
-    monkeypatch.setenv("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "0.5")
+    monkeypatch.setenv("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "1")  # Prefect reads an int
     monkeypatch.setattr(prefect_env, "_free_port", prefect_env._free_port)  # nobody listens there
     with pytest.raises(RuntimeError, match="did not answer within"):
         with prefect_env.embedded_server(tmp_path):
