@@ -11,15 +11,21 @@ Commands that write a work dir hold its lock (flows.worklock) while they do; `st
 from __future__ import annotations
 
 import argparse
+import atexit
 import contextlib
 import logging
 import os
 import sys
 import tempfile
+import threading
 import time
 import traceback
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, NoReturn
+
+if TYPE_CHECKING:
+    from flows.prefect_env import Launched
 
 DESCRIPTION = """\
 indoor-survey: turn low-cost indoor captures (RGB-D recordings, TLS clouds) plus a coarse floor plan
@@ -343,6 +349,10 @@ def _setup_logging(quiet: bool) -> None:
 
 
 def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
+    # A rerun always runs a flow (its forced stages): Prefect's server starts before this command's own
+    # imports and checks, which then overlap its start; it is stopped when the command ends, unless the
+    # run adopted it.
+    launched = _launch_server(args) if force_stage else None
     from flows import planning
     from tasks import config as cfgmod
 
@@ -416,15 +426,19 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
             if ahead is not None:
                 ahead.start()
                 ahead.planned.wait()  # it has read the stages' code versions
-            from flows import pipeline  # noqa: F401  (Prefect's import)
+            from flows import memory
 
+            with memory.few_collections():
+                from flows import pipeline  # (Prefect's import)
+
+                pipeline.preload()
             if ahead is None:
                 planning.read_code_versions()
                 planning.save_code_memo(work)
 
         try:
             # Prefect's server lives and dies with this run
-            with prefect_env.embedded_server(work, meanwhile=import_flows) as embedded:
+            with prefect_env.embedded_server(work, import_flows, launched, args.exit_stack) as embedded:
                 from flows import pipeline
 
                 done = ahead.finish() if ahead is not None else {}
@@ -480,6 +494,17 @@ def cmd_run(args: argparse.Namespace, force_stage: str | None = None) -> int:
     for row in failed:
         print(f"error: room {row.room}, stage {row.stage}: {_one_line(row.error)}", file=sys.stderr)
     return {"done": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXIT_FAILED}[planning.exit_state(rows)]
+
+
+def _launch_server(args: argparse.Namespace) -> Launched | None:
+    """Prefect's embedded server for this command's run, launched now (None with a running server)."""
+    from flows import prefect_env
+
+    prefect_env.apply()
+    launched = prefect_env.launch()
+    if launched is not None:
+        args.exit_stack.callback(launched.stop)  # the command ended before its run adopted it
+    return launched
 
 
 def _ran_without(row: object) -> list[str]:
@@ -776,5 +801,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_FAILED
 
 
+def entry(argv: Sequence[str] | None = None) -> NoReturn:
+    """The `indoor-survey` command: `main`, then the process ends without the interpreter's teardown.
+    With Prefect, Open3D and the like imported, tearing every module down costs about 0.5 CPU s at the
+    end of each command, and leaves nothing to do: `main` has closed its files, stopped Prefect's server
+    and released the work dir's lock before it returns. The exit handlers (`atexit`) still run and the
+    output is flushed; a thread still working (none should be) gets the ordinary exit, which waits."""
+    code = main(argv)
+    others = [t for t in threading.enumerate() if t is not threading.main_thread()]
+    if any(t.is_alive() and not t.daemon for t in others):
+        sys.exit(code)
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):  # e.g. a closed pipe: nothing more can be said
+            stream.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

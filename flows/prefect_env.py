@@ -46,7 +46,7 @@ SERVER_RECORD = "prefect-server.json"
 can stop a server whose run died without it."""
 
 _LAUNCHER = """\
-import ctypes, os, signal, sys
+import ctypes, gc, os, runpy, signal, sys
 # Die with the run: the kernel sends SIGKILL to this process when the thread that started it ends, even
 # when the run is killed with SIGKILL (no handler or atexit of the run's can do that).
 try:
@@ -55,8 +55,25 @@ except (OSError, AttributeError):
     pass  # not Linux: the next run's reaping stops an orphan instead
 if os.getppid() != int(sys.argv[1]):
     sys.exit(1)  # the run died before the signal was armed
-os.execv(sys.executable, [sys.executable, *sys.argv[2:]])
+# The start is imports and the building of the API (the pydantic models and schemas of every route):
+# millions of objects that live as long as the server, in which the collector's frequent young
+# collections find nothing to free, at about a sixth of the start's CPU time. So it collects rarely
+# until the app is built (Prefect then collects once), and as usual after.
+usual = gc.get_threshold()
+gc.set_threshold(100_000, 50, 50)
+import prefect.server.api.server as server
+build = server.create_app
+def create_app(*args, **kwargs):
+    try:
+        return build(*args, **kwargs)
+    finally:
+        gc.set_threshold(*usual)
+server.create_app = create_app
+sys.argv = ["uvicorn", *sys.argv[2:]]
+runpy.run_module("uvicorn", run_name="__main__", alter_sys=True)
 """
+"""Run as `python -c _LAUNCHER RUN_PID UVICORN_ARGS...`: Prefect's embedded server (uvicorn serving
+Prefect's app factory) in a process tied to the run's."""
 
 
 def _prefect_home() -> Path:
@@ -214,15 +231,13 @@ def _free_port() -> int:
 
 
 def _launch(port: int, migrate: bool = True) -> subprocess.Popen[bytes]:
-    """Prefect's embedded server (the command and environment Prefect itself uses for it, and
+    """Prefect's embedded server (the uvicorn arguments and environment Prefect itself uses for it, and
     SERVER_SETTINGS), through the launcher that ties its life to this process. `migrate=False`: the
     database is known to be current, so its migrations are not checked again."""
     spec = importlib.util.find_spec("prefect")
     assert spec is not None and spec.submodule_search_locations
     app_dir = str(Path(next(iter(spec.submodule_search_locations))).parent)
     server = [
-        "-m",
-        "uvicorn",
         "--app-dir",
         app_dir,
         "--factory",
@@ -277,53 +292,110 @@ def _record(work: Path, proc: subprocess.Popen[bytes], port: int) -> None:
     (work / SERVER_RECORD).write_text(json.dumps(record))
 
 
-def _start(
-    work: Path, timeout: float, meanwhile: Callable[[], object] | None = None
-) -> tuple[subprocess.Popen[bytes], str]:
-    """Launch the server, record it, run `meanwhile` (the run's own start-up: the server's start is
-    mostly its imports, a few CPU seconds in its own process, which the run's imports can overlap), and
-    wait until the server answers; (process, API URL)."""
-    deadline = time.monotonic() + timeout
-    database = _default_database()
-    migrate = not database_is_migrated(database)
-    port = _free_port()
-    proc = _launch(port, migrate)
-    _record(work, proc, port)
+class Launched:
+    """Prefect's embedded server, launched and not yet answering: `launch` starts it as early as a
+    command knows that it needs one, `embedded_server` adopts it (records it in the work dir, waits)."""
+
+    def __init__(self, timeout: float) -> None:
+        self.deadline = time.monotonic() + timeout
+        self.timeout = timeout
+        self.database = _default_database()
+        self.migrate = not database_is_migrated(self.database)
+        self.port = _free_port()
+        self.proc = _launch(self.port, self.migrate)
+
+    def relaunch(self) -> None:
+        """Again on another port (the one chosen was taken meanwhile)."""
+        self.port = _free_port()
+        self.proc = _launch(self.port, self.migrate)
+
+    def stop(self) -> None:
+        """Stop it (and wait for its end) unless it has ended already."""
+        if self.proc.returncode is None:
+            _stop(self.proc)
+
+
+def _timeout() -> float:
+    return float(os.environ.get("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120"))
+
+
+def launch() -> Launched | None:
+    """Start a run's embedded server now, to be adopted by `embedded_server` (None: Prefect is told to
+    use a running server). For a command that knows before its own imports and checks that it will run
+    a flow (a rerun): the server's start (about 4 CPU s of imports in its own process) then overlaps
+    them. The caller stops it (`Launched.stop`) if it ends before adopting it."""
+    return None if api_url_configured() else Launched(_timeout())
+
+
+WARM_UP = "/admin/version"
+"""Requested once the server answers, before the run's first own request: the first request through
+the API's routers builds FastAPI's state of every route (about 0.3 CPU s of the server), which the flow
+would otherwise wait for. Any answer will do (even a refusal, e.g. with PREFECT_SERVER_API_AUTH_STRING)."""
+
+
+def _use(url: str | None) -> None:
+    """Point Prefect at `url` (None: at no server), whether or not it is imported yet."""
+    if url is None:
+        os.environ.pop("PREFECT_API_URL", None)
+    else:
+        os.environ["PREFECT_API_URL"] = url
+    _refresh_prefect_settings()
+
+
+def _wait(work: Path, server: Launched, meanwhile: Callable[[], object] | None = None) -> str:
+    """Record the launched server, point Prefect at it, run `meanwhile` (the run's own start-up: the
+    server's start is mostly its imports, a few CPU seconds in its own process, which the run's imports
+    can overlap; Prefect imported then reads the server's URL as it imports), and wait until the server
+    answers and has served one request of the API (WARM_UP); its API URL."""
+    _record(work, server.proc, server.port)
+    _use(f"http://127.0.0.1:{server.port}/api")
     if meanwhile is not None:
-        try:
-            meanwhile()
-        except BaseException:
-            _stop(proc)
-            raise
+        meanwhile()
     while True:
+        proc, url = server.proc, f"http://127.0.0.1:{server.port}/api"
         while proc.poll() is None:
             try:
-                with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/health", timeout=2) as reply:
+                with urllib.request.urlopen(f"{url}/health", timeout=2) as reply:
                     if reply.status == 200:
-                        if migrate:
-                            record_migrated(database)
-                        return proc, f"http://127.0.0.1:{port}/api"
+                        if server.migrate:
+                            record_migrated(server.database)
+                        with contextlib.suppress(urllib.error.URLError, OSError):
+                            left = max(2.0, server.deadline - time.monotonic())
+                            urllib.request.urlopen(url + WARM_UP, timeout=left).close()
+                        return url
             except (urllib.error.URLError, OSError):
                 pass
-            if time.monotonic() > deadline:
-                _stop(proc)
+            if time.monotonic() > server.deadline:
                 raise RuntimeError(
-                    f"Prefect's embedded server did not answer within {timeout:.0f} s "
+                    f"Prefect's embedded server did not answer within {server.timeout:.0f} s "
                     "(PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS)"
                 )
             time.sleep(0.05)
-        if proc.returncode != 3 or time.monotonic() > deadline:  # 3: the port was taken meanwhile
+        if proc.returncode != 3 or time.monotonic() > server.deadline:  # 3: the port was taken meanwhile
             raise RuntimeError(f"Prefect's embedded server exited with code {proc.returncode}")
-        port = _free_port()
-        proc = _launch(port, migrate)
-        _record(work, proc, port)
+        server.relaunch()
+        _record(work, server.proc, server.port)
+        _use(f"http://127.0.0.1:{server.port}/api")
+
+
+def _end(server: Launched, work: Path) -> None:
+    server.stop()
+    (work / SERVER_RECORD).unlink(missing_ok=True)
 
 
 @contextlib.contextmanager
-def embedded_server(work: Path, meanwhile: Callable[[], object] | None = None) -> Iterator[str | None]:
+def embedded_server(
+    work: Path,
+    meanwhile: Callable[[], object] | None = None,
+    launched: Launched | None = None,
+    stop_later: contextlib.ExitStack | None = None,
+) -> Iterator[str | None]:
     """Prefect's embedded API server for one run, yielding its URL (None, and nothing started, when
     Prefect is told to use a running server). `meanwhile` (e.g. importing the flows, which imports
-    Prefect) runs while the server starts, in this thread; it runs in any case.
+    Prefect) runs while the server starts, in this thread; it runs in any case. `launched`: the server,
+    started earlier by `launch` (in this thread); else it is started now. On leaving, the server is
+    told to stop; `stop_later`: the wait for its end (a graceful stop takes 0.1-0.3 s) and the removal
+    of its record are left to that stack, so that what the command does after its run overlaps them.
 
     Prefect would start this server itself, as a child process that outlives a killed or aborted run; a
     machine that reprocesses nightly then collects orphaned servers. Started here instead, it is the
@@ -332,6 +404,8 @@ def embedded_server(work: Path, meanwhile: Callable[[], object] | None = None) -
     stops one that a dead run left (e.g. where no parent-death signal exists). Call it from the main
     thread: the signal follows the thread that started the server."""
     if api_url_configured():
+        if launched is not None:
+            launched.stop()
         if meanwhile is not None:
             meanwhile()
         yield None
@@ -339,14 +413,14 @@ def embedded_server(work: Path, meanwhile: Callable[[], object] | None = None) -
     work = Path(work)
     work.mkdir(parents=True, exist_ok=True)
     reap_stale_server(work)
-    timeout = float(os.environ.get("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120"))
-    proc, url = _start(work, timeout, meanwhile)
+    server = launched if launched is not None else Launched(_timeout())
     try:
-        os.environ["PREFECT_API_URL"] = url
-        _refresh_prefect_settings()
-        yield url
+        yield _wait(work, server, meanwhile)
     finally:
-        os.environ.pop("PREFECT_API_URL", None)
-        _refresh_prefect_settings()
-        _stop(proc)
-        (work / SERVER_RECORD).unlink(missing_ok=True)
+        if server.proc.returncode is None:
+            server.proc.terminate()  # it stops while Prefect's settings are put back
+        _use(None)
+        if stop_later is None:
+            _end(server, work)
+        else:
+            stop_later.callback(_end, server, work)
