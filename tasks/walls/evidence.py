@@ -131,11 +131,14 @@ class TopCells:
     """The wall cells with data near the slice top (binary & top), their centres in metres and point
     samplers by tolerance: made once per binary image, shared by the top-reach tests of every topology."""
 
-    def __init__(self, cells: NDArray[np.bool_], grid: Grid) -> None:
+    def __init__(self, cells: NDArray[np.bool_], grid: Grid, data: NDArray[np.bool_] | None = None) -> None:
         self.cells = cells
         self.grid = grid
         rows, cols = np.nonzero(cells)
         self.xy = grid.to_metres(np.column_stack([cols, rows]))  # (K, 2)
+        rows, cols = np.nonzero(cells if data is None else data)
+        self.data_xy = grid.to_metres(np.column_stack([cols, rows]))
+        """(D, 2) the centres of all wall cells (`data`: the binary image, at any height), for `own_band`."""
         self._near: dict[float, Any] = {}
 
     def near(self, tol_m: float):
@@ -275,12 +278,17 @@ def unshadowed_lines(
         ]
     )
     ext_xy = sample_segments(ext, top.grid.size)[0]
+    g = top.grid.size
     for i in np.flatnonzero(~walls & (L >= cfg.open_min_length_m)):
         a = lines[i, :2]
         u = (lines[i, 2:] - a) / L[i]
         rel = cell_xy - a
-        t, d = rel @ u, np.abs(rel @ np.array([-u[1], u[0]]))
-        beside = (t >= 0) & (t < L[i]) & (d > cfg.shadow_gap_m) & (d <= cfg.shadow_m)
+        t, sd = rel @ u, rel @ np.array([-u[1], u[0]])
+        d = np.abs(sd)
+        # the line's own data, smeared deeper than the gap (frames levelled a few degrees apart), is no shadow
+        lo, hi = own_band(lines[i], top.data_xy, g)
+        clear = (sd > max(cfg.shadow_gap_m, hi + g)) | (sd < -max(cfg.shadow_gap_m, -lo + g))
+        beside = (t >= 0) & (t < L[i]) & clear & (d <= cfg.shadow_m)
         n_bins = max(1, math.ceil(L[i] / bin_m))
         per_bin = np.bincount(np.minimum((t[beside] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins)
         if L[i] <= cfg.furniture_max_length_m and len(ext_xy):
@@ -294,6 +302,42 @@ def unshadowed_lines(
             )
         out[i] = float((per_bin > 0).mean()) < 0.5
     return out
+
+
+OWN_BAND_MIN_SHARE = 0.02
+"""`own_band`: an offset bin belongs to a line's data band when it holds at least this share of the line's
+length in cells (and at least two cells)."""
+
+
+def own_band(line: NDArray, data_xy: NDArray, grid_m: float, window_m: float = 0.3) -> tuple[float, float]:
+    """(lo, hi) the signed offsets (metres, along the line's left normal) between which the line's own data
+    spreads without a break: the wall cells `data_xy` (D, 2) beside the middle 80 % of its span, binned by
+    offset every `grid_m`, the run of occupied bins (`OWN_BAND_MIN_SHARE`) through the one nearest the line,
+    within `window_m`. A wall whose frames disagree in tilt (a corridor's end wall seen by frames levelled
+    a few degrees apart) is one sloping smear decimetres deep, its upper part behind its lower part; a
+    cabinet's front and the wall behind it, or a partition's two faces, have empty bins between them.
+    (0, 0) when the line has no data there."""
+    a, b = line[:2], line[2:]
+    L = float(np.hypot(*(b - a)))
+    if L <= 0 or len(data_xy) == 0:
+        return 0.0, 0.0
+    u = (b - a) / L
+    rel = data_xy - a
+    t, d = rel @ u, rel @ np.array([-u[1], u[0]])
+    sel = (t >= 0.1 * L) & (t <= 0.9 * L) & (np.abs(d) <= window_m)
+    k = math.ceil(window_m / grid_m)
+    hist = np.bincount(np.clip(np.rint(d[sel] / grid_m).astype(np.intp) + k, 0, 2 * k), minlength=2 * k + 1)
+    occupied = hist >= max(2.0, OWN_BAND_MIN_SHARE * 0.8 * L / grid_m)
+    near = np.flatnonzero(occupied[k - 2 : k + 3])
+    if len(near) == 0:
+        return 0.0, 0.0
+    start = k - 2 + int(near[np.argmin(np.abs(near - 2))])
+    lo = hi = start
+    while lo > 0 and occupied[lo - 1]:
+        lo -= 1
+    while hi < 2 * k and occupied[hi + 1]:
+        hi += 1
+    return (lo - k) * grid_m, (hi - k) * grid_m
 
 
 def _band_half_width(line: NDArray, cell_xy: NDArray, window_m: float = 0.3, share: float = 0.9) -> float:

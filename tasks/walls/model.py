@@ -277,8 +277,16 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
             cands = wider
         else:
             coarse = None
+        corners = None
+        if not any(c.closed for c in cands):
+            # nor on the coarse one: the corners that one wall's data pin are closed along the other's line
+            pinned = [model_for(proj, cfg, a, corners=xy) for a in alphas]
+            if any(c.closed for c in pinned):
+                cands, corners = pinned, xy
         chosen, reason = choose_alpha(cands, cfg.stable_tol_m, cfg.thin_wall_max_m)
-        best = model_for(proj, cfg, alphas[chosen], xy, coarse)
+        if corners is not None:
+            reason += "; a corner pinned by one wall's data closed along the other's line"
+        best = model_for(proj, cfg, alphas[chosen], xy, coarse, corners)
         if cands[chosen].closed and not best.closed:
             # the refinement moved a borderline corner out of reach: keep the pixel-accurate model
             best = cands[chosen]

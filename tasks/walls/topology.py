@@ -4,6 +4,7 @@ the candidates' models."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, replace
 from typing import Any
@@ -12,12 +13,13 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from tasks.connect import OBSERVED, Connected, connect_detailed
+from tasks.connect import EXTENDED, OBSERVED, Connected, connect_detailed
 from tasks.lines import (
     LinesConfig,
     angle_difference,
     angles,
     lengths,
+    line_intersection,
     merge_segments,
     point_segment_distances,
     regularize,
@@ -27,6 +29,7 @@ from tasks.lines import (
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import (
     TopCells,
+    backed_bridges,
     beyond_the_room,
     extend_to_data,
     furniture_in_front,
@@ -64,16 +67,20 @@ def model_for(
     alpha: float | None,
     xy: NDArray | None = None,
     coarse: Coarse | None = None,
+    corners: NDArray | None = None,
 ) -> Candidate:
     """Steps 2-7 for one α; the slice points `xy` (N, 2), when given, refine the wall offsets; the `coarse`
-    projection, when given, adds the sparsely seen walls (`image.sparse_cells`)."""
+    projection, when given, adds the sparsely seen walls (`image.sparse_cells`); with `corners` (the slice
+    points (N, 2) again), a room that stays open gets the collinear gaps they back
+    (`evidence.backed_bridges`) and the corners its data pin (`pinned_corners`; its bridged gap is the
+    longest extension), kept when that closes it."""
     grid = proj.grid
     # the tall cells go through the image steps; the top-reach test is made on the lines (`_topology`)
     binary = binarize(proj.counts, proj.tall, cfg, alpha)
     skel = skeleton(binary, cfg)
     hough = hough_segments(skel, grid, cfg)
     low_share = support_sampler(proj.low, grid, cfg.support_tol_m)
-    top = TopCells(binary & proj.top, grid)
+    top = TopCells(binary & proj.top, grid, binary)
     found = _topology(hough, cfg.lines, cfg, grid, binary, top, proj, low_share, xy)
     sparse_px = 0
     if found.polygon is None and coarse is not None and len(found.walls):
@@ -86,13 +93,15 @@ def model_for(
             binary = binary | extra
             skel = skeleton(binary, cfg)
             hough = hough_segments(skel, grid, cfg)
-            top = TopCells(binary & proj.top, grid)
+            top = TopCells(binary & proj.top, grid, binary)
             found = _topology(hough, cfg.lines, cfg, grid, binary, top, proj, low_share, xy)
     bridged = None
+    last = found if found.polygon is None else None
     for gap in cfg.bridge_gaps_m if found.polygon is None else ():
         # the unseen span may be a corner as well as a stretch of one wall: ends reach as far
         lines = replace(cfg.lines, max_gap_m=gap, extend_m=max(cfg.lines.extend_m, gap))
         wider = _topology(hough, lines, cfg, grid, binary, top, proj, low_share, xy)
+        last = wider
         # a wall made only by extension (a perpendicular join) longer than the usual reach needs data:
         # without it the wider reach would cut off a poorly seen part of the room (behind a partition)
         made = wider.origin != OBSERVED
@@ -103,6 +112,20 @@ def model_for(
         ):
             found, bridged = wider, gap
             break
+    if corners is not None and found.polygon is None and last is not None:
+        # no reach closed it, nor the coarser grid: the collinear gaps the slice points back are bridged
+        # and a corner that one wall's data pin is closed along the other wall's line, however far that
+        # was unseen (`pinned_corners`)
+        walls, origin = last.walls, last.origin
+        backed = backed_bridges(walls, origin, corners, cfg) if len(walls) else np.zeros((0, 4))
+        if len(backed):
+            walls = np.concatenate([walls, backed])
+            origin = np.concatenate([origin, np.full(len(backed), EXTENDED, dtype=origin.dtype)])
+        closed = pinned_corners(walls, origin, cfg.lines.extend_m, grid.size, cfg.lines.offset_tol_m)
+        if closed is not None:
+            walls, origin, polygon, corner_m = closed
+            found = replace(last, walls=walls, origin=origin, polygon=polygon)
+            bridged = round(corner_m, 3)
     stats = {
         "binary_px": int(found.binary.sum()),
         "skeleton_px": int(skel.sum()),
@@ -298,6 +321,118 @@ def _topology(
         furniture_lines,
         beyond_lines,
     )
+
+
+def pinned_corners(
+    walls: NDArray, origin: NDArray, reach_m: float, tol_m: float, offset_m: float = 0.05
+) -> tuple[NDArray, NDArray, Any, float] | None:
+    """An open room's unseen corners closed where the data pin them (None when that does not close it).
+
+    Two free wall ends (no other wall within `tol_m`) whose walls cross at more than 45° make a corner
+    where the lines meet, beyond both ends, when one end lies within `reach_m` of it (that wall's data
+    run up to the other wall's line: the corner is seen to be there) and the other wall runs there over
+    no more than its own length (a wall seen over 5 m may run on unseen for 3, not a 1 m stub for 4).
+    The longer extension follows an observed wall's line through a stretch the capture missed (a corridor's
+    end passed without looking at it); a corner whose both walls stop short of it by more than `reach_m`
+    is not invented. Two pieces of one wall (parallel, lines within `offset_m`) whose free ends face each
+    other within `reach_m` are joined (a step where their lines are apart). Pairs are taken shortest first, each end once, and no extension may cross another
+    wall. Returns (walls with the extensions, origin, room polygon, longest extension) when the room then
+    closes."""
+    n = len(walls)
+    if n < 3:
+        return None
+    L = lengths(walls)
+    ends = np.concatenate([walls[:, :2], walls[:, 2:]])  # end k of wall i at row i + k n
+    d = point_segment_distances(ends, walls)
+    d[np.arange(2 * n), np.tile(np.arange(n), 2)] = np.inf
+    free = np.flatnonzero(d.min(axis=1) > tol_m)
+    th = angles(walls)
+    cands = []
+    for x, y in itertools.combinations(free, 2):
+        i, j = x % n, y % n
+        if i == j:
+            continue
+        if abs(math.sin(th[i] - th[j])) < math.sin(math.radians(45.0)):
+            # two pieces of one wall facing each other across a short gap (a door's jamb took the corner
+            # connect would have joined them at): joined, by a step where their lines are apart
+            p, q = ends[x], ends[y]
+            u = (p - ends[(x + n) % (2 * n)]) / max(L[i], 1e-12)  # out of wall i's free end
+            gap = float((q - p) @ u)
+            off = float((q - p) @ np.array([-u[1], u[0]]))
+            v = (q - ends[(y + n) % (2 * n)]) / max(L[j], 1e-12)
+            if 0 < gap <= reach_m and abs(off) <= offset_m and float((p - q) @ v) > 0:
+                cands.append((gap, gap, x, y, p + off * np.array([-u[1], u[0]]), j))
+            continue
+        hit = line_intersection(walls[i], walls[j])
+        if hit is None:
+            continue
+        corner = hit[0]
+        ext = []
+        for e, w in ((x, i), (y, j)):
+            p, q = ends[e], ends[(e + n) % (2 * n)]  # the free end and the wall's other end
+            if float((corner - p) @ (p - q)) < -tol_m * max(L[w], 1e-12):
+                break  # the corner lies back along the wall, not beyond its free end
+            ext.append(float(np.hypot(*(corner - p))))
+        if len(ext) < 2 or min(ext) > reach_m:
+            continue
+        far = int(np.argmax(ext))
+        if ext[far] > L[(i, j)[far]]:
+            continue
+        cands.append((sum(ext), max(ext), x, y, corner, j))
+    for x in free:
+        # a free end whose line meets another wall within the reach (the extension connect removed for want
+        # of data: a door's opening beside its jamb)
+        i = x % n
+        p = ends[x]
+        u = (p - ends[(x + n) % (2 * n)]) / max(L[i], 1e-12)
+        best = None
+        for j in range(n):
+            if j == i or abs(math.sin(th[i] - th[j])) < math.sin(math.radians(45.0)):
+                continue
+            hit = line_intersection(np.array([*p, *(p + u)]), walls[j])
+            if hit is None or not (tol_m < hit[1] <= reach_m) or not (-1e-9 <= hit[2] <= 1 + 1e-9):
+                continue
+            if best is None or hit[1] < best[0]:
+                best = (hit[1], hit[0], j)
+        if best is not None:
+            cands.append((best[0], best[0], x, x, best[1], best[2]))
+    if not cands:
+        return None
+    used: set[int] = set()
+    added, longest = [], 0.0
+    for _, far_m, x, y, corner, target in sorted(cands, key=lambda c: c[0]):
+        if x in used or y in used:
+            continue
+        pieces = np.array(
+            [[*ends[e], *corner] for e in {x, y} if np.hypot(*(corner - ends[e])) > 1e-9]
+        ).reshape(-1, 4)
+        others = np.delete(walls, sorted({x % n, y % n, target}), axis=0)
+        if len(pieces) and len(others) and _crosses(pieces, others, tol_m):
+            continue
+        used |= {x, y}
+        added.extend(pieces.tolist())
+        longest = max(longest, far_m)
+    if not added:
+        return None
+    out = np.concatenate([walls, np.array(added)])
+    out_origin = np.concatenate([origin, np.full(len(added), EXTENDED, dtype=origin.dtype)])
+    polygon, out, out_origin, _ = _room_polygon(out, out_origin, tol_m)
+    if polygon is None:
+        return None
+    return out, out_origin, polygon, longest
+
+
+def _crosses(pieces: NDArray, walls: NDArray, tol_m: float) -> bool:
+    """Does any of `pieces` (P, 4) come within `tol_m` of one of `walls` (M, 4) away from its own ends?"""
+    import shapely
+
+    d = pieces[:, 2:] - pieces[:, :2]
+    L = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
+    cut = np.minimum(2 * tol_m, 0.5 * L)[:, None] * d / L[:, None]
+    inner = np.concatenate([pieces[:, :2] + cut, pieces[:, 2:] - cut], axis=1)
+    a = shapely.linestrings(inner.reshape(-1, 2, 2))
+    b = shapely.linestrings(walls.reshape(-1, 2, 2))
+    return bool((shapely.distance(a[:, None], b[None, :]) <= tol_m).any())
 
 
 def stray_walls(walls: NDArray, orientation_deg: NDArray, share, lcfg: LinesConfig) -> NDArray[np.bool_]:

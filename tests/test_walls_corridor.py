@@ -1,0 +1,117 @@
+"""Corridor ends (issue 14): an end wall smeared by frames levelled a few degrees apart is one wall, not
+furniture in front of one (`evidence.own_band`, `evidence.unshadowed_lines`); an open corridor closes
+where the data pin its corners (`topology.pinned_corners`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tasks.evaluate import evaluate_walls
+from tasks.lines import lengths
+from tasks.walls.config import WallsConfig
+from tasks.walls.evidence import TopCells, own_band, unshadowed_lines
+from tasks.walls.image import Grid
+from tasks.walls.model import model_walls
+from tasks.walls.topology import pinned_corners
+from tests.scenes import wall_points
+
+CFG = WallsConfig()
+G = 0.01
+
+
+def _cells(shape: tuple[int, int], boxes: list[tuple[float, float, float, float]]) -> np.ndarray:
+    """(H, W) bool image of 1 cm cells with the boxes (x0, x1, y0, y1 in metres) filled."""
+    img = np.zeros(shape, dtype=bool)
+    for x0, x1, y0, y1 in boxes:
+        img[round(y0 / G) : round(y1 / G), round(x0 / G) : round(x1 / G)] = True
+    return img
+
+
+def _end_wall(smear_to: float, top_at: tuple[float, float]) -> tuple[np.ndarray, TopCells]:
+    """An end wall at x = 1.005 (the room west of it), y 0.5-2.5, its line on its nearest cells; the
+    wall's cells reach `smear_to` behind it, its top-reaching cells lie at x `top_at`; and a wall reaching
+    the top far away (the corridor's side), which shadows nothing here."""
+    shape = (300, 300)
+    data = _cells(
+        shape, [(1.0, 1.01 + smear_to, 0.5, 2.5), (top_at[0], top_at[1], 0.5, 2.5), (0.0, 0.5, 0.1, 0.12)]
+    )
+    top = _cells(shape, [(top_at[0], top_at[1], 0.5, 2.5), (0.0, 0.5, 0.1, 0.12)])
+    cells = TopCells(top, Grid(np.zeros(2), G, shape), data)
+    lines = np.array([[1.005, 0.5, 1.005, 2.5], [0.0, 0.11, 0.5, 0.11]])
+    return lines, cells
+
+
+def test_own_band_is_the_unbroken_run_of_the_line_s_data():
+    lines, cells = _end_wall(0.11, (1.22, 1.25))
+    lo, hi = own_band(lines[0], cells.data_xy, G)
+    # the cells from 1.0 to 1.12 (centres 1.005-1.115): 0 to 11 cm behind the line; the wall cells 10 cm
+    # clear of the smear are not part of it. The line runs north: its left normal points west (-x)
+    assert (lo, hi) == pytest.approx((-0.11, 0.0), abs=1e-9)
+    assert own_band(np.array([5.0, 0.5, 5.0, 2.5]), cells.data_xy, G) == (0.0, 0.0)  # no data there
+
+
+def test_a_sloping_smear_of_one_end_wall_does_not_shadow_it_and_a_cabinet_front_is_still_shadowed():
+    cfg = CFG
+    # frames levelled a few degrees apart: the end wall's cells run on unbroken to 12 cm behind its line,
+    # and its only top-reaching data lie 8-11 cm behind it, in its own smear: no furniture front
+    lines, cells = _end_wall(0.11, (1.08, 1.11))
+    keep = np.array([False, True])
+    assert unshadowed_lines(lines, keep, cells, cfg)[0]
+    # a cabinet's front: its cells 2 cm deep, then nothing for 18 cm, then the wall seen above it
+    lines, cells = _end_wall(0.01, (1.2, 1.23))
+    assert not unshadowed_lines(lines, keep, cells, cfg)[0]
+
+
+def _corridor(rng: np.random.Generator) -> np.ndarray:
+    """The survey hallway's case (seed 817): a 12 m x 2 m corridor whose north wall the capture missed over
+    its western 3 m (a sparse point here and there) while its west wall was seen up to 0.2 m from the
+    corner; the west wall has a door 0.25 m wide near its south end, with its jamb's reveal outside."""
+    faces = [
+        ((0, 0), (12, 0)),
+        ((12, 0), (12, 2)),
+        ((12, 2), (3, 2)),
+        ((0, 1.8), (0, 0.6)),
+        ((0, 0.35), (0, 0)),
+        ((0, 0.35), (-0.3, 0.35)),  # the door's jamb, the reveal going away from the corridor
+    ]
+    return np.concatenate([wall_points(a, b, 1.5, 2.5, rng, noise=0.003) for a, b in faces])
+
+
+def test_pinned_corners_closes_a_corner_one_wall_s_data_pin_and_not_one_neither_does():
+    walls = np.array(
+        [
+            [0, 0, 12, 0],
+            [12, 0, 12, 2],
+            [12, 2, 3, 2],  # stops 3 m short of the corner
+            [0, 1.8, 0, 0.6],  # stops 0.2 m short of it: the corner is pinned
+            [0, 0.35, 0, 0],
+            [0, 0.35, -0.3, 0.35],  # a door's jamb: the gap 0.6-0.35 ends on it
+        ],
+        dtype=float,
+    )
+    origin = np.full(len(walls), "observed")
+    closed = pinned_corners(walls, origin, CFG.lines.extend_m, G)
+    assert closed is not None
+    out, out_origin, polygon, longest = closed
+    assert polygon.area == pytest.approx(24.0, abs=0.05) and longest == pytest.approx(3.0)
+    assert (out_origin == "extended").sum() == 3  # north wall 3 m, west wall 0.2 m, the door's 0.25 m
+    truth = np.array([[0, 0, 12, 0], [12, 0, 12, 2], [12, 2, 0, 2], [0, 2, 0, 0]], float)
+    assert evaluate_walls(out, truth)["correctness"] == 1.0
+    # the west wall seen only 1.5 m short of the corner: nothing pins it, nothing is invented
+    walls[3] = [0, 0.5, 0, 0.6]
+    assert pinned_corners(walls, origin, CFG.lines.extend_m, G) is None
+    # nor does a wall run on unseen for more than its own length
+    walls[3] = [0, 1.8, 0, 0.6]
+    walls[2] = [12, 2, 10, 2]
+    assert pinned_corners(walls, origin, CFG.lines.extend_m, G) is None
+
+
+def test_a_corridor_whose_corner_the_west_wall_pins_closes_along_the_north_wall(rng):
+    model = model_walls(_corridor(rng), 0.0, 2.7, CFG)
+    truth = np.array([[0, 0, 12, 0], [12, 0, 12, 2], [12, 2, 0, 2], [0, 2, 0, 0]], float)
+    ev = evaluate_walls(model.walls, truth)
+    assert model.closed, model.walls
+    assert ev["completeness"] >= 0.99 and ev["correctness"] >= 0.99 and ev["corner_f1"] == 1.0, ev
+    assert "pinned" in model.metrics["alpha_reason"]
+    assert lengths(model.walls[model.origin == "extended"]).max() == pytest.approx(3.0, abs=0.05)
