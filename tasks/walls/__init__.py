@@ -24,7 +24,9 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    to the camera's vertical view over most of its length. Two kinds of line below the top stay: the other
    face of a thin free-standing wall whose first face reaches the top (`thin_wall_faces`), and a long line
    with no top-reaching data parallel and close beside it (`unshadowed_lines`: furniture is seen in front
-   of a wall seen above it, while a corridor captured from a metre away never reaches the top);
+   of a wall seen above it, while a corridor captured from a metre away never reaches the top; a line's
+   own unbroken band of data, `evidence.own_band`, shadows nothing: an end wall smeared by frames levelled
+   a few degrees apart is one sloping wall, its top behind its foot);
 6. regularization (5.2.5.1, eq 5.9, `tasks.lines.regularize`), refused for a line it would move by more
    than three times its data's noise (`topology.line_noise`: a wall a few degrees off its neighbours keeps
    its angle); each wall's offset is refined to the median
@@ -46,7 +48,9 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    corner unseen at every height, which fusion closes along the plan) still gets the collinear gaps its
    slice points back (`evidence.backed_bridges`: free ends facing each other, nothing standing between,
    and half the gap's 10 cm bins holding `bridge_seen_ratio` of the median bin along the room's observed
-   walls; a door holds none). Walls are turned to have the room on their left;
+   walls; a door holds none), and when no candidate α closes the room, those bridges and the corners one
+   wall's data pin (`topology.pinned_corners`) are added to every candidate, kept when that closes it.
+   Walls are turned to have the room on their left;
 8. extrusion (5.2.6, `model`) to a triangle mesh, and a preview picture.
 
 Choosing α (`topology.choose_alpha`): the thesis has a person raise α until the clutter disappears. Here

@@ -96,12 +96,12 @@ def model_for(
             top = TopCells(binary & proj.top, grid, binary)
             found = _topology(hough, cfg.lines, cfg, grid, binary, top, proj, low_share, xy)
     bridged = None
+    # the usual reach's walls, for the corners: the wider reaches' joins across the room were refused
     last = found if found.polygon is None else None
     for gap in cfg.bridge_gaps_m if found.polygon is None else ():
         # the unseen span may be a corner as well as a stretch of one wall: ends reach as far
         lines = replace(cfg.lines, max_gap_m=gap, extend_m=max(cfg.lines.extend_m, gap))
         wider = _topology(hough, lines, cfg, grid, binary, top, proj, low_share, xy)
-        last = wider
         # a wall made only by extension (a perpendicular join) longer than the usual reach needs data:
         # without it the wider reach would cut off a poorly seen part of the room (behind a partition)
         made = wider.origin != OBSERVED
@@ -331,7 +331,8 @@ def pinned_corners(
     Two free wall ends (no other wall within `tol_m`) whose walls cross at more than 45° make a corner
     where the lines meet, beyond both ends, when one end lies within `reach_m` of it (that wall's data
     run up to the other wall's line: the corner is seen to be there) and the other wall runs there over
-    no more than its own length (a wall seen over 5 m may run on unseen for 3, not a 1 m stub for 4).
+    no more than the length its line is seen over (with its pieces in line, within `offset_m`: a wall
+    seen over 5 m may run on unseen for 3, not a 1 m stub for 4).
     The longer extension follows an observed wall's line through a stretch the capture missed (a corridor's
     end passed without looking at it); a corner whose both walls stop short of it by more than `reach_m`
     is not invented. Two pieces of one wall (parallel, lines within `offset_m`) whose free ends face each
@@ -347,6 +348,20 @@ def pinned_corners(
     d[np.arange(2 * n), np.tile(np.arange(n), 2)] = np.inf
     free = np.flatnonzero(d.min(axis=1) > tol_m)
     th = angles(walls)
+    nrm = np.column_stack([-np.sin(th), np.cos(th)])
+
+    def span(k: int) -> float:
+        """The length wall k's line is seen over: the extent of k and the walls in line with it."""
+        inline = (np.abs(np.sin(th - th[k])) < math.sin(math.radians(45.0))) & (
+            np.abs(
+                np.stack([(walls[:, :2] - walls[k, :2]) @ nrm[k], (walls[:, 2:] - walls[k, :2]) @ nrm[k]])
+            ).max(axis=0)
+            <= offset_m
+        )
+        u = np.array([math.cos(th[k]), math.sin(th[k])])
+        t = np.concatenate([(walls[inline, :2] - walls[k, :2]) @ u, (walls[inline, 2:] - walls[k, :2]) @ u])
+        return float(t.max() - t.min())
+
     cands = []
     for x, y in itertools.combinations(free, 2):
         i, j = x % n, y % n
@@ -376,7 +391,7 @@ def pinned_corners(
         if len(ext) < 2 or min(ext) > reach_m:
             continue
         far = int(np.argmax(ext))
-        if ext[far] > L[(i, j)[far]]:
+        if ext[far] > span((i, j)[far]):
             continue
         cands.append((sum(ext), max(ext), x, y, corner, j))
     for x in free:
