@@ -19,7 +19,7 @@ from tasks.preview import Key, View, frame_picture
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import backed_bridges, support_sampler
 from tasks.walls.image import Grid, coarse_projection, projection_image
-from tasks.walls.topology import choose_alpha, model_for
+from tasks.walls.topology import choose_alpha, model_for, with_corners
 
 
 @dataclass(frozen=True)
@@ -280,7 +280,7 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
         corners = None
         if not any(c.closed for c in cands):
             # nor on the coarse one: the corners that one wall's data pin are closed along the other's line
-            pinned = [model_for(proj, cfg, a, corners=xy) for a in alphas]
+            pinned = [with_corners(c, xy, cfg) for c in cands]
             if any(c.closed for c in pinned):
                 cands, corners = pinned, xy
         chosen, reason = choose_alpha(cands, cfg.stable_tol_m, cfg.thin_wall_max_m)

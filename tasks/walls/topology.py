@@ -55,10 +55,39 @@ class Candidate:
     binary: NDArray
     polygon: Any
     """The room, when the walls enclose one (a partition stub may still dangle in it)."""
+    grid_m: float = 0.0
+    """The grid the model was made on."""
 
     @property
     def closed(self) -> bool:
         return self.polygon is not None
+
+
+def with_corners(cand: Candidate, xy: NDArray, cfg: WallsConfig) -> Candidate:
+    """An open candidate closed at the corners its data pin (`close_at_corners`, with the slice points
+    `xy` (N, 2)), or the candidate itself when that does not close it: what `model_for` with `corners`
+    gives, without making the model again."""
+    if cand.closed or len(cand.walls) == 0:
+        return cand
+    closed = close_at_corners(cand.walls, cand.origin, xy, cfg, cand.grid_m)
+    if closed is None:
+        return cand
+    walls, origin, polygon, corner_m = closed
+    counts = {**cand.counts, "bridged_gap_m": round(corner_m, 3), "walls": len(walls)}
+    return replace(cand, walls=walls, origin=origin, polygon=polygon, counts=counts)
+
+
+def close_at_corners(
+    walls: NDArray, origin: NDArray, xy: NDArray, cfg: WallsConfig, grid_m: float
+) -> tuple[NDArray, NDArray, Any, float] | None:
+    """An open room's walls (M, 4) with the collinear gaps the slice points `xy` (N, 2) back
+    (`evidence.backed_bridges`) and the corners one wall's data pin (`pinned_corners`): (walls, origin,
+    room, longest extension) when that closes the room, else None."""
+    backed = backed_bridges(walls, origin, xy, cfg) if len(walls) else np.zeros((0, 4))
+    if len(backed):
+        walls = np.concatenate([walls, backed])
+        origin = np.concatenate([origin, np.full(len(backed), EXTENDED, dtype=origin.dtype)])
+    return pinned_corners(walls, origin, cfg.lines.extend_m, grid_m, cfg.lines.offset_tol_m)
 
 
 def model_for(
@@ -116,12 +145,7 @@ def model_for(
         # no reach closed it, nor the coarser grid: the collinear gaps the slice points back are bridged
         # and a corner that one wall's data pin is closed along the other wall's line, however far that
         # was unseen (`pinned_corners`)
-        walls, origin = last.walls, last.origin
-        backed = backed_bridges(walls, origin, corners, cfg) if len(walls) else np.zeros((0, 4))
-        if len(backed):
-            walls = np.concatenate([walls, backed])
-            origin = np.concatenate([origin, np.full(len(backed), EXTENDED, dtype=origin.dtype)])
-        closed = pinned_corners(walls, origin, cfg.lines.extend_m, grid.size, cfg.lines.offset_tol_m)
+        closed = close_at_corners(last.walls, last.origin, corners, cfg, grid.size)
         if closed is not None:
             walls, origin, polygon, corner_m = closed
             found = replace(last, walls=walls, origin=origin, polygon=polygon)
@@ -146,7 +170,7 @@ def model_for(
         "sparse_px": sparse_px,
         "walls": len(found.walls),
     }
-    return Candidate(alpha, found.walls, found.origin, stats, found.binary, found.polygon)
+    return Candidate(alpha, found.walls, found.origin, stats, found.binary, found.polygon, grid.size)
 
 
 @dataclass(frozen=True)
