@@ -392,6 +392,20 @@ class Reject:
 
 
 @dataclass(frozen=True)
+class Redetection:
+    """A target point found again where the first adjustment put it: its detection sat `shift_px` away
+    (a corner refinement stuck at a wrong start), its residual went from `before_px` to `after_px`."""
+
+    file: str
+    camera: str
+    point: int
+    """Index of the point in the pattern's order."""
+    shift_px: float
+    before_px: float
+    after_px: float
+
+
+@dataclass(frozen=True)
 class ViewResidual:
     """Reprojection RMS of one view (or synchronized pair) in the final adjustment; None for the camera whose
     image of the pair was not used."""
@@ -421,6 +435,8 @@ class Calibration:
     profile_name: str | None = None
     coverage: tuple[tuple[str, float], ...] = ()
     """(camera, share of image cells with target points) per calibrated camera."""
+    redetected: tuple[Redetection, ...] = ()
+    """Target points detected again at their reprojection (see `tasks.calibrate.bundle.redetect_outliers`)."""
 
     def __post_init__(self) -> None:
         if (self.rgb is None) != (self.ir_to_rgb is None):
@@ -473,6 +489,7 @@ class Calibration:
             "views": [v.__dict__ for v in self.views],
             "coverage": dict(self.coverage),
             "rejects": [r.__dict__ for r in self.rejects],
+            "redetected": [r.__dict__ for r in self.redetected],
             "depth_model": None if self.depth_model is None else self.depth_model.to_json(),
         }
 

@@ -24,6 +24,10 @@ class CalibrateConfig:
     (sharp Kinect/webcam views measure 2-3.5 px; a Gaussian blur of sigma 2 px gives about 5.7 px)."""
     min_border_px: float = 4.0
     """A detection with a point closer than this to the image border is rejected as partial."""
+    redetect_sigma: float = 6.0
+    """A chessboard corner whose residual after the first calibration exceeds this many times the robust
+    per-axis noise of all corners is refined again from where the calibration puts it (see
+    `tasks.calibrate.bundle.redetect_outliers`)."""
     min_views: int = 6
     """Fewest usable views per camera for a calibration (and complete pairs for the "opencv" stereo solver);
     fewer is an error naming the files."""

@@ -19,11 +19,12 @@ from tasks.calibrate.bundle import (
     check_same_size,
     list_names,
     pair_names,
+    redetect_outliers,
 )
 from tasks.calibrate.config import CalibrateConfig
 from tasks.calibrate.disparity import fit_disparity_model
-from tasks.calibrate.targets import detect_targets, parse_pattern
-from tasks.camera import Calibration, Reject, ViewResidual
+from tasks.calibrate.targets import detect_targets, parse_pattern, to_gray8
+from tasks.camera import Calibration, Redetection, Reject, ViewResidual
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +52,7 @@ def calibrate_images(
         )
     fits: dict[str, CameraFit] = {}
     rejects: list[Reject] = []
+    redetected: list[Redetection] = []
     for cam, images in cams:
         check_same_size([(n, (im.shape[1], im.shape[0])) for n, im in images], cam)
         dets, rej = detect_targets(images, pat, cfg, camera=cam)
@@ -61,6 +63,13 @@ def calibrate_images(
                 f"{list_names([r.file for r in none])}"
             )
         fit = calibrate_camera(dets, pat, cfg, camera=cam, prior_rejects=rej)
+        grays = {n: to_gray8(im) for n, im in images} if pat.kind == "chessboard" else {}
+        for _round in range(3):  # a corner found again moves the calibration, which may show another
+            dets, found = redetect_outliers(fit.camera, dets, grays, pat, cfg, cam)
+            if not found:
+                break
+            redetected += found
+            fit = calibrate_camera(dets, pat, cfg, camera=cam, prior_rejects=rej)
         fits[cam] = fit
         rejects += rej + list(fit.rejects)
     ir_fit = fits["ir"]
@@ -104,6 +113,7 @@ def calibrate_images(
         views=views,
         pattern=str(pat),
         coverage=tuple((cam, fit.coverage) for cam, fit in fits.items()),
+        redetected=tuple(redetected),
     )
 
 

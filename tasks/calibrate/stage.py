@@ -42,7 +42,10 @@ def _calibrate(ctx: StageContext, cfg: CalibrateConfig, out: Path) -> dict[str, 
         calib = profile_calibration(ctx.profile)
     write_calibration(calib, out)
     data = calib.to_json()
-    return {"metrics": {"source": calib.source, **_calibration_figures(data)}}
+    figures = {"source": calib.source, **_calibration_figures(data)}
+    if calib.source == "targets":
+        figures["redetected_corners"] = len(calib.redetected)
+    return {"metrics": figures}
 
 
 def read_calibration(path: Path) -> Calibration:

@@ -99,7 +99,8 @@ class TargetDetection:
     """Median 10-90 % edge rise around the points (the blur measure)."""
 
 
-def _to_gray8(image: NDArray) -> NDArray[np.uint8]:
+def to_gray8(image: NDArray) -> NDArray[np.uint8]:
+    """An 8-bit grey image of a calibration view (colour converted, 16-bit or float stretched)."""
     img = np.asarray(image)
     if img.ndim == 3:
         if img.shape[2] == 1:
@@ -140,7 +141,8 @@ def _edge_rise_px(gray: NDArray[np.uint8], points: NDArray, radius: float) -> fl
     return float(np.median(rises)) if rises else float("inf")
 
 
-def _grid_spacing_px(points: NDArray, pattern: TargetPattern) -> float:
+def grid_spacing_px(points: NDArray, pattern: TargetPattern) -> float:
+    """Median distance (px) between neighbouring target points in the image."""
     grid = points.reshape(pattern.rows, pattern.cols, 2)
     if pattern.kind == "chessboard":
         d = np.linalg.norm(np.diff(grid, axis=1), axis=2)
@@ -200,13 +202,22 @@ def _find_complete(gray: NDArray[np.uint8], pattern: TargetPattern, cfg: Calibra
         ok, corners = cv2.findChessboardCornersSB(gray, pattern.size, flags=cv2.CALIB_CB_EXHAUSTIVE)
         if not ok:
             return None
-    corners = np.ascontiguousarray(corners.reshape(-1, 1, 2), dtype=np.float32)
-    win = cfg.subpix_window_px
-    spacing = _grid_spacing_px(corners.reshape(-1, 2), pattern)
-    win = max(2, min(win, int(spacing * 0.3)))
+    corners = corners.reshape(-1, 2)
+    return refine_corners(gray, corners, grid_spacing_px(corners, pattern), cfg)
+
+
+def refine_corners(
+    gray: NDArray[np.uint8], guesses: NDArray, spacing_px: float, cfg: CalibrateConfig
+) -> NDArray[np.float32]:
+    """Chessboard corners refined to the saddle point nearest each guess (cornerSubPix), with the search
+    window capped at 0.3 of the square size in the image so that it never reaches a neighbouring corner.
+    cornerSubPix leaves a guess where it was when its solution leaves the window: a guess several pixels
+    off stays off (see `redetect_outliers` in `tasks.calibrate.bundle`)."""
+    pts = np.ascontiguousarray(np.asarray(guesses, dtype=np.float32).reshape(-1, 1, 2))
+    win = max(2, min(cfg.subpix_window_px, int(spacing_px * 0.3)))
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-3)
-    corners = cv2.cornerSubPix(gray, corners, (win, win), (-1, -1), crit)
-    return corners.reshape(-1, 2).astype(np.float32)
+    pts = cv2.cornerSubPix(gray, pts, (win, win), (-1, -1), crit)
+    return pts.reshape(-1, 2).astype(np.float32)
 
 
 def _partial_count(gray: NDArray[np.uint8], pattern: TargetPattern) -> int:
@@ -243,7 +254,7 @@ def detect_targets(
     detections: list[TargetDetection] = []
     rejects: list[Reject] = []
     for name, image in images:
-        gray = _to_gray8(image)
+        gray = to_gray8(image)
         h, w = gray.shape
         pts = _find_complete(gray, pat, cfg)
         if pts is None:
@@ -274,7 +285,7 @@ def detect_targets(
                 Reject(name, camera, "partial", "target orientation ambiguous (mirrored detection)")
             )
             continue
-        spacing = _grid_spacing_px(ordered, pat)
+        spacing = grid_spacing_px(ordered, pat)
         rise = _edge_rise_px(gray, ordered, 0.4 * spacing)
         if rise > cfg.max_edge_rise_px:
             rejects.append(

@@ -45,6 +45,8 @@ class FrameScale:
     inliers: int
     rms_m: float
     """RMS residual of the inliers (m)."""
+    depth_noise_m_at_1m: float = 0.0
+    """The frame's `depth_noise_coefficient` (window spread per squared metre of range)."""
 
 
 @dataclass
@@ -68,6 +70,9 @@ class ScaleReport:
     """The depth camera's radial inverse-depth error (1/m at the image corners) taken out of the depth."""
     same_surface_tol_m: float = 0.0
     """Depth points landing on one colour pixel within this of the nearest were averaged (inverse depth)."""
+    depth_noise_m_at_1m: float = 0.0
+    """Median over the frames of the depth's window spread per squared metre of range: the surface and edge
+    tolerances grow to `step_noise_factor` times it · z² where that passes `same_surface_tol_m`."""
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -78,6 +83,7 @@ class ScaleReport:
             "relative_trend": self.relative_trend,
             "radial_k_inv_m": self.radial_k_inv_m,
             "same_surface_tol_m": self.same_surface_tol_m,
+            "depth_noise_m_at_1m": self.depth_noise_m_at_1m,
             "frames_used": len(self.frames_used),
             "frame_names": self.frames_used,
             "per_frame": {
@@ -194,6 +200,7 @@ def depth_in_rgb(
     rgb_camera: CameraModel,
     cfg: ScaleConfig,
     radial_k: float = 0.0,
+    noise_coef: float = 0.0,
 ) -> NDArray[np.float32]:
     """The depth image moved into the RGB camera (eq 3.13 back-projection, eq 3.14 IR→RGB): (H, W) z in the
     RGB frame at each RGB pixel of `rgb_camera` (the camera the SfM observations refer to), NaN where no
@@ -207,7 +214,8 @@ def depth_in_rgb(
     focal length is 1.12 times the colour one): the nearest surface wins (occlusion), and the points of
     that surface (within `max_depth_step_m` of the nearest, the window's edge test) are averaged in inverse
     depth, where Kinect noise is even. Keeping only the nearest point, the minimum of several noisy
-    readings, made the depth short by about 0.1 %."""
+    readings, made the depth short by about 0.1 %. The surface tolerance grows with the depth's own noise
+    (`step_tolerance` with `noise_coef`, see `depth_noise_coefficient`)."""
     d = np.asarray(depth_m, dtype=np.float64)
     stride = cfg.depth_stride or max(1, round(d.shape[1] / 320))
     if stride > 1:
@@ -225,7 +233,8 @@ def depth_in_rgb(
     w, h = rgb_camera.size
     nearest = np.full((h, w), np.inf)
     np.minimum.at(nearest, (vi, ui), zz)
-    same = zz <= nearest[vi, ui] + cfg.max_depth_step_m
+    near = nearest[vi, ui]
+    same = zz <= near + step_tolerance(near, cfg, noise_coef)
     inv_sum = np.zeros((h, w))
     count = np.zeros((h, w))
     np.add.at(inv_sum, (vi[same], ui[same]), 1.0 / zz[same])
@@ -248,11 +257,41 @@ def remove_radial_error(
     return pts[ok] / denom[ok, None]
 
 
+def depth_noise_coefficient(depth_m: NDArray[np.floating]) -> float:
+    """How much a depth image's readings spread on its own surfaces, per squared metre of range: the median
+    over 3x3 windows holding nine readings of (max - min) / z² (m per m²; 0 when no window is complete).
+    A disparity sensor's noise and quantization grow with z² (a Kinect v1's depth steps are 3-4 cm at
+    3.5 m); for a low-noise sensor the value is small and the fixed tolerance rules."""
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    d = np.asarray(depth_m, dtype=np.float64)
+    valid = np.isfinite(d) & (d > 0)
+    hi = maximum_filter(np.where(valid, d, np.inf), size=3, mode="constant", cval=np.inf)
+    lo = minimum_filter(np.where(valid, d, -np.inf), size=3, mode="constant", cval=-np.inf)
+    ok = valid & np.isfinite(hi) & np.isfinite(lo)
+    if not ok.any():
+        return 0.0
+    return float(np.median((hi[ok] - lo[ok]) / d[ok] ** 2))
+
+
+def step_tolerance(z: NDArray[np.float64], cfg: ScaleConfig, noise_coef: float = 0.0) -> NDArray[np.float64]:
+    """The largest depth spread (m) at range z still taken as one surface: `max_depth_step_m`, or
+    `step_noise_factor` times the depth's own spread there (`noise_coef` · z², `depth_noise_coefficient`)
+    where that is larger. A fixed tolerance below the noise drops the windows whose noise happens to spread
+    far, which keeps the nearer-reading ones (the nearest of noisy readings is short)."""
+    return np.maximum(cfg.max_depth_step_m, cfg.step_noise_factor * noise_coef * np.square(z))
+
+
 def observation_points(
-    uv: NDArray[np.float64], zbuf: NDArray[np.float32], rgb_camera: CameraModel, cfg: ScaleConfig
+    uv: NDArray[np.float64],
+    zbuf: NDArray[np.float32],
+    rgb_camera: CameraModel,
+    cfg: ScaleConfig,
+    noise_coef: float = 0.0,
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """(M, 2) observation pixels → ((M, 3) metric points in the RGB frame, (M,) valid). The depth is the
-    median of the window around the pixel; windows over a depth edge are skipped."""
+    median of the window around the pixel; windows over a depth edge (a spread beyond `step_tolerance`)
+    are skipped."""
     h, w = zbuf.shape
     r = cfg.depth_window_px
     ui = np.rint(uv[:, 0]).astype(np.intp)
@@ -269,7 +308,9 @@ def observation_points(
             warnings.simplefilter("ignore", RuntimeWarning)
             z = np.nanmedian(win, axis=1)
             step = np.nanmax(win, axis=1) - np.nanmin(win, axis=1)
-    valid = np.isfinite(z) & (step <= cfg.max_depth_step_m) & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+    with np.errstate(invalid="ignore"):
+        flat = step <= step_tolerance(z, cfg, noise_coef)
+    valid = np.isfinite(z) & flat & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
     rays = rgb_camera.undistort_pixels(uv)
     valid &= np.isfinite(rays).all(axis=1)
     pts = np.column_stack([rays * z[:, None], z])
@@ -296,8 +337,9 @@ def frame_scale(
     rows, uv = sfm.observations[name]
     if len(rows) < cfg.min_points_per_frame:
         return None
-    zbuf = depth_in_rgb(depth_m, calib, sfm.camera, cfg, radial_k)
-    obj, valid = observation_points(uv, zbuf, sfm.camera, cfg)
+    noise_coef = depth_noise_coefficient(depth_m)
+    zbuf = depth_in_rgb(depth_m, calib, sfm.camera, cfg, radial_k, noise_coef)
+    obj, valid = observation_points(uv, zbuf, sfm.camera, cfg, noise_coef)
     if valid.sum() < cfg.min_points_per_frame:
         return None
     local = sfm.points[rows[valid]]
@@ -317,7 +359,9 @@ def frame_scale(
         if ok.sum() < cfg.min_points_per_frame:
             return None
         scale = float(np.median(obj[inl][ok, 2] / z_sfm[ok]))
-    return FrameScale(name, scale, R, T, len(local), int(inl.sum()), float(np.sqrt((res**2).mean())))
+    return FrameScale(
+        name, scale, R, T, len(local), int(inl.sum()), float(np.sqrt((res**2).mean())), noise_coef
+    )
 
 
 def combine_scales(frames: list[FrameScale], cfg: ScaleConfig) -> ScaleReport:
@@ -379,6 +423,7 @@ def estimate_scale(
     report = combine_scales(frames, cfg)
     report.radial_k_inv_m = float(radial_k)
     report.same_surface_tol_m = float(cfg.max_depth_step_m)
+    report.depth_noise_m_at_1m = float(np.median([f.depth_noise_m_at_1m for f in frames]))
     return report
 
 
