@@ -18,9 +18,9 @@ from tasks.evaluate import evaluate_walls
 from tasks.plan.config import PlanConfig, PlanScale
 from tasks.plan.doors import _find_doors
 from tasks.plan.parse import parse_plan
-from tasks.plan.raster import load_plan_image
+from tasks.plan.raster import _fill_outline_walls, load_plan_image
 from tasks.plan.truth import rectangle_centrelines, thickness_errors
-from tasks.plan.vectorize import _regularize
+from tasks.plan.vectorize import _regularize, _snap_uncertain
 
 S = 0.02  # metres per pixel of the drawn plans
 OUTER_T, INNER_T = 0.30, 0.14  # odd pixel widths (15, 7) keep the centreline on a pixel centre
@@ -221,6 +221,54 @@ def test_tilted_wing_keeps_its_angle():
     ang = angles_deg(main + piece, 16.0)
     np.testing.assert_allclose(ang[[1, 2, 3, 10]], ang[0], atol=1e-6)  # one cluster, its mean barely moved
     assert abs(ang[0]) < 0.01
+
+
+def test_uncertain_directions_snap_to_the_axes():
+    """Known answer in pixels: after regularization a block of walls on the axes (0 and 90 degrees),
+    three short walls sharing a direction 3.5 degrees off (fitted over two skeleton pieces a pixel or
+    two apart: 50-120 px long, 20 px ink bands, so each is uncertain by 9-22 degrees), a 4 m wing wall
+    4 degrees off (200 px, 10 px band: 2.9 degrees uncertain) and a corner spur at 45 degrees. The
+    short walls are turned onto the axis about their midpoints; the wing and the spur keep theirs."""
+    px = 50.0
+    main = [[0, y * px, 60 * px, y * px] for y in (0, 10, 20, 30)]
+    main += [[x * px, 0, x * px, 30 * px] for x in (0, 12, 24, 36, 48, 60)]
+
+    def at(x, y, length, deg):
+        a = math.radians(deg)
+        return [x, y, x + length * math.cos(a), y + length * math.sin(a)]
+
+    short = [at(100, 495, 50, 3.5), at(600, 495, 120, 3.5), at(1500, 995, 80, 3.5)]
+    wing = [at(200, 2000, 200, 4.0)]
+    spur = [at(3000, 1500, 12, 45.0)]
+    segs = np.array(main + short + wing + spur, dtype=np.float64)
+    length = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1])
+    band = np.array([10.0] * len(main) + [20.0] * 3 + [10.0, 10.0])
+    out = _snap_uncertain(segs, np.arctan2(band, length))
+    ang = np.degrees(np.arctan2(out[:, 3] - out[:, 1], out[:, 2] - out[:, 0]))
+    np.testing.assert_allclose(out[: len(main)], segs[: len(main)])  # the axes do not move
+    np.testing.assert_allclose(ang[10:13], 0.0, atol=1e-9)
+    mid = lambda s: (s[:, :2] + s[:, 2:]) / 2  # noqa: E731
+    np.testing.assert_allclose(mid(out[10:13]), mid(segs[10:13]), atol=1e-9)
+    np.testing.assert_allclose(np.hypot(*(out[10:13, 2:] - out[10:13, :2]).T), length[10:13])
+    np.testing.assert_allclose(ang[13:], [4.0, 45.0], atol=1e-9)
+
+
+def test_slanted_line_of_the_wall_pen_bounds_no_wall():
+    """Known answer in pixels (min wall thickness 8 px): a wall drawn as two vertical face lines 12 px
+    apart, and beside it a stair's tread (a vertical line of another layer) with a direction arrow's
+    arm slanting up to it in the walls' pen. Between the faces the wall is filled; between the arm and
+    the tread it is not: a run of paper along a row ends on a face only where the face runs along the
+    columns (before, the arm counted as a face and a wedge of wall stood beside the tread)."""
+    ink = np.zeros((120, 200), bool)
+    faces = np.zeros_like(ink)
+    for x in (20, 32):  # the wall's two faces
+        ink[10:110, x] = faces[10:110, x] = True
+    ink[10:110, 150] = True  # the tread, another layer
+    for k in range(40):  # the arrow's arm, 45 degrees, one pixel wide, in the walls' pen
+        ink[40 + k, 110 + k] = faces[40 + k, 110 + k] = True
+    filled = _fill_outline_walls(ink, 25, faces, 8.0)
+    assert filled[10:110, 20:33].all()
+    assert not filled[40:80, 111:150][~ink[40:80, 111:150]].any()
 
 
 def test_symbols_are_bridged():
