@@ -20,7 +20,7 @@ from tasks.plan.doors import _find_doors
 from tasks.plan.parse import parse_plan
 from tasks.plan.raster import _fill_outline_walls, load_plan_image
 from tasks.plan.truth import rectangle_centrelines, thickness_errors
-from tasks.plan.vectorize import _regularize, _snap_uncertain
+from tasks.plan.vectorize import _regularize, merge_within_directions
 
 S = 0.02  # metres per pixel of the drawn plans
 OUTER_T, INNER_T = 0.30, 0.14  # odd pixel widths (15, 7) keep the centreline on a pixel centre
@@ -223,34 +223,30 @@ def test_tilted_wing_keeps_its_angle():
     assert abs(ang[0]) < 0.01
 
 
-def test_uncertain_directions_snap_to_the_axes():
-    """Known answer in pixels: after regularization a block of walls on the axes (0 and 90 degrees),
-    three short walls sharing a direction 3.5 degrees off (fitted over two skeleton pieces a pixel or
-    two apart: 50-120 px long, 20 px ink bands, so each is uncertain by 9-22 degrees), a 4 m wing wall
-    4 degrees off (200 px, 10 px band: 2.9 degrees uncertain) and a corner spur at 45 degrees. The
-    short walls are turned onto the axis about their midpoints; the wing and the spur keep theirs."""
-    px = 50.0
-    main = [[0, y * px, 60 * px, y * px] for y in (0, 10, 20, 30)]
-    main += [[x * px, 0, x * px, 30 * px] for x in (0, 12, 24, 36, 48, 60)]
-
-    def at(x, y, length, deg):
-        a = math.radians(deg)
-        return [x, y, x + length * math.cos(a), y + length * math.sin(a)]
-
-    short = [at(100, 495, 50, 3.5), at(600, 495, 120, 3.5), at(1500, 995, 80, 3.5)]
-    wing = [at(200, 2000, 200, 4.0)]
-    spur = [at(3000, 1500, 12, 45.0)]
-    segs = np.array(main + short + wing + spur, dtype=np.float64)
-    length = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1])
-    band = np.array([10.0] * len(main) + [20.0] * 3 + [10.0, 10.0])
-    out = _snap_uncertain(segs, np.arctan2(band, length))
-    ang = np.degrees(np.arctan2(out[:, 3] - out[:, 1], out[:, 2] - out[:, 0]))
-    np.testing.assert_allclose(out[: len(main)], segs[: len(main)])  # the axes do not move
-    np.testing.assert_allclose(ang[10:13], 0.0, atol=1e-9)
-    mid = lambda s: (s[:, :2] + s[:, 2:]) / 2  # noqa: E731
-    np.testing.assert_allclose(mid(out[10:13]), mid(segs[10:13]), atol=1e-9)
-    np.testing.assert_allclose(np.hypot(*(out[10:13, 2:] - out[10:13, :2]).T), length[10:13])
-    np.testing.assert_allclose(ang[13:], [4.0, 45.0], atol=1e-9)
+def test_merged_wall_keeps_within_its_pieces_directions():
+    """Known answer in pixels (100 px/m): two pieces of one wall on the axis, 34 and 17 px long, 3 px
+    apart across it and 3 px apart along it (a skeleton stepping where a partition meets the wall's
+    face, MLSTRUCT floor 302). The least-squares line over both tilts by about 4 degrees, past both
+    pieces; the merged wall runs along the axis at their length-weighted offset, over their extent. A
+    wall drawn 4 degrees off the axis, skeletonized into pieces at 3 and 5 degrees,
+    keeps the fitted 4 degrees."""
+    lcfg = PlanConfig().lines.scaled(100.0)
+    out = merge_within_directions(
+        np.array([[100.0, 200.0, 134.0, 200.0], [137.0, 203.0, 154.0, 203.0]]), lcfg
+    )
+    assert len(out) == 1
+    np.testing.assert_allclose(out[0, [1, 3]], 200.0 + 3.0 * 17 / 51, atol=1e-9)
+    np.testing.assert_allclose(sorted(out[0, [0, 2]]), [100.0, 154.0], atol=1e-9)
+    tilt = math.radians(4.0)
+    pieces = []
+    for k in range(6):  # alternating pieces along a 4 degree line, each turned 1 degree off it
+        x0, a = 100.0 + 40 * k, tilt + math.radians(1.0 if k % 2 else -1.0)
+        y0 = 300.0 + (x0 - 100.0) * math.tan(tilt)
+        pieces.append([x0, y0, x0 + 38 * math.cos(a), y0 + 38 * math.sin(a)])
+    out = merge_within_directions(np.array(pieces), lcfg)
+    assert len(out) == 1
+    ang = math.degrees(math.atan2(out[0, 3] - out[0, 1], out[0, 2] - out[0, 0]))
+    assert abs(abs(ang) - 4.0) < 0.5, ang
 
 
 def test_slanted_line_of_the_wall_pen_bounds_no_wall():

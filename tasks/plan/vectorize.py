@@ -146,6 +146,39 @@ def _spur_free(segs: NDArray, keep: NDArray[np.bool_], short_px: NDArray) -> NDA
     return out
 
 
+def merge_within_directions(segs: NDArray, lcfg: lines.LinesConfig) -> NDArray[np.float64]:
+    """`lines.merge_segments`, each merged wall's direction kept within its pieces' directions: the
+    total-least-squares fit over the pieces of one wall whose skeleton steps by a pixel or two (where a
+    partition's lines meet its face) tilts it past every piece (two pieces on the axis, 0.5 m long and
+    3 px apart: 4.6 degrees, MLSTRUCT floor 302), and a few such walls form an orientation cluster of
+    their own that regularization keeps. Such a wall is turned, about its pieces' centroid, to the
+    nearest of its pieces' directions and cropped to their ends. A wall drawn a few degrees off the
+    axes, skeletonized into pixel steps, has pieces on both sides of its direction and keeps the fit."""
+    merged = lines.merge_segments(segs, lcfg)
+    out = merged.segments.copy()
+    if not len(out):
+        return out
+    L = lines.lengths(segs)
+    th = lines.angles(segs)
+    fit = lines.angles(out)
+    for j in range(len(out)):
+        m = np.flatnonzero(merged.labels == j)
+        if len(m) < 2 or L[m].sum() <= 0:
+            continue
+        rel = np.asarray(lines.angle_difference(th[m], fit[j]), dtype=np.float64)
+        if rel.min() <= 0.0 <= rel.max():
+            continue
+        phi = fit[j] + float(rel[np.argmin(np.abs(rel))])
+        u = np.array([math.cos(phi), math.sin(phi)])
+        if float(u @ (out[j, 2:] - out[j, :2])) < 0:
+            u = -u
+        w = L[m]
+        c = (w[:, None] * lines.midpoints(segs[m])).sum(0) / w.sum()
+        t = np.concatenate([segs[m, :2], segs[m, 2:]]) @ u - c @ u
+        out[j] = np.concatenate([c + t.min() * u, c + t.max() * u])
+    return out
+
+
 def _regularize(segs: NDArray, band_px: NDArray, lcfg: lines.LinesConfig) -> NDArray[np.float64]:
     """`lines.regularize`, except that walls its orientation clusters would turn by more than the angle
     tolerance and more than their own angle is uncertain keep out of those clusters: a wing of the
@@ -159,45 +192,7 @@ def _regularize(segs: NDArray, band_px: NDArray, lcfg: lines.LinesConfig) -> NDA
     if off.any() and not off.all():
         out[~off] = lines.regularize(segs[~off], lcfg)[0]
         out[off] = lines.regularize(segs[off], lcfg)[0]
-    return _snap_uncertain(out, uncertain)
-
-
-SNAP_MAX_DEG = 10.0
-"""Largest turn `_snap_uncertain` gives a direction: a pixel's step in a short wall's skeleton tilts it
-by a few degrees; a skeleton's spur at a corner runs at about 45 degrees and is no wall's direction."""
-
-
-def _snap_uncertain(segs: NDArray, uncertain: NDArray) -> NDArray[np.float64]:
-    """Directions (after regularization every member of an orientation cluster has its cluster's) taken
-    from the longest down: a direction within SNAP_MAX_DEG of one already taken, and within every one
-    of its walls' angle uncertainty (`uncertain` (N,) radians) of it, is that direction: those walls
-    are turned onto it about their midpoints. A wall fitted over two pieces of a short wall whose
-    skeleton steps by a pixel or two (where a partition's lines meet its face) tilts by degrees, and
-    a few such walls form an orientation cluster of their own (MLSTRUCT floor 302: 3 m of walls 3.5
-    degrees off, one of them prolonged across a room). A wing drawn off the main axes has a wall long
-    enough to be certain of its angle, and keeps its direction."""
-    if len(segs) < 2:
-        return segs
-    theta = np.mod(lines.angles(segs), np.pi)
-    key = np.round(np.degrees(theta) * 1e4).astype(np.int64) % 1_800_000
-    groups, inverse = np.unique(key, return_inverse=True)
-    weight = np.bincount(inverse, lines.lengths(segs), len(groups))
-    rotation = np.zeros(len(segs))
-    axes: list[float] = []
-    for g in np.argsort(-weight, kind="stable"):
-        phi = float(np.radians(groups[g] / 1e4))
-        members = inverse == g
-        if axes:
-            diff = np.array([float(lines.angle_difference(a, phi)) for a in axes])
-            near = int(np.argmin(np.abs(diff)))
-            d = abs(diff[near])
-            if d <= math.radians(SNAP_MAX_DEG) and bool((uncertain[members] >= d).all()):
-                rotation[members] = diff[near]
-                continue
-        axes.append(phi)
-    if not rotation.any():
-        return segs
-    return lines.rotate_segments(segs, rotation)
+    return out
 
 
 def follow_ink_to_ends(
@@ -434,10 +429,10 @@ def vector_walls(
     support = (walls_r | sym_any).astype(np.float32)
     segs = np.zeros((0, 4))
     if len(raw):
-        segs = lines.merge_segments(raw, lcfg).segments
+        segs = merge_within_directions(raw, lcfg)
         band = np.array([_thickness_px(sg, mask_f, cfg.max_outline_width_m * px)[0] for sg in segs])
         segs = _regularize(segs, band, lcfg)
-        segs = lines.merge_segments(segs, lcfg).segments
+        segs = merge_within_directions(segs, lcfg)
         segs, _ = _centre_and_measure(segs, mask_f, cfg.max_outline_width_m * px)
 
         def support_fn(pieces: NDArray, parent: NDArray) -> NDArray:
