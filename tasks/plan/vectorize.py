@@ -414,6 +414,7 @@ def vector_walls(
     px: float,
     cfg: PlanConfig,
     heavy_pen: bool = False,
+    line_work: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Straight walls from the Hough segments `raw` (K, 4): merged, regularized, centred on their ink,
     connected (extensions backed by walls or symbols), spurs dropped, free ends prolonged to the wall
@@ -423,16 +424,23 @@ def vector_walls(
     A junction hidden under a symbol is joined across less than the smallest door: an evacuation plan
     draws its signs in doorways. In a drawing in a heavy pen (`heavy_pen`) the drawing itself is black
     and a coloured stroke over it is someone's pen mark, and a door shows as paper with its swing: there
-    a wall's prolongation hidden all the way to another wall is joined up to the largest door."""
+    a wall's prolongation hidden all the way to another wall is joined up to the largest door.
+
+    In a drawing whose walls are read from its line work (`line_work`: a heavy pen, or coloured CAD
+    layers) a merged wall keeps within its pieces' directions (`merge_within_directions`); on the
+    survey generator's evacuation plans that moved walls by up to a centimetre (generator seeds 0-20:
+    mean completeness 0.9903 -> 0.9894 at 0.05 m), and the fusion downstream was checked on them as
+    they were."""
     lcfg = cfg.lines.scaled(px)
     mask_f = walls_r.astype(np.float32)
     support = (walls_r | sym_any).astype(np.float32)
     segs = np.zeros((0, 4))
     if len(raw):
-        segs = merge_within_directions(raw, lcfg)
+        merge = merge_within_directions if line_work else (lambda s, c: lines.merge_segments(s, c).segments)
+        segs = merge(raw, lcfg)
         band = np.array([_thickness_px(sg, mask_f, cfg.max_outline_width_m * px)[0] for sg in segs])
         segs = _regularize(segs, band, lcfg)
-        segs = merge_within_directions(segs, lcfg)
+        segs = merge(segs, lcfg)
         segs, _ = _centre_and_measure(segs, mask_f, cfg.max_outline_width_m * px)
 
         def support_fn(pieces: NDArray, parent: NDArray) -> NDArray:
