@@ -133,7 +133,7 @@ def parse_plan(
         px,
         cfg,
         raster.heavy_pen,
-        line_work=raster.heavy_pen or bool(raster.layer_evidence),
+        outline_layers=bool(raster.layer_evidence) and not raster.heavy_pen,
     )
     timings["vectorize_s"] = time.perf_counter() - t
     coverage = _check_walls(segs, thick, walls_r, ink_area, sp, cfg, name)
