@@ -18,9 +18,9 @@ from tasks.evaluate import evaluate_walls
 from tasks.plan.config import PlanConfig, PlanScale
 from tasks.plan.doors import _find_doors
 from tasks.plan.parse import parse_plan
-from tasks.plan.raster import load_plan_image
+from tasks.plan.raster import _fill_outline_walls, load_plan_image
 from tasks.plan.truth import rectangle_centrelines, thickness_errors
-from tasks.plan.vectorize import _regularize
+from tasks.plan.vectorize import _regularize, merge_within_directions
 
 S = 0.02  # metres per pixel of the drawn plans
 OUTER_T, INNER_T = 0.30, 0.14  # odd pixel widths (15, 7) keep the centreline on a pixel centre
@@ -221,6 +221,50 @@ def test_tilted_wing_keeps_its_angle():
     ang = angles_deg(main + piece, 16.0)
     np.testing.assert_allclose(ang[[1, 2, 3, 10]], ang[0], atol=1e-6)  # one cluster, its mean barely moved
     assert abs(ang[0]) < 0.01
+
+
+def test_merged_wall_keeps_within_its_pieces_directions():
+    """Known answer in pixels (100 px/m): two pieces of one wall on the axis, 34 and 17 px long, 3 px
+    apart across it and 3 px apart along it (a skeleton stepping where a partition meets the wall's
+    face, MLSTRUCT floor 302). The least-squares line over both tilts by about 4 degrees, past both
+    pieces; the merged wall runs along the axis at their length-weighted offset, over their extent. A
+    wall drawn 4 degrees off the axis, skeletonized into pieces at 3 and 5 degrees,
+    keeps the fitted 4 degrees."""
+    lcfg = PlanConfig().lines.scaled(100.0)
+    out = merge_within_directions(
+        np.array([[100.0, 200.0, 134.0, 200.0], [137.0, 203.0, 154.0, 203.0]]), lcfg
+    )
+    assert len(out) == 1
+    np.testing.assert_allclose(out[0, [1, 3]], 200.0 + 3.0 * 17 / 51, atol=1e-9)
+    np.testing.assert_allclose(sorted(out[0, [0, 2]]), [100.0, 154.0], atol=1e-9)
+    tilt = math.radians(4.0)
+    pieces = []
+    for k in range(6):  # alternating pieces along a 4 degree line, each turned 1 degree off it
+        x0, a = 100.0 + 40 * k, tilt + math.radians(1.0 if k % 2 else -1.0)
+        y0 = 300.0 + (x0 - 100.0) * math.tan(tilt)
+        pieces.append([x0, y0, x0 + 38 * math.cos(a), y0 + 38 * math.sin(a)])
+    out = merge_within_directions(np.array(pieces), lcfg)
+    assert len(out) == 1
+    ang = math.degrees(math.atan2(out[0, 3] - out[0, 1], out[0, 2] - out[0, 0]))
+    assert abs(abs(ang) - 4.0) < 0.5, ang
+
+
+def test_slanted_line_of_the_wall_pen_bounds_no_wall():
+    """Known answer in pixels (min wall thickness 8 px): a wall drawn as two vertical face lines 12 px
+    apart, and beside it a stair's tread (a vertical line of another layer) with a direction arrow's
+    arm slanting up to it in the walls' pen. Between the faces the wall is filled; between the arm and
+    the tread it is not: a run of paper along a row ends on a face only where the face runs along the
+    columns (before, the arm counted as a face and a wedge of wall stood beside the tread)."""
+    ink = np.zeros((120, 200), bool)
+    faces = np.zeros_like(ink)
+    for x in (20, 32):  # the wall's two faces
+        ink[10:110, x] = faces[10:110, x] = True
+    ink[10:110, 150] = True  # the tread, another layer
+    for k in range(40):  # the arrow's arm, 45 degrees, one pixel wide, in the walls' pen
+        ink[40 + k, 110 + k] = faces[40 + k, 110 + k] = True
+    filled = _fill_outline_walls(ink, 25, faces, 8.0)
+    assert filled[10:110, 20:33].all()
+    assert not filled[40:80, 111:150][~ink[40:80, 111:150]].any()
 
 
 def test_symbols_are_bridged():

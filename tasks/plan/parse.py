@@ -126,7 +126,14 @@ def parse_plan(
 
     t = time.perf_counter()
     segs, thick, thick_faces = vector_walls(
-        raw, walls_r, raster.lines_f, found.symbols_any, px, cfg, raster.heavy_pen
+        raw,
+        walls_r,
+        raster.lines_f,
+        found.symbols_any,
+        px,
+        cfg,
+        raster.heavy_pen,
+        outline_layers=bool(raster.layer_evidence) and not raster.heavy_pen,
     )
     timings["vectorize_s"] = time.perf_counter() - t
     coverage = _check_walls(segs, thick, walls_r, ink_area, sp, cfg, name)

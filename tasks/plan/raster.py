@@ -120,8 +120,17 @@ def _fill_outline_walls(
     L = int(max_width_px) | 1
     if L < 3:
         return ink
+    faces_rows = faces_cols = None
+    if faces is not None:
+        # a face bounds a run of paper only where it runs across it: a run along a row ends on a line
+        # along the columns (at least min_width_px long), and the other way round. A stair's direction
+        # arrow or a leader drawn in the walls' pen slants; beside a tread it made a wedge of wall.
+        r = max(3, int(min_width_px) | 1)
+        faces_rows = cv2.morphologyEx(faces.astype(np.uint8), cv2.MORPH_OPEN, np.ones((r, 1), np.uint8))
+        faces_cols = cv2.morphologyEx(faces.astype(np.uint8), cv2.MORPH_OPEN, np.ones((1, r), np.uint8))
+        faces_rows, faces_cols = faces_rows.astype(bool), faces_cols.astype(bool).T
     runs = []
-    for m, f in ((ink, faces), (ink.T, None if faces is None else faces.T)):
+    for m, f in ((ink, faces_rows), (ink.T, faces_cols)):
         h, w = m.shape
         idx = np.arange(w, dtype=np.int32)
         left = np.maximum.accumulate(np.where(m, idx, -1), axis=1)
