@@ -252,3 +252,10 @@ def test_plan_raster_scale_and_content(buildings):
     u, v = (round(c) for c in plan.you_are_here_px)
     assert np.allclose(to_px(b.you_are_here, s), plan.you_are_here_px)
     assert img[v, u, 2] > 150 and img[v, u, 0] < 60
+
+
+def test_a_sliver_edge_between_two_solid_parts_builds():
+    """Seed 115's slanted wall leaves a 4 mm edge whose both sides are wall material; it has no face to
+    draw (it used to stop the build with a KeyError)."""
+    b = generate_building(115)
+    assert len(b.mesh.triangles) > 0 and len(b.truth_walls) > 0

@@ -737,7 +737,7 @@ def _build_shell(mb: _MeshBuilder, rng, footprint, polys, heights, openings, pal
             elif side.startswith("op"):
                 op = op_by_name[side]
                 mb.vertical(q, p, op.z0_m, op.z1_m, face_mat(op.room_ids[0], q, p))
-            else:
+            elif side != "solid":  # solid on both sides: a sliver thinner than the probe, never seen
                 mb.vertical(q, p, 0.0, heights[side], face_mat(side, q, p))
     for op, g in cut.items():
         room = op.room_ids[0]
