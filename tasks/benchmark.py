@@ -47,6 +47,23 @@ def rigid_2d(
     return rot, md - rot @ ms
 
 
+def similarity_scale(est: NDArray[np.float64], true: NDArray[np.float64]) -> float:
+    """The scale λ of the least-squares similarity est ≈ λ · R · true + t (Umeyama; (N, D) points, N >= 2):
+    the size of an estimated trajectory relative to the true one, with the errors taken in the estimate.
+    Unlike the ratio of path lengths, position noise does not lengthen it: one camera 3.6 cm off its
+    neighbour on a 0.22 m step made data/mini r2's path 0.2 % long while this scale was 0.02 % off."""
+    e = np.asarray(est, dtype=np.float64)
+    t = np.asarray(true, dtype=np.float64)
+    ec, tc = e - e.mean(axis=0), t - t.mean(axis=0)
+    var = float((tc**2).sum())
+    if len(e) < 2 or var <= 0.0:
+        return float("nan")
+    u, sv, vt = np.linalg.svd(ec.T @ tc)
+    signs = np.ones(len(sv))
+    signs[-1] = np.sign(np.linalg.det(u @ vt)) or 1.0
+    return float((sv * signs).sum() / var)
+
+
 def move_segments(
     segments: NDArray[np.float64], rot: NDArray[np.float64], shift: NDArray[np.float64]
 ) -> NDArray[np.float64]:
@@ -129,7 +146,13 @@ def evaluate_room(run: RoomRun, truth_dir: Path) -> dict[str, Any]:
             true_len = float(
                 np.linalg.norm(np.diff(np.array([true[t] for t in common]), axis=0), axis=1).sum()
             )
-            out["scale_error_pct"] = 100.0 * (est_len / true_len - 1.0) if true_len > 0 else float("nan")
+            # the scale error is that of the best similarity of the camera positions (README); the path
+            # length ratio, which every misplaced camera lengthens, is kept beside it
+            scale = similarity_scale(np.array([est[t] for t in common]), np.array([true[t] for t in common]))
+            out["scale_error_pct"] = 100.0 * (scale - 1.0)
+            out["path_length_error_pct"] = (
+                100.0 * (est_len / true_len - 1.0) if true_len > 0 else float("nan")
+            )
             out["frames_compared"] = len(common)
             pred = move_segments(pred, rot, shift)
         refine_rot, refine_shift = refine_on_walls(pred, truth)

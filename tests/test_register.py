@@ -467,6 +467,10 @@ def test_judge_pairs_flags_the_frame_both_of_whose_pairs_disagree():
     assert np.isnan(judge_pairs(chain([(20, 60)]), 0.75, 200).min_share)
     # d's other pair tells nothing: c, wrong with two neighbours, takes the blame for c-d
     assert judge_pairs(chain([(900, 10), (100, 900), (100, 900), (20, 5)]), 0.75, 200).inconsistent == ["c"]
+    # a wrong frame's pairs are its fault, not broken links; one bad pair between good ones is a break
+    assert bent.broken_links == [] and straight.broken_links == []
+    split = judge_pairs(chain([(900, 10), (880, 40), (300, 700), (950, 5)]), 0.75, 200)
+    assert split.inconsistent == [] and split.broken_links == [("c", "d")]
 
 
 @pytest.mark.parametrize("shift_m, yaw_deg", [((0.0, 0.0, 0.0), 0.0), ((0.5, -0.3, 0.0), 12.0)])
@@ -531,6 +535,40 @@ def test_register_room_maps_again_when_a_frame_disagrees_with_the_depth(tmp_path
     assert res.metrics["map_check"]["used"] == "sfm seed 0 without 1 frames"
     assert res.metrics["map_check"]["min_pair_agreement"] < 0.5
     assert list(res.poses["method"]).count("none") == 1 and res.metrics["placed"] == 11
+
+
+def test_register_room_reports_a_map_broken_between_two_frames(tmp_path, monkeypatch):
+    """A map whose second half (frames 6-11) is placed rigidly 0.3 m off the first (what every mapper seed
+    did to survey 731's r4 between its frames 5 and 6: that pair 0.63 in agreement, 8 cm ATE) has no
+    inconsistent frame, but its pair 5-6 disagrees while each frame agrees with its other neighbour: the
+    metrics name the broken link; a whole map reports none."""
+    cam = small_camera()
+    poses = _ring_in_box(12)
+    frames = [
+        (int(k * 1e8), box_hits(cam, T)[0], np.full((120, 160, 3), 128, np.uint8))
+        for k, T in enumerate(poses)
+    ]
+    path = write_rendered_frames(tmp_path / "frames.parquet", frames)
+    G = _moved(np.eye(4), (0.3, 0.0, 0.0), 0.0)
+    broken = {"on": True}
+
+    def placed(seed: int) -> dict[str, np.ndarray]:
+        return {f"{k:06d}.png": G @ T if broken["on"] and k >= 6 else T for k, T in enumerate(poses)}
+
+    seeds = _fake_sfm(monkeypatch, 12, lambda seed: 0.001, placed)
+    res = register_room(path, camera_info(cam), None, RegisterConfig(), SfmConfig(), tmp_path / "w")
+    assert seeds == [0]
+    (attempt,) = res.metrics["sfm_attempts"]
+    assert attempt["inconsistent_frames"] == [] and attempt["min_pair_agreement"] < 0.1
+    check = res.metrics["map_check"]
+    assert check["broken_links"] == ["000005.png-000006.png"]
+    assert check["verdict"].startswith("the map breaks between two frames")
+    assert check["why"] == "seed 0: the map breaks between 000005.png and 000006.png (their depth disagrees)"
+    assert res.metrics["placed"] == 12
+    broken["on"] = False
+    res = register_room(path, camera_info(cam), None, RegisterConfig(), SfmConfig(), tmp_path / "w2")
+    assert res.metrics["map_check"]["broken_links"] == []
+    assert res.metrics["map_check"]["verdict"] == "consistent"
 
 
 def test_calibration_from_camera_info_uses_the_profile_pose_only_for_sensor_intrinsics():
