@@ -121,12 +121,13 @@ def test_a_wardrobe_in_a_corner_whose_wall_the_sensor_never_saw_above_it_is_no_w
     assert model.closed and len(model.walls) == 4 and ev["correctness"] == 1.0, (ev, model.walls)
 
 
-def test_a_box_beside_a_wall_s_seen_end_is_furniture_and_a_step_with_one_side_stays():
+def test_a_box_beside_a_wall_s_seen_end_is_furniture_and_a_step_into_a_corner_stays():
     """A cabinet 0.9 m wide and 0.5 m deep stands against the south wall just past where the capture saw
     that wall (the wall behind it and beyond it unseen): no wall line runs along its front, but both its
     ends are joined to the wall's line by sides, so it is a box standing on the wall; so is one with a side
-    at one end and the room's corner beyond the other. A step of the same depth with one side only and no
-    wall of the room reaching the line behind it (the room's outline jogs in) stays."""
+    at one end and the room's corner beyond the other, and one with a side at the wall's seen end and its
+    other end free (the capture saw the wall up to the box and nothing past it). A step of the same depth
+    whose free end runs into a wall of the room meeting its line (the room's outline jogs in there) stays."""
     room = [
         [0, 0, 2, 0],  # south, seen up to x = 2
         [6, 0, 6, 4],  # east, north, west
@@ -137,12 +138,90 @@ def test_a_box_beside_a_wall_s_seen_end_is_furniture_and_a_step_with_one_side_st
     lines = np.array([*room, *box], dtype=float)
     found = furniture_in_front(lines, np.array([3.0, 2.0]), CFG, 3.0)
     assert np.flatnonzero(found).tolist() == [4, 5, 6]
-    step = np.array([*room, [2.0, 0.5, 3.5, 0.5], [2.0, 0.0, 2.0, 0.5]], dtype=float)
-    assert not furniture_in_front(step, np.array([3.0, 2.0]), CFG, 3.0).any()
+    # one side, at the south wall's seen end, the other end free 2.5 m short of the east wall
+    one_side = np.array([*room, [2.0, 0.5, 3.5, 0.5], [2.0, 0.0, 2.0, 0.5]], dtype=float)
+    assert np.flatnonzero(furniture_in_front(one_side, np.array([3.0, 2.0]), CFG, 3.0)).tolist() == [4, 5]
+    # the outline steps in at x = 2 and runs on to the east wall, which meets the step's line 0.2 m past
+    # its free end (the two lines' ends stop short of the corner)
+    step_room = [[0, 0, 2, 0], [3.7, 0.5, 3.7, 4], [3.7, 4, 0, 4], [0, 4, 0, 0]]
+    step = np.array([*step_room, [2.0, 0.5, 3.5, 0.5], [2.0, 0.0, 2.0, 0.5]], dtype=float)
+    assert not furniture_in_front(step, np.array([1.8, 2.0]), CFG, 3.0).any()
     # a cabinet with one side seen, 0.5 m from the room's corner: the east wall reaches the south wall's
     # line beyond its other end, so the room goes on behind it
     corner = np.array([*room, [4.2, 0.5, 5.5, 0.5], [4.2, 0.0, 4.2, 0.5]], dtype=float)
     assert np.flatnonzero(furniture_in_front(corner, np.array([3.0, 2.0]), CFG, 3.0)).tolist() == [4, 5]
+
+
+def test_a_short_wall_beside_an_alcove_is_no_box_on_the_alcove_s_back():
+    """An alcove 1.4 m wide and 0.6 m deep in the south wall, of which only the 0.6 m west of the alcove was
+    seen (the rest, and the south-west corner, unseen): that stretch stands 0.6 m in front of the alcove's
+    back with the alcove's side at its end, like a box beside a wall's seen end, but the alcove's other side
+    runs from the back's other end into the room as deep and stops there: the back of a recess, and the
+    stretch is the room's wall; so is an alcove's side beside the room's corner, past the wall's seen end,
+    when the room's wall runs on in line with the piece joining them. A wall of the room seen only near that
+    corner, as deep as the box and in line with another piece of it, is no recess's side: the box beside the
+    east wall's seen end goes."""
+    alcove = [
+        [1.4, 0, 2.0, 0],  # the south wall's stretch beside the alcove
+        [2.0, -0.6, 3.4, -0.6],  # the alcove's back and sides
+        [2.0, -0.6, 2.0, 0],
+        [3.4, -0.6, 3.4, 0],
+        [0, 1.5, 0, 4],  # west (its south end unseen), north, east
+        [0, 4, 5, 4],
+        [5, 4, 5, 1],
+    ]
+    found = furniture_in_front(np.array(alcove, dtype=float), np.array([2.5, 2.0]), CFG, 3.0)
+    assert not found[0]
+    # an alcove 0.4 m from the south-west corner, its back unseen: its west side stands 0.4 m in front of
+    # the west wall's line past that wall's end, the south wall's piece at the corner joining them like a
+    # box's side, but the south wall runs on in line with that piece: the side lies beyond the room's wall
+    corner_alcove = [
+        [0, 4, 0, 0.05],  # west
+        [0, 0, 0.4, 0],  # south, by the corner, and in line with it further east
+        [3.0, 0, 5, 0],
+        [0.4, 0, 0.4, -0.6],  # the alcove's west side
+        [5, 0, 5, 4],
+        [5, 4, 0, 4],
+    ]
+    assert not furniture_in_front(np.array(corner_alcove, dtype=float), np.array([2.5, 2.0]), CFG, 3.0).any()
+    room = [
+        [6, 0.5, 6, 2.8],  # east, seen from 0.5 m above the south-east corner (behind the box) to 2.8 m
+        [5.5, 2.8, 5.5, 3.7],  # a cabinet's front beyond the east wall's seen end, and its side
+        [5.5, 2.8, 6.0, 2.8],
+        [0, 0, 0.5, 0],  # south, seen only by the south-west corner, and in line with it a piece
+        [3.0, 0, 4.5, 0],
+        [0, 0, 0, 4],  # west
+    ]
+    found = furniture_in_front(np.array(room, dtype=float), np.array([3.0, 2.0]), CFG, 3.0)
+    assert found[1] and found[2] and not found[[0, 3, 4, 5]].any()
+
+
+def _box_past_a_seen_end(rng: np.random.Generator, cut: float) -> tuple[np.ndarray, np.ndarray]:
+    """A 6 x 4 m room without a ceiling whose south wall was seen only east of a cabinet (0.9 m wide,
+    0.47 m deep, its east side at x = 3) and whose west wall only from 1.5 m up: the wall behind the cabinet
+    and the south-west corner unseen, as a handheld capture leaves them."""
+    corners = [(0, 0), (6, 0), (6, 4), (0, 4)]
+    truth = np.array([[*corners[i], *corners[(i + 1) % 4]] for i in range(4)], float)
+    seen = [((3.0, 0), (6, 0)), ((6, 0), (6, 4)), ((6, 4), (0, 4)), ((0, 4), (0, 1.5))]
+    faces = [wall_points(a, b, 0.0, cut, rng, step=0.03, noise=0.008) for a, b in seen]
+    box = [((2.1, 0.47), (3.0, 0.47)), ((3.0, 0.47), (3.0, 0.0))]
+    faces += [wall_points(a, b, 0.0, cut, rng, step=0.03, noise=0.008) for a, b in box]
+    return np.concatenate(faces), truth
+
+
+def test_a_room_without_a_ceiling_drops_a_cabinet_standing_past_a_wall_s_seen_end(rng):
+    from tasks.walls.model import model_walls
+
+    cut = 1.5
+    pts, truth = _box_past_a_seen_end(rng, cut)
+    band = pts[pts[:, 2] >= cut - 0.5]
+    model = model_walls(band, 0.0, cut, CFG)
+    ev = evaluate_walls(model.walls, truth)
+    assert ev["correctness"] == 1.0, (ev, model.walls)
+    assert model.metrics["lines_furniture_no_ceiling"] >= 1
+    # without the furniture tests the cabinet's front and side are walls of the room
+    kept = model_walls(band, 0.0, cut, replace(CFG, furniture_max_length_m=0.0))
+    assert evaluate_walls(kept.walls, truth)["correctness"] < 0.95
 
 
 def test_a_long_wall_beyond_a_short_wall_at_a_corner_and_an_oblique_one_go_and_an_island_s_wall_stays():

@@ -627,7 +627,9 @@ def furniture_in_front(
       `interior`), with the wall's line (its collinear pieces together, longer than the front: the wall
       behind the furniture is hidden in the slice, so its pieces either side may each be shorter) running
       along at least half of it, or with both its ends joined to the wall's line by sides (a box standing
-      on the wall just past where the capture saw it: the wall behind and beyond it unseen);
+      on the wall just past where the capture saw it: the wall behind and beyond it unseen), or with one
+      end where the wall's seen part ends and the other free (`at_seen_end`: the wall seen up to the box
+      and not past it);
     - a side: a line perpendicular to such a wall, `furniture_min_depth_m` to `furniture_max_depth_m` long,
       from the wall's line (not at its ends: a corner, unless a front ends it) into the room, in line with
       no other line, whose
@@ -665,6 +667,18 @@ def furniture_in_front(
 
     end_tol = cfg.thin_wall_end_tol_m
 
+    def is_side(k: int, i: int, j: int, e: int, dd: NDArray) -> bool:
+        """Is line k a side joining end e of line i (standing dd in front of line j) to j's line: across j,
+        from within `thin_wall_end_tol_m` of the end to within that of j's line, no longer than that?"""
+        dk = depth(k, j)
+        p = lines[i, 2 * e : 2 * e + 2]
+        return (
+            dk.min() <= end_tol
+            and point_segment_distances(p[None], lines[k : k + 1])[0, 0] <= end_tol
+            and L[k] <= d_hi + end_tol
+            and abs(dk.max() - dd[e]) <= end_tol
+        )
+
     def boxed(i: int, j: int, dd: NDArray) -> bool:
         """Is line i (standing dd in front of line j) a box on j's line: each of its ends joined to j's line
         by a side (a line perpendicular to j from within `thin_wall_end_tol_m` of the end to within that of
@@ -675,7 +689,6 @@ def furniture_in_front(
         t_i = (lines[i].reshape(2, 2) - lines[j, :2]) @ u[j]
         sides = 0
         for e in range(2):
-            p = lines[i, 2 * e : 2 * e + 2]
             side = corner = False
             for k in np.flatnonzero(np.abs(np.cos(ang - ang[j])) <= sin_loose):
                 if k in (i, j):
@@ -683,8 +696,7 @@ def furniture_in_front(
                 dk = depth(k, j)
                 if dk.min() > end_tol:
                     continue  # k stands off j's line
-                near_end = point_segment_distances(p[None], lines[k : k + 1])[0, 0] <= end_tol
-                if near_end and L[k] <= d_hi + end_tol and abs(dk.max() - dd[e]) <= end_tol:
+                if is_side(k, i, j, e, dd):
                     side = True
                     break
                 # beyond the end (outward along j), within the gap a wall may be unseen, past the box's depth
@@ -696,6 +708,100 @@ def furniture_in_front(
             elif not corner:
                 return False
         return sides >= 1
+
+    across_j = np.abs(np.cos(ang[:, None] - ang[None, :])) <= sin_loose  # (M, M) k crosses j
+
+    def runs_on(k: int, j: int, tk: float) -> bool:
+        """Does line k, across j's line at tk along it, have another piece in line with it (another line
+        across j, both ends within `lines.offset_tol_m` of tk; judged along the long line j, as a short line's
+        own direction is good to a few degrees only)?"""
+        other = across_j[:, j].copy()
+        other[[k, j]] = False
+        tt = np.abs(
+            np.stack([(lines[:, :2] - lines[j, :2]) @ u[j], (lines[:, 2:] - lines[j, :2]) @ u[j]]) - tk
+        )
+        return bool((other & (tt.max(axis=0) <= cfg.lines.offset_tol_m)).any())
+
+    def at_seen_end(i: int, j: int, dd: NDArray, t: NDArray, t0: float, t1: float) -> bool:
+        """Is line i (standing dd in front of line j, spanning t along j's line, whose pieces span t0..t1) a
+        box standing where j's seen part ends: one end at j's end (joined to j's line by a side, or its foot
+        on j's line within twice `thin_wall_end_tol_m` of where j's data stop: the skeleton rounds both
+        corners), the whole of i beyond that end, its other end free (within `thin_wall_end_tol_m` of no other
+        line), in line with no other line and at least as long as it stands deep? The capture saw the wall up
+        to the box, which hid it behind, and not past the box's free end (a handheld capture misses a fifth of
+        the walls). A step of the room's outline runs on to a corner (a wall of the room meeting i's line at
+        its free end: not taken); the back of an alcove (j) beside a short stretch of the room's wall (i) has
+        the alcove's other side at its other end, as deep as i stands and in line with nothing, and an alcove's
+        side beside the room's corner has a wall of the room in line with the box's side: not taken."""
+        if L[i] < dd.max():
+            return False  # narrower than deep: a wall's piece at a corner and a stub may look so as well
+        inline = _collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
+        inline[i] = False
+        if inline.any():
+            return False
+        others = np.ones(m, dtype=bool)
+        others[i] = False
+        gaps = point_segment_distances(lines[i].reshape(2, 2), lines[others]).min(axis=1)  # (2,) per end
+        reach = 2 * end_tol  # each of the two ends may stop short of the box's corner by end_tol
+        for e in range(2):
+            o = 1 - e
+            if gaps[o] <= end_tol:
+                continue  # the other end meets a line
+            # the whole of i beyond j's start (its other end before it) or beyond j's end
+            before = t[o] < t[e] and t[o] <= t0 + tol
+            after = t[o] > t[e] and t[o] >= t1 - tol
+            if not (before or after):
+                continue
+            j_end = t0 if before else t1
+            if abs(t[e] - j_end) > reach:
+                side = t0 - reach <= t[e] <= t1 + reach and any(
+                    is_side(k, i, j, e, dd) for k in np.flatnonzero(across_j[:, j]) if k not in (i, j)
+                )
+                if not side:
+                    continue
+            # the room's wall runs along the line of the box's side, deeper into the room than the box: the
+            # box would stand outside the room (an alcove's side beside the room's corner)
+            walled = False
+            for k in np.flatnonzero(across_j[:, j]):
+                if k in (i, j):
+                    continue
+                tk = np.array([(lines[k, :2] - lines[j, :2]) @ u[j], (lines[k, 2:] - lines[j, :2]) @ u[j]])
+                walled |= bool(np.abs(tk - t[e]).max() <= end_tol and depth(k, j).max() > dd.max() + end_tol)
+            if walled:
+                continue
+            # the room's outline steps in there: a wall of the room meets i's line at its free end (ends
+            # short of the corner by up to end_tol each) and runs into the room from there
+            out_dir = 1.0 if after else -1.0
+            for k in np.flatnonzero(across_j[:, j]):
+                if k in (i, j):
+                    continue
+                dk = depth(k, j)
+                near = lines[k, :2] if dk[0] <= dk[1] else lines[k, 2:]
+                beyond = (float((near - lines[j, :2]) @ u[j]) - t[o]) * out_dir
+                if (
+                    abs(dk.min() - dd.mean()) <= end_tol
+                    and dk.max() > dk.min() + end_tol
+                    and -end_tol <= beyond <= reach
+                ):
+                    return False
+            far = t1 if before else t0
+            # j the back of a recess: at its far end (away from i) a line runs from j's line into the
+            # room as deep as i stands, and stops there (a wall of the room seen only near the corner runs
+            # on, in line with its other pieces)
+            for k in np.flatnonzero(across_j[:, j]):
+                if k in (i, j):
+                    continue
+                dk = depth(k, j)
+                foot = (lines[k, :2] if dk[0] <= dk[1] else lines[k, 2:]) - lines[j, :2]
+                if (
+                    dk.min() <= end_tol
+                    and abs(dk.max() - dd.mean()) <= end_tol
+                    and abs(foot @ u[j] - far) <= reach
+                    and not runs_on(k, j, float(foot @ u[j]))
+                ):
+                    return False
+            return True
+        return False
 
     def isolated(i: int, j: int, t: NDArray, t0: float, t1: float) -> bool:
         """Is line i (in front of line j, spanning t along j's line, whose pieces span t0..t1) a free-standing
@@ -741,12 +847,14 @@ def furniture_in_front(
             # the wall's line runs along at least half the front (a wardrobe in a corner hides the wall
             # behind it up to the corner; an alcove's mouth beside the alcove's back wall runs along none)
             overlap = min(t.max(), t1) - max(t.min(), t0)
-            if (t1 - t0 > L[i] + tol and (overlap >= 0.5 * L[i] or boxed(i, j, dd))) or isolated(
-                i, j, t, t0, t1
-            ):
+            if (
+                t1 - t0 > L[i] + tol
+                and (overlap >= 0.5 * L[i] or boxed(i, j, dd) or at_seen_end(i, j, dd, t, t0, t1))
+            ) or isolated(i, j, t, t0, t1):
                 out[i] = True
                 break
     front = out.copy()
+    corner_tol = math.sqrt(2.0) * end_tol
     for k in np.flatnonzero((L >= d_lo) & (L <= d_hi + tol) & ~front):
         inline = _collinear_with(lines, ang, n, k, cos_tol, cfg.lines.offset_tol_m) & ~front
         inline[k] = False
@@ -763,7 +871,8 @@ def furniture_in_front(
             dd = depth(k, j)
             inner = lines[k, 2:] if dd[1] > dd[0] else lines[k, :2]
             # a side that joins a front to the wall may stop short of both by as much as their ends may lie apart
-            at_front = front.any() and point_segment_distances(inner[None], lines[front]).min() <= end_tol
+            # (each end short of the box's corner by up to end_tol along its own line)
+            at_front = front.any() and point_segment_distances(inner[None], lines[front]).min() <= corner_tol
             if not ((dd >= -tol) & (dd <= d_hi + tol)).all() or dd.min() > (end_tol if at_front else tol):
                 continue
             t0, t1 = wall_extent(j)
