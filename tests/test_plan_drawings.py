@@ -524,6 +524,25 @@ def test_swing_under_a_pen_mark():
     assert swing_share(p, q, 4.0, np.zeros_like(cut, np.float32), hidden_f=stroke.astype(np.float32)) == 0.0
 
 
+def test_swing_about_a_jamb_hidden_under_a_pen_mark():
+    """Known answer (pixels), drawing 313's scan: a gap from (100, 100) to (180, 100) in a wall 8 px
+    thick whose door is hinged at (120, 100): a red pen stroke across the wall hides its last 20 px (the
+    stroke is a removed symbol, and the wall's ink is read as ending where the stroke begins). The
+    swing, a quarter circle of radius 60 about the hidden jamb, is not found about the visible end or a
+    tenth of the gap beyond it; it is, with the stroke given as hidden, since the jamb may end anywhere
+    under it. A stroke elsewhere (across the arc, off the jamb) lends the hinge nothing."""
+    p, q = np.array([100.0, 100.0]), np.array([180.0, 100.0])
+    arc = np.zeros((300, 300), np.uint8)
+    _arc(arc, (120, 104), 60, 0.0, math.pi / 2)
+    stroke = np.zeros_like(arc)
+    cv2.line(stroke, (92, 82), (130, 118), 1, 16)  # over the wall from u 99 to 122
+    assert swing_share(p, q, 4.0, arc.astype(np.float32)) < 0.7
+    assert swing_share(p, q, 4.0, arc.astype(np.float32), hidden_f=stroke.astype(np.float32)) >= 0.9
+    elsewhere = np.zeros_like(arc)
+    cv2.line(elsewhere, (150, 130), (170, 170), 1, 12)
+    assert swing_share(p, q, 4.0, arc.astype(np.float32), hidden_f=elsewhere.astype(np.float32)) < 0.7
+
+
 def test_hough_leaves_no_straight_skeleton_run():
     """Known answer: walls 12 px thick (a frame and six walls with T-junctions; 50 px per metre, so the
     Hough pieces are at least 8 px). The probabilistic transform alone leaves a straight stretch of the
