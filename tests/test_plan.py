@@ -661,3 +661,50 @@ def test_free_space_rooms_keep_the_raster_face_of_a_wall_drawn_thicker_than_it_i
         hit = room.exterior.intersection(shapely.LineString([(x, 100.0), (x, 199.0)]))
         ys = [p.y for p in getattr(hit, "geoms", [hit])]
         assert abs(min(ys) - face) <= 0.5, (x, ys)
+
+
+def test_outside_corner_between_outer_walls_is_no_room() -> None:
+    """rooms.free_space_rooms with seal_gaps (drawing 315's scan): a room (140-340 x 140-300 px, walls 8
+    px thick, 50 px a metre, 140 px of paper around) whose east wall runs slanted from (240, 300) up to
+    (340, 140) while its south wall runs on east to x = 430, so the outside makes an acute corner
+    between the two; the west wall has a 1 m window left as a gap (y 200-250). Closed by a square as wide as the largest door (2.2 m)
+    the acute corner stands apart from the outside as a sliver room; closed across the gaps between wall
+    ends (`wall_gaps`, every door-wide opening) and a square as wide as the smallest door, the room is
+    one room, the window does not open it, and the corner stays outside."""
+    from tasks.plan.doors import wall_gaps
+    from tasks.plan.rooms import free_space_rooms
+
+    segs = (
+        np.array(
+            [
+                [40.0, 40, 240, 40],  # north
+                [40, 40, 40, 100],  # west, north of the window
+                [40, 150, 40, 200],  # west, south of the window
+                [40, 200, 330, 200],  # south, running on past the slanted wall
+                [140, 200, 240, 40],  # the slanted east wall
+            ]
+        )
+        + 100.0
+    )
+    thick = np.full(len(segs), 8.0)
+    walls = np.zeros((440, 530), np.uint8)
+    for sg in segs.astype(int):
+        cv2.line(walls, (int(sg[0]), int(sg[1])), (int(sg[2]), int(sg[3])), 1, 8)
+    walls = walls.astype(bool)
+    cfg = PlanConfig()
+    px = 50.0
+    square = free_space_rooms(
+        walls, segs, thick, np.zeros((0, 4)), 1 / px, cfg, 110, seal_gaps=np.zeros((0, 4))
+    )
+    assert len(square) == 2 and min(r.area for r in square) / px**2 >= cfg.min_room_area_m2
+    gaps = wall_gaps(segs, thick, walls.astype(np.float32), px, cfg)
+    assert len(gaps) == 1 and sorted(gaps[0, 1::2]) == pytest.approx([200, 250], abs=1.0)
+    rooms = free_space_rooms(walls, segs, thick, np.zeros((0, 4)), 1 / px, cfg, 25, seal_gaps=gaps)
+    assert len(rooms) == 1
+    room = rooms[0]
+    assert room.contains(shapely.Point(200, 220)) and not room.intersects(shapely.Point(300, 280))
+    # the trapezoid inside the walls' faces
+    inside = shapely.Polygon([(140, 140), (340, 140), (240, 300), (140, 300)]).buffer(
+        -4.0, join_style="mitre"
+    )
+    assert room.area == pytest.approx(inside.area, rel=0.03)

@@ -6,6 +6,7 @@ own orthogonal directions, and a wall's free end follows its ink."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -389,6 +390,26 @@ def test_scale_from_dimension_lines():
     assert read_dimension_scale(one) is None
 
 
+def test_numbers_read_in_one_run_as_if_alone():
+    """dimensions.read_lines_batch: printed lengths and a blank page between them, read as the pages of
+    one Tesseract run, give each page the text it gives read alone, in order (a blank page keeps its
+    place)."""
+    import pytesseract
+
+    from tasks.plan.dimensions import read_lines_batch
+
+    pages = []
+    for text in ("3.45", "", "12.07", "5.20"):
+        img = np.full((70, 240), 255, np.uint8)
+        if text:
+            cv2.putText(img, text, (20, 50), cv2.FONT_HERSHEY_SIMPLEX, 1.3, 0, 3)
+        pages.append(img)
+    cfg = "--psm 7 -c tessedit_char_whitelist=0123456789.,"
+    read = [t.strip() for t in read_lines_batch(pages, pytesseract, cfg)]
+    assert read == [pytesseract.image_to_string(p, config=cfg).strip() for p in pages]
+    assert read == ["3.45", "", "12.07", "5.20"]
+
+
 def test_dimension_scale_agreed_over_stretches():
     """Known answer: four stretches whose numbers were read several ways (a photo's small digits); three
     have a candidate at 0.020 m/px (one only as its second reading), the fourth only wrong readings: the
@@ -427,13 +448,15 @@ def test_dimension_line_cut_by_a_thick_stretch_is_one_line():
 
 
 class _FakeTesseract:
-    """Tesseract reading the given strings in turn (one per call, then nothing)."""
+    """Tesseract reading the given strings in turn (one per image, then nothing); given a list file of
+    images (one run reading several), the pages' reads separated by form feeds, as Tesseract does."""
 
     def __init__(self, reads: list[str]) -> None:
         self.reads = list(reads)
 
-    def image_to_string(self, _img, config: str = "") -> str:
-        return self.reads.pop(0) if self.reads else ""
+    def image_to_string(self, img, config: str = "") -> str:
+        pages = len(Path(img).read_text().split()) if isinstance(img, str) else 1
+        return "\f".join(self.reads.pop(0) if self.reads else "" for _ in range(pages))
 
 
 def test_scale_bar_label_without_a_digit_needs_a_second_reading():
@@ -522,6 +545,25 @@ def test_swing_under_a_pen_mark():
     assert swing_share(p, q, 4.0, cut.astype(np.float32)) < 0.7
     assert swing_share(p, q, 4.0, cut.astype(np.float32), hidden_f=stroke.astype(np.float32)) >= 0.75
     assert swing_share(p, q, 4.0, np.zeros_like(cut, np.float32), hidden_f=stroke.astype(np.float32)) == 0.0
+
+
+def test_swing_about_a_jamb_hidden_under_a_pen_mark():
+    """Known answer (pixels), drawing 313's scan: a gap from (100, 100) to (180, 100) in a wall 8 px
+    thick whose door is hinged at (120, 100): a red pen stroke across the wall hides its last 20 px (the
+    stroke is a removed symbol, and the wall's ink is read as ending where the stroke begins). The
+    swing, a quarter circle of radius 60 about the hidden jamb, is not found about the visible end or a
+    tenth of the gap beyond it; it is, with the stroke given as hidden, since the jamb may end anywhere
+    under it. A stroke elsewhere (across the arc, off the jamb) lends the hinge nothing."""
+    p, q = np.array([100.0, 100.0]), np.array([180.0, 100.0])
+    arc = np.zeros((300, 300), np.uint8)
+    _arc(arc, (120, 104), 60, 0.0, math.pi / 2)
+    stroke = np.zeros_like(arc)
+    cv2.line(stroke, (92, 82), (130, 118), 1, 16)  # over the wall from u 99 to 122
+    assert swing_share(p, q, 4.0, arc.astype(np.float32)) < 0.7
+    assert swing_share(p, q, 4.0, arc.astype(np.float32), hidden_f=stroke.astype(np.float32)) >= 0.9
+    elsewhere = np.zeros_like(arc)
+    cv2.line(elsewhere, (150, 130), (170, 170), 1, 12)
+    assert swing_share(p, q, 4.0, arc.astype(np.float32), hidden_f=elsewhere.astype(np.float32)) < 0.7
 
 
 def test_hough_leaves_no_straight_skeleton_run():

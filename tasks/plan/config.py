@@ -135,8 +135,9 @@ class PlanConfig:
     is a door only when thin ink draws this share of its swing's quarter circle; 0 takes every gap."""
     seal_heavy_pen_outline: bool = True
     """In a drawing whose walls are drawn in a heavy pen, the outside is what stays joined to the image's
-    border when the walls are closed across door_max_m: a window or a bay left as a gap in an outer
-    wall does not open its room to the outside."""
+    border when every gap between wall ends a door could fill (door_min_m to door_max_m) is closed, and
+    narrower ones by a door_min_m square: a window or a bay left as a gap in an outer wall does not open
+    its room to the outside, and an acute corner between two outer walls stays outside."""
     min_room_area_m2: float = 1.0
     """Free-space regions smaller than this are not rooms (shafts, wall interiors)."""
     min_extent_m: float = 2.0

@@ -55,7 +55,9 @@ def swing_share(
     share is that of the longest run of angles with ink (a single angle without it bridged, where glare
     pales the arc), so the edges of a table and its chairs that the arc happens to cross in pieces do not
     add up to a swing. With `hidden_f` (h, w), the removed symbols: a stretch of arc under one (a pen
-    mark drawn across the swing) does not break the run, but only the angles with ink count."""
+    mark drawn across the swing) does not break the run, but only the angles with ink count; and a jamb
+    whose end lies under one (the wall's ink stops where the mark begins) may end anywhere along the
+    hidden stretch that runs on from it into the gap, so the hinge is also sought that far out."""
     w = float(np.hypot(*(q - p)))
     if w <= 0:
         return 0.0
@@ -64,8 +66,10 @@ def swing_share(
     ts = np.linspace(0.2, math.pi / 2 - 0.1, n_angles)
     band = np.array([-1.5, -0.75, 0.0, 0.75, 1.5])
     best = 0.0
-    shifts = np.arange(-0.25 * w, 0.1 * w + 1.0, 2.0)  # the jamb's end found short or long
     for hinge, along in ((p, u), (q, -u)):
+        # the jamb's end found short or long, or hidden under a removed symbol up to half the gap
+        out = max(0.1 * w, _hidden_run(hinge, along, 0.5 * w, hidden_f))
+        shifts = np.arange(-0.25 * w, out + 1.0, 2.0)
         for side in (n, -n):
             dirs = np.outer(np.cos(ts), along) + np.outer(np.sin(ts), side)  # (A, 2)
             for sh in shifts:
@@ -80,6 +84,20 @@ def swing_share(
                     hidden = (sample_mask(hidden_f, flat).reshape(ink.shape) > 0.5).any(axis=1)
                 best = max(best, _longest_run(ink.any(axis=1), hidden) / len(ts))
     return best
+
+
+def _hidden_run(p: NDArray, u: NDArray, max_px: float, hidden_f: NDArray[np.float32] | None) -> float:
+    """How far (pixels) from the wall end p along the unit direction u the removed symbols `hidden_f`
+    (h, w) cover the line without a break (starting within 2 px of p), at most max_px; 0 without any."""
+    if hidden_f is None or max_px < 1.0:
+        return 0.0
+    ts = np.arange(1.0, max_px + 1.0, 1.0)
+    on = sample_mask(hidden_f, p + ts[:, None] * u) > 0.5
+    if not on[:2].any():
+        return 0.0
+    start = int(np.argmax(on))
+    rest = ~on[start:]
+    return float(ts[start + int(np.argmax(rest))] - 1.0) if rest.any() else float(ts[-1])
 
 
 def _longest_run(hit: NDArray[np.bool_], hidden: NDArray[np.bool_] | None = None) -> int:
@@ -270,3 +288,18 @@ def doors_and_windows(
             thick_faces = np.concatenate([thick_faces, thick_faces[near]])
             doors, n_windows = doors[~window], int(window.sum())
     return segs, thick, thick_faces, doors, n_windows
+
+
+def wall_gaps(
+    segs: NDArray[np.float64],
+    thick: NDArray[np.float64],
+    mask_f: NDArray[np.float32],
+    px: float,
+    cfg: PlanConfig,
+) -> NDArray[np.float64]:
+    """Every gap (G, 4) between wall ends (M, 4) (working pixels) that a door could fill (door_min_m to
+    door_max_m at `px` pixels per metre), its swing drawn or not: what closes an outer wall's openings
+    when the outside is sought."""
+    return _find_doors(
+        segs, thick, {"door_min": cfg.door_min_m * px, "door_max": cfg.door_max_m * px}, mask_f
+    )

@@ -40,7 +40,7 @@ from shapely.geometry import Polygon
 from tasks import lines
 from tasks.plan.config import PlanConfig, PlanScale
 from tasks.plan.dimensions import read_dimension_scale
-from tasks.plan.doors import doors_and_windows
+from tasks.plan.doors import doors_and_windows, wall_gaps
 from tasks.plan.raster import clean_ink, enhance, min_pool, wall_raster
 from tasks.plan.rooms import (
     free_space_rooms,
@@ -143,8 +143,11 @@ def parse_plan(
     segs, thick, thick_faces, doors, n_windows = doors_and_windows(
         segs, thick, thick_faces, mask_f, found, px, cfg, raster.heavy_pen
     )
-    seal = round(cfg.door_max_m * px) if raster.heavy_pen and cfg.seal_heavy_pen_outline else 0
-    rooms_px = free_space_rooms(walls_r, segs, thick, doors, sp, cfg, seal, found.dark)
+    gaps = None
+    if raster.heavy_pen and cfg.seal_heavy_pen_outline:  # every door-wide gap, its swing drawn or not
+        gaps = wall_gaps(segs, thick, mask_f, px, cfg)
+    seal = round(cfg.door_min_m * px)
+    rooms_px = free_space_rooms(walls_r, segs, thick, doors, sp, cfg, seal, found.dark, gaps)
     rooms_m = rooms_in_metres(rooms_px, f, s, labels)
     timings["rooms_s"] = time.perf_counter() - t
     if not rooms_m:

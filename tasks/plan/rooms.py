@@ -72,12 +72,17 @@ def free_space_rooms(
     cfg: PlanConfig,
     seal_px: int = 0,
     ink: NDArray[np.bool_] | None = None,
+    seal_gaps: NDArray[np.float64] | None = None,
 ) -> list[Polygon]:
     """Room polygons (working pixels): the free space the walls (M, 4) and door lines (D, 4) enclose, in
-    components of at least `min_room_area_m2` at `sp` metres per working pixel. With `seal_px`, the
-    outside is what stays joined to the image's border once the walls are closed by a seal_px square:
-    a room whose outer wall has an opening no door line closed (a window read as a gap, a bay whose short
-    walls were lost) keeps its free space instead of leaking out.
+    components of at least `min_room_area_m2` at `sp` metres per working pixel. With `seal_gaps` (G, 4),
+    the outside is what stays joined to the image's border once those gaps (every opening between wall
+    ends a door could fill, whether or not it is a door) are closed and the walls closed by a `seal_px`
+    square (gaps narrower than the smallest door): a room whose outer wall has an opening no door line
+    closed (a window read as a gap, a bay whose short walls were lost) keeps its free space instead of
+    leaking out. Only openings between wall ends are closed, not the outside's own narrows: a square as
+    wide as a door also filled the acute corner between two outer walls (a slanted wall meeting the
+    next one), which then stood apart from the outside as a sliver of a room.
 
     The walls close the raster's gaps: each line's 3 px core everywhere, its full width across stretches
     where the raster has no wall pixel (`_raster_gaps`) and, with `ink` (the drawing's dark pixels),
@@ -100,8 +105,11 @@ def free_space_rooms(
             closed, tuple(int(v) for v in np.round(dr[:2])), tuple(int(v) for v in np.round(dr[2:])), 1, 1
         )
     free = (1 - closed).astype(np.uint8)
-    if seal_px >= 3:
-        sealed = closing(closed, np.ones((seal_px, seal_px), np.uint8))
+    if seal_gaps is not None:
+        sealed = closing(closed, np.ones((seal_px, seal_px), np.uint8)) if seal_px >= 3 else closed.copy()
+        for g in seal_gaps:
+            p, q = (tuple(int(v) for v in np.round(g[k : k + 2])) for k in (0, 2))
+            cv2.line(sealed, p, q, 1, 3)
         _n2, lab2 = cv2.connectedComponents((1 - sealed).astype(np.uint8), connectivity=4)
         edge = np.unique(np.concatenate([lab2[0], lab2[-1], lab2[:, 0], lab2[:, -1]]))
         free[np.isin(lab2, edge[edge > 0]) & (sealed == 0)] = 0

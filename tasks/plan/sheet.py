@@ -11,6 +11,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from tasks.plan.dimensions import read_lines_batch
+
 log = logging.getLogger(__name__)
 
 
@@ -416,11 +418,13 @@ def _bar_first(grey: NDArray[np.uint8], dark: NDArray[np.bool_], tess) -> tuple[
             if hi - lo < 30:  # paper only
                 continue
             guessed: list[float] = []  # values read from letters only, at one enlargement so far
+            tries = []
             for zoom in (3, 4, 2):
                 big = cv2.resize(g, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_CUBIC)
                 big = np.where(big < (lo + hi) // 2, 0, 255).astype(np.uint8)
-                big = cv2.copyMakeBorder(big, 20, 20, 20, 20, cv2.BORDER_CONSTANT, value=255)
-                raw = tess.image_to_string(big, config="--psm 7").strip()
+                tries.append(cv2.copyMakeBorder(big, 20, 20, 20, 20, cv2.BORDER_CONSTANT, value=255))
+            for raw in read_lines_batch(tries, tess, "--psm 7"):  # the three enlargements in one run
+                raw = raw.strip()
                 m = _NUMBER.match(raw.translate(_CONFUSED).lower().replace(" ", ""))
                 if m is None or m.group(2) is None:
                     continue
