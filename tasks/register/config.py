@@ -88,7 +88,27 @@ class RegisterConfig:
     floor_passes: int = 3
     """Levelling: refinement passes (fit the floor plane, tighten the tolerance, drop outliers)."""
     floor_min_points: int = 300
-    """Levelling: fewest floor points for a frame's own floor fit; else the other frames' median tilt."""
+    """Levelling: fewest floor points for a frame's own floor fit (its camera height; else the other frames'
+    median height)."""
+    level_max_tilt_deg: float = 30.0
+    """Levelling by planes (beyond the thesis): a plane within this of the capture's median up counts as
+    horizontal, within this of its horizontal as vertical (a hand-held camera's pitch sweeps 10-15 degrees
+    about its median); others (a chair's back, a stair) are not used."""
+    level_plane_min_points: int = 40
+    """Levelling by planes: fewest inliers (of a frame's points thinned to `level_max_points`) for a plane;
+    a far end wall or a strip of floor seen at the image's edge is a few dozen."""
+    level_max_points: int = 5000
+    """Levelling by planes: a frame's points thinned to at most this many for the plane search."""
+    level_plane_sd_deg: float = 0.3
+    """Levelling by planes: standard deviation added to every plane's fitted normal (a real wall's plumb or a
+    floor's level, a depth camera's residual distortion), so that no plane is trusted beyond it."""
+    level_plane_tol_deg: float = 2.0
+    """Levelling by planes: a plane agrees with an up direction when its misfit is within this or three of its
+    standard deviations; the up most planes' points agree with is taken."""
+    level_prior_deg: float = 10.0
+    """Levelling by planes: standard deviation of a frame's up around the capture's median up, which holds
+    only what the frame's planes leave free (one wall: the turn about its normal, which moves its points
+    within that wall only)."""
     track_min_step_m: float = 0.2
     """Eq 3.17: the heading points to the first later track position at least this far away."""
     line_cell_m: float = 0.03

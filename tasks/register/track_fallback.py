@@ -1,13 +1,15 @@
 """Track-based fallback (thesis 3.2.2) when SfM registers too few frames (a texture-poor hallway): each frame
-is levelled by its floor normal (3.2.2.4), turned toward the next point of the foot-mounted IMU track and
+is levelled by its floor normal (3.2.2.4; beyond the thesis, by every plane it sees: a frame close to a
+corridor's wall sees no floor), turned toward the next point of the foot-mounted IMU track and
 put at the track position (eq 3.17, 3.18), and, when the plan walls are given, its heading corrected by
 making its Hough lines parallel to the coarse plan's walls (3.2.2.6); beyond the thesis, the track's drift
 over the capture is modelled and every frame fitted to the walls' faces once more."""
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -46,29 +48,23 @@ def depth_normals(
     return c, n
 
 
-def _horizontal_layer(
-    pts: NDArray[np.float64], nrm: NDArray[np.float64], cfg: RegisterConfig, ceiling: bool
+def _floor_layer(
+    pts: NDArray[np.float64], nrm: NDArray[np.float64], cfg: RegisterConfig
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], int] | None:
-    """The floor (or, with `ceiling`, the ceiling) of one frame: points whose normal is within the tolerance
-    of the vertical, facing the camera from below (above), are candidates; the lowest (highest) layer of
-    them is fitted with a plane, and the fit is refined with a halved tolerance on each pass. Returns
-    ((3,) up direction in the camera frame, (3,) a point of the layer, layer points) or None when too few
-    layer points are seen."""
+    """The floor of one frame: points whose normal is within the tolerance of the vertical, facing the
+    camera from below, are candidates; the lowest layer of them is fitted with a plane, and the fit is
+    refined with a halved tolerance on each pass. Returns ((3,) up direction in the camera frame, (3,) a
+    point of the layer, layer points) or None when too few layer points are seen."""
     up = np.array([0.0, -1.0, 0.0])  # a level camera's up is minus the image y
-    facing = -1.0 if ceiling else 1.0  # a normal that faces the camera points down from a ceiling
     tol = np.radians(cfg.floor_angle_tol_deg)
     layer, c = None, np.zeros(3)
     for _ in range(max(cfg.floor_passes, 1)):
-        cand = facing * (nrm @ up) > np.cos(tol)
+        cand = nrm @ up > np.cos(tol)
         if cand.sum() < cfg.floor_min_points:
             return None
         h = -(pts[cand] @ up)  # height below the camera
-        # the floor is the lowest horizontal layer (tables and seats lie above it); the ceiling the highest
-        if ceiling:
-            keep = h < np.percentile(h, 10) + 0.15
-        else:
-            keep = h > np.percentile(h, 90) - 0.15
-        layer = pts[cand][keep]
+        # the floor is the lowest horizontal layer (tables and seats lie above it)
+        layer = pts[cand][h > np.percentile(h, 90) - 0.15]
         if len(layer) < cfg.floor_min_points:
             return None
         c = layer.mean(axis=0)
@@ -89,13 +85,13 @@ def level_frame(
     cfg: RegisterConfig,
     normals: tuple[NDArray, NDArray] | None = None,
 ) -> tuple[NDArray[np.float64], float, int] | None:
-    """The floor of one frame (3.2.2.4), see `_horizontal_layer`. Returns ((3,) up direction in the camera
+    """The floor of one frame (3.2.2.4), see `_floor_layer`. Returns ((3,) up direction in the camera
     frame, camera height above the floor (m), floor points) or None when too few floor points are seen.
     `normals`: the frame's `depth_normals`, when already computed."""
     pts, nrm = normals or depth_normals(depth_m, camera)
     if len(pts) < cfg.floor_min_points:
         return None
-    fit = _horizontal_layer(pts, nrm, cfg, ceiling=False)
+    fit = _floor_layer(pts, nrm, cfg)
     if fit is None:
         return None
     up, c, n = fit
@@ -105,62 +101,181 @@ def level_frame(
     return up, height, n
 
 
-def level_by_ceiling(
-    depth_m: NDArray[np.floating],
-    camera: CameraModel,
-    cfg: RegisterConfig,
-    normals: tuple[NDArray, NDArray] | None = None,
-) -> NDArray[np.float64] | None:
-    """Beyond the thesis: the up direction (camera frame) of a frame that sees no floor, from its ceiling.
-    A handheld camera pitched up sees the ceiling, not the floor; the capture's median up would tilt it by
-    twice its pitch. The height above the floor stays the capture's median. None without a ceiling.
-    `normals`: the frame's `depth_normals`, when already computed."""
-    pts, nrm = normals or depth_normals(depth_m, camera)
-    if len(pts) < cfg.floor_min_points:
+@dataclass(frozen=True)
+class FramePlane:
+    """A plane one frame sees (camera frame): unit normal, (3, 3) covariance of that normal from the fit,
+    the inliers' weighted centroid and their count."""
+
+    normal: NDArray[np.float64]
+    cov: NDArray[np.float64]
+    centre: NDArray[np.float64]
+    points: int
+
+
+def _fit_plane(
+    q: NDArray[np.float64], sigma: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Weighted (1/sigma^2) least-squares plane of (N, 3) points: (unit normal, centroid, (3, 3) covariance of
+    the normal, scaled up by the residuals' reduced chi-square when they spread more than `sigma` says)."""
+    w = 1.0 / sigma**2
+    c = (w[:, None] * q).sum(axis=0) / w.sum()
+    vals, vecs = np.linalg.eigh(((q - c) * w[:, None]).T @ (q - c))
+    n = vecs[:, 0]
+    chi2 = float((w * ((q - c) @ n) ** 2).sum()) / max(len(q) - 3, 1)
+    cov = (vecs[:, 1:] / np.maximum(vals[1:], 1e-12)) @ vecs[:, 1:].T * max(chi2, 1.0)
+    return n, c, cov
+
+
+def _thin(points: NDArray[np.floating], cfg: RegisterConfig) -> NDArray[np.float64]:
+    p = np.asarray(points, dtype=np.float64)
+    return p[:: max(1, int(np.ceil(len(p) / max(cfg.level_max_points, 1))))]
+
+
+def _ransac_plane(
+    p: NDArray[np.float64], band: NDArray[np.float64], min_points: int, rng: np.random.Generator
+) -> NDArray[np.bool_] | None:
+    """Inlier mask of the plane through 3 of the (N, 3) points that most points lie within their `band` of
+    (300 draws), refined by weighted fits (three bands' width as the standard deviation); None below
+    `min_points` inliers."""
+    if len(p) < max(min_points, 3):
         return None
-    fit = _horizontal_layer(pts, nrm, cfg, ceiling=True)
-    if fit is None or -(fit[1] @ fit[0]) >= 0:  # the ceiling lies above the camera
+    tri = p[rng.integers(0, len(p), size=(300, 3))]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(n, axis=1)
+    ok = norm > 1e-9
+    if not ok.any():
         return None
-    return fit[0]
+    n = n[ok] / norm[ok, None]
+    inside = np.abs(p @ n.T - (tri[ok, 0] * n).sum(axis=1)) < band[:, None]
+    count = inside.sum(axis=0)
+    k = int(np.argmax(count))
+    inl = inside[:, k]
+    for _ in range(3):
+        if inl.sum() < min_points:
+            return None
+        n1, c, _ = _fit_plane(p[inl], band[inl] / 3.0)
+        inl = np.abs((p - c) @ n1) < band
+    return inl if inl.sum() >= min_points else None
 
 
-def wall_directions(
-    depth_m: NDArray[np.floating], camera: CameraModel, cfg: RegisterConfig
-) -> list[NDArray[np.float64]]:
-    """The normals (camera frame) of up to two walls a frame sees, for `level_by_walls`: among normals within
-    the levelling tolerance of a level camera's horizontal, the most common direction, then the most
-    common one of the normals well away from it. A direction counts when at least `floor_min_points` normals lie in a
-    cone around it as narrow as the floor fit's last pass; the second must lie beyond the tolerance from the
-    first, so that their cross product is well defined."""
-    _, nrm = depth_normals(depth_m, camera, step=max(1, round(depth_m.shape[1] / 80)))
-    tol = np.radians(cfg.floor_angle_tol_deg)
-    cone = tol / 2 ** max(cfg.floor_passes - 1, 0)
-    left = nrm[np.abs(nrm @ np.array([0.0, -1.0, 0.0])) < np.sin(tol)]
-    found: list[NDArray[np.float64]] = []
-    for _ in range(2):
-        if len(left) < cfg.floor_min_points:
-            break
-        # the mode: of up to 256 normals spread over the frame, the one with the most normals in its cone
-        seeds = left[:: max(1, len(left) // 256)]
-        support = (np.abs(seeds @ left.T) > np.cos(cone)).sum(axis=1)
-        near = np.abs(left @ seeds[np.argmax(support)]) > np.cos(cone)
-        if near.sum() < cfg.floor_min_points:
-            break
-        found.append(np.linalg.eigh(left[near].T @ left[near])[1][:, 2])
-        left = left[np.abs(left @ found[-1]) < np.cos(tol)]
-    return found
+def depth_noise_scale(depth_m: NDArray[np.floating], step: int = 1) -> float:
+    """A depth camera's noise at 1 m range (m) as one frame shows it, for a noise that grows with the square of
+    the range (a Kinect's: a constant disparity noise): a plane's inverse depth is linear in the image, so
+    the second differences of 1/z along the rows and the columns (every `step`-th pixel) are noise alone
+    but at edges, and their robust spread over sqrt(6) is the inverse depth's noise, which is the noise at
+    1 m. 0 when the frame has too few valid pixels."""
+    d = np.asarray(depth_m, dtype=np.float64)[::step, ::step]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(np.isfinite(d) & (d > 0), 1.0 / d, np.nan)
+    d2 = np.concatenate(
+        [(inv[:, :-2] - 2 * inv[:, 1:-1] + inv[:, 2:]).ravel(), (inv[:-2] - 2 * inv[1:-1] + inv[2:]).ravel()]
+    )
+    d2 = d2[np.isfinite(d2)]
+    return float(1.4826 * np.median(np.abs(d2)) / np.sqrt(6.0)) if len(d2) >= 100 else 0.0
 
 
-def level_by_walls(walls: list[NDArray[np.float64]], prior_up: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Beyond the thesis: the up direction of a frame that sees neither floor nor ceiling (a camera close to
-    a wall), from its walls' normals (`wall_directions`): up is perpendicular to every wall. Two walls fix
-    it; one fixes the tilt across it, and the rest is taken from `prior_up` (the capture's median up)."""
-    if len(walls) >= 2:
-        up = np.cross(walls[0], walls[1])
-    else:
-        up = prior_up - (prior_up @ walls[0]) * walls[0]
-    up = up / np.linalg.norm(up)
-    return up if up @ prior_up > 0 else -up
+def frame_planes(points: NDArray[np.floating], noise_m_at_1m: float, cfg: RegisterConfig) -> list[FramePlane]:
+    """Beyond the thesis: the planes one frame sees (camera frame (N, 3) points within the depth range), for
+    `level_by_planes`: sequential RANSAC, largest first, each refined by a weighted fit, the inlier band
+    three standard deviations of the capture's depth noise (`noise_m_at_1m` z^2 + 1 mm, `depth_noise_scale`;
+    at least 2 mm at 1 m: a depth camera's surfaces are rarely flatter, and a real wall is not a plane).
+    Deterministic (fixed seed). Returns the planes with at least `level_plane_min_points` inliers."""
+    p = _thin(points, cfg)
+    sigma = max(noise_m_at_1m, 0.002) * p[:, 2] ** 2 + 0.001
+    rng = np.random.default_rng(0)
+    planes: list[FramePlane] = []
+    left = np.arange(len(p))
+    while (inl := _ransac_plane(p[left], 3.0 * sigma[left], cfg.level_plane_min_points, rng)) is not None:
+        n, c, cov = _fit_plane(p[left[inl]], sigma[left[inl]])
+        planes.append(FramePlane(n, cov, c, int(inl.sum())))
+        left = left[~inl]
+    return planes
+
+
+def level_by_planes(
+    planes: list[FramePlane], prior_up: NDArray[np.float64], cfg: RegisterConfig
+) -> tuple[NDArray[np.float64], str, float]:
+    """Beyond the thesis: the up direction (camera frame) of one frame from the planes it sees
+    (`frame_planes`): a floor's or a ceiling's normal is up, every wall's is perpendicular to it. A frame
+    seeing neither floor nor ceiling (a camera close to a corridor's wall) is levelled by its walls: one
+    fixes the tilt across it, a second one seen at an angle (a far end wall, a door's reveal) the rest.
+    Planes classed by `prior_up` (the capture's median up, `level_max_tilt_deg`); among the up directions
+    they suggest (a horizontal plane's normal, the cross product of two walls, the prior made
+    perpendicular to a wall, the prior), the one whose agreeing planes (`level_plane_tol_deg`) hold most
+    points is refined by weighted least squares on them and the prior (`level_prior_deg`), the weights
+    from each plane's fit (`level_plane_sd_deg` added). Returns (up, how it was fixed: "floor", "ceiling",
+    "walls" (two directions or more), "wall" (one) joined by "+", or "median" when no plane agreed; the
+    standard deviation (degrees) of the up in its least pinned direction, without the prior)."""
+    prior = np.asarray(prior_up, dtype=np.float64) / np.linalg.norm(prior_up)
+    tilt = np.radians(cfg.level_max_tilt_deg)
+    floor_var = np.radians(cfg.level_plane_sd_deg) ** 2
+    tol = np.radians(cfg.level_plane_tol_deg)
+    vertical = [pl for pl in planes if abs(pl.normal @ prior) < np.sin(tilt)]
+    horizontal = [pl for pl in planes if abs(pl.normal @ prior) > np.cos(tilt)]
+
+    def misfit(pl: FramePlane, u: NDArray[np.float64], vert: bool) -> tuple[float, float]:
+        """(angle off, its standard deviation) of a plane against the up u, radians."""
+        if vert:
+            return float(np.arcsin(min(abs(pl.normal @ u), 1.0))), float(np.sqrt(u @ pl.cov @ u + floor_var))
+        var = 0.5 * float(np.trace(pl.cov)) + floor_var
+        return float(np.arccos(min(abs(pl.normal @ u), 1.0))), float(np.sqrt(var))
+
+    def agreeing(u: NDArray[np.float64]) -> list[tuple[FramePlane, bool]]:
+        out = []
+        for group, vert in ((vertical, True), (horizontal, False)):
+            for pl in group:
+                off, sd = misfit(pl, u, vert)
+                if off <= max(tol, 3.0 * sd):
+                    out.append((pl, vert))
+        return out
+
+    candidates = [prior]
+    candidates += [pl.normal * np.sign(pl.normal @ prior) for pl in horizontal]
+    candidates += [prior - (prior @ pl.normal) * pl.normal for pl in vertical]
+    for a, b in itertools.combinations(vertical, 2):
+        if abs(a.normal @ b.normal) < np.cos(np.radians(20.0)):
+            c = np.cross(a.normal, b.normal)
+            candidates.append(c * np.sign(c @ prior))
+    candidates = [c / np.linalg.norm(c) for c in candidates if c @ prior / np.linalg.norm(c) > np.cos(tilt)]
+    support = [sum(pl.points for pl, _ in agreeing(c)) for c in candidates]
+    u = candidates[int(np.argmax(support))]
+    info = np.zeros((2, 2))
+    used: list[tuple[FramePlane, bool]] = []
+    for _ in range(3):
+        used = agreeing(u)
+        # tangent basis at u; the up is u + E delta, normalised
+        e1 = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 0.0, 1.0])
+        e1 /= np.linalg.norm(e1)
+        E = np.stack([e1, np.cross(u, e1)], axis=1)
+        info = np.zeros((2, 2))
+        g = np.zeros(2)
+        for pl, vert in used:
+            _, sd = misfit(pl, u, vert)
+            if vert:  # n . (u + E delta) = 0
+                J = pl.normal @ E
+                info += np.outer(J, J) / sd**2
+                g -= J * (pl.normal @ u) / sd**2
+            else:  # u + E delta = the normal (its tangent components)
+                m = pl.normal * np.sign(pl.normal @ u)
+                info += np.eye(2) / sd**2
+                g += (m @ E) / sd**2
+        prior_info = np.eye(2) / np.radians(cfg.level_prior_deg) ** 2
+        delta = np.linalg.solve(info + prior_info, g + prior_info @ ((prior - u) @ E))
+        u = u + E @ delta
+        u /= np.linalg.norm(u)
+    weakest = float(np.linalg.eigvalsh(info)[0])
+    sd_deg = float(np.degrees(1.0 / np.sqrt(weakest))) if weakest > (2.0 / np.pi) ** 2 else float("inf")
+    kinds = []
+    heights = [float(pl.centre @ u) for pl, vert in used if not vert]
+    if any(h < 0 for h in heights):
+        kinds.append("floor")
+    if any(h > 0 for h in heights):
+        kinds.append("ceiling")
+    walls = [pl.normal for pl, vert in used if vert]
+    if walls:
+        spread = np.linalg.eigvalsh(sum(np.outer(n, n) for n in walls))
+        kinds.append("walls" if spread[1] > 0.1 * spread[2] else "wall")
+    return u, "+".join(kinds) or "median", sd_deg
 
 
 def _interp_track(track: NDArray[np.float64], t_ns: int) -> NDArray[np.float64]:
@@ -225,7 +340,7 @@ def place_by_track(
     track = track[np.argsort(track[:, 0])]
     use_plan = plan_walls is not None and len(plan_walls) > 0
     levels, times, cam_points, views = _level_frames(frames, calibration, cfg, use_plan, radial_k)
-    fits = [v for v in levels.values() if v is not None and v.height is not None]
+    fits = [v for v in levels.values() if v.height is not None]
     if not fits:
         raise DegenerateInputError(
             f"no floor found in any of {len(levels)} frames: cannot level them for the fallback"
@@ -234,8 +349,7 @@ def place_by_track(
     default_up /= np.linalg.norm(default_up)
     default_h = float(np.median([f.height for f in fits]))
     for v in levels.values():
-        if v is not None and v.walls:
-            v.up = level_by_walls(v.walls, default_up)
+        v.up, v.source, v.sd_deg = level_by_planes(v.planes, default_up, cfg)
     t_lo, t_hi = track[0, 0], track[-1, 0]
     inside = [f for f in times if t_lo <= times[f] <= t_hi]
     start = _TrackStart(track, times, levels, default_up, default_h, cfg)
@@ -265,11 +379,8 @@ def place_by_track(
     metrics = {
         "track_frames": len(poses),
         "frames_outside_track": len(times) - len(inside),
-        "frames_levelled_by_own_floor": len(fits),
-        "frames_levelled_by_own_ceiling": sum(
-            v is not None and v.source == "ceiling" for v in levels.values()
-        ),
-        "frames_levelled_by_own_walls": sum(v is not None and v.source == "walls" for v in levels.values()),
+        "frames_with_own_floor_height": len(fits),
+        "levelling": _levelling_metrics(levels),
         "frames_restarted_from_neighbours": restarted,
         "frames_heading_searched": searched,
         "camera_height_m": default_h,
@@ -283,13 +394,35 @@ def place_by_track(
 
 @dataclass
 class _Level:
-    """How one frame was levelled: by its floor (up and camera height), its ceiling (up; the height is the
-    capture's median) or its walls (their normals, turned into up once the capture's median up is known)."""
+    """How one frame is levelled: its points (thinned, until its planes are found), the depth noise it
+    shows (`depth_noise_scale`), its floor's up and camera height when it sees the floor
+    (`level_frame`; else the capture's median height), the planes it sees (`frame_planes`), and its up
+    direction from them (`level_by_planes`) with how that was fixed and how well."""
 
-    source: str
+    points: NDArray[np.float32]
+    noise_m_at_1m: float
     up: NDArray[np.float64] | None = None
     height: float | None = None
-    walls: list[NDArray[np.float64]] | None = None
+    planes: list[FramePlane] = field(default_factory=list)
+    source: str = ""
+    sd_deg: float = float("inf")
+
+
+def _levelling_metrics(levels: dict[int, _Level]) -> dict[str, Any]:
+    """How the frames were levelled: frames per source, and per frame (id) its source, the planes it saw and
+    the standard deviation (degrees) of its up in the least pinned direction from its planes alone."""
+    by: dict[str, int] = {}
+    for v in levels.values():
+        by[v.source] = by.get(v.source, 0) + 1
+    noise = [v.noise_m_at_1m for v in levels.values() if v.noise_m_at_1m > 0]
+    return {
+        "by": dict(sorted(by.items())),
+        "frames": {
+            str(f): [v.source, len(v.planes), round(v.sd_deg, 2) if np.isfinite(v.sd_deg) else None]
+            for f, v in sorted(levels.items())
+        },
+        "depth_noise_m_at_1m": round(float(np.median(noise)), 5) if noise else None,
+    }
 
 
 def _level_frames(
@@ -299,15 +432,15 @@ def _level_frames(
     use_plan: bool,
     radial_k: float = 0.0,
 ) -> tuple[
-    dict[int, _Level | None],
+    dict[int, _Level],
     dict[int, int],
     dict[int, NDArray[np.float64]],
     dict[int, tuple[NDArray[np.float32], NDArray[np.float32]]],
 ]:
-    """One pass over the frames: each one's levelling (None when it sees no floor, ceiling or walls),
+    """One pass over the frames: each one's floor height and planes for the levelling,
     its time, when the plan is used its thinned (N, 3) depth-camera points for the wall-line work, and
     its thinned points with normals (camera frame, within the depth range) for the joint ICP."""
-    levels: dict[int, _Level | None] = {}
+    levels: dict[int, _Level] = {}
     times: dict[int, int] = {}
     # wall-line work needs each frame's points (thinned) once more after all frames are levelled
     line_cfg = RegisterConfig(**{**cfg.__dict__, "pixel_stride": max(cfg.pixel_stride, 3)})
@@ -317,18 +450,19 @@ def _level_frames(
         fid = int(frame_id)
         normals = depth_normals(depth, calibration.ir)  # shared by the floor's and the ceiling's fit
         lv = level_frame(depth, calibration.ir, cfg, normals)
-        if lv is not None:
-            levels[fid] = _Level("floor", lv[0], lv[1])
-        elif (up := level_by_ceiling(depth, calibration.ir, cfg, normals)) is not None:
-            levels[fid] = _Level("ceiling", up)
-        else:
-            walls = wall_directions(depth, calibration.ir, cfg)
-            levels[fid] = _Level("walls", walls=walls) if walls else None
+        pts = _thin(_in_range(normals[0], calibration, cfg, radial_k), cfg).astype(np.float32)
+        noise = depth_noise_scale(depth, max(1, round(depth.shape[1] / 160)))
+        levels[fid] = _Level(pts, noise, *(lv[:2] if lv is not None else (None, None)))
         times[fid] = int(t_ns)
         if use_plan:
             cam_points[fid] = frame_points(depth, calibration, line_cfg).astype(np.float32)
         if use_plan and cfg.track_joint_icp:
             views[fid] = _joint_view(normals, calibration, cfg, radial_k)
+    # the planes' inlier band from the capture's depth noise (a frame's own estimate is noisy)
+    noise = [v.noise_m_at_1m for v in levels.values() if v.noise_m_at_1m > 0]
+    s = float(np.median(noise)) if noise else 0.0
+    for v in levels.values():
+        v.planes, v.points = frame_planes(v.points, s, cfg), np.zeros((0, 3))
     return levels, times, cam_points, views
 
 
@@ -348,14 +482,29 @@ def _joint_view(
     return pts, nrm
 
 
+def _in_range(
+    pts: NDArray[np.floating], calibration: Calibration, cfg: RegisterConfig, radial_k: float
+) -> NDArray[np.float64]:
+    """A frame's (N, 3) points within the depth range, the radial inverse-depth error taken out (as
+    `_joint_view`), for `frame_planes`: the error bends a far wall seen near the image's corners."""
+    p = np.asarray(pts, dtype=np.float64)
+    p = p[(p[:, 2] >= cfg.min_depth_m) & (p[:, 2] <= cfg.max_depth_m)]
+    if radial_k and len(p):
+        denom = 1.0 - radial_k * radial_position(p, calibration.ir) * p[:, 2]
+        ok = denom > 0.5
+        p = p[ok] / denom[ok, None]
+    return p
+
+
 class _TrackStart:
-    """Where the track puts a frame (eq 3.17-3.18), levelled by its own floor or the capture's median one."""
+    """Where the track puts a frame (eq 3.17-3.18), levelled by its planes (`level_by_planes`) at its own
+    floor's height or the capture's median one."""
 
     def __init__(
         self,
         track: NDArray[np.float64],
         times: dict[int, int],
-        levels: dict[int, _Level | None],
+        levels: dict[int, _Level],
         default_up: NDArray[np.float64],
         default_h: float,
         cfg: RegisterConfig,
@@ -370,8 +519,8 @@ class _TrackStart:
     def pose(self, fid: int, offset: NDArray[np.float64], dyaw: float = 0.0) -> NDArray[np.float64]:
         """(4, 4) depth camera → plan at the track position + `offset`, turned by `dyaw` from eq 3.17."""
         lv = self.levels[fid]
-        up = self.default_up if lv is None or lv.up is None else lv.up
-        h = self.default_h if lv is None or lv.height is None else lv.height
+        up = self.default_up if lv.up is None else lv.up
+        h = self.default_h if lv.height is None else lv.height
         yaw = track_heading(self.track, self.times[fid], self.cfg.track_min_step_m) + dyaw
         return track_pose(up, h, yaw, self.position(fid) + offset)
 
