@@ -195,12 +195,12 @@ def test_memory_freed_by_pool_threads_goes_back_to_the_system():
         memory.release()
 
     after = []
-    for _ in range(8):
+    for _ in range(9):  # the first sets up the thread's arena (43 MB once, in a full suite's process)
         thread = threading.Thread(target=stage)
         thread.start()
         thread.join()
         after.append(rss_mb())
-    assert max(after) - after[0] < 30, after  # 0-18 MB here
+    assert max(after[1:]) - after[1] < 30, after  # 0-18 MB here
 
 
 def _database(path: Path, revision: str) -> Path:

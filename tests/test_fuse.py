@@ -734,3 +734,29 @@ def test_a_wardrobe_front_modelled_as_a_wall_leaves_the_room_and_the_gap_closes_
     filled = walls[fused.origin == GAP_FILLED]
     east = filled[(np.abs(filled[:, [0, 2]] - 5.2) < 0.02).all(axis=1)]
     assert np.abs(east[:, 3] - east[:, 1]).sum() == pytest.approx(2.2, abs=0.05)
+
+
+def test_a_wall_along_a_plan_face_drawn_too_thick_does_not_pull_the_room() -> None:
+    """data/mini's r4: the plan gave a 2.6 m piece of the south wall 0.575 m instead of 0.32 m, so the
+    plan room's face there lies 9.5 cm inside the true one, within every gate. Least squares over the
+    walls that agree within the consensus tolerance moved the room 2.5 cm (4.4 cm in data/mini); only
+    the walls close to their faces decide the translation now."""
+    truth_walls = np.array(
+        [
+            [0.0, 0.0, 2.6, 0.0],
+            [2.6, 0.0, 5.0, 0.0],
+            [5.0, 0.0, 5.0, 4.0],
+            [5.0, 4.0, 0.0, 4.0],
+            [0.0, 4.0, 0.0, 0.0],
+        ]
+    )
+    model = to_room_frame(truth_walls, TRUTH)
+    poly = Polygon(model[:, :2])
+    centre = np.array(poly.centroid.coords[0])
+    inward = inward_normals(model, poly, centre)
+    plan_room = Polygon([(0.0, 0.095), (2.6, 0.095), (2.6, 0.0), (5.0, 0.0), (5.0, 4.0), (0.0, 4.0)])
+    faces = polygon_faces(plan_room)
+    fit = fine_register(model, inward, centre, faces, TRUTH, CFG)
+    assert errors(fit.placement, TRUTH, centre)[1] < 0.005
+    loose = fine_register(model, inward, centre, faces, TRUTH, replace(CFG, fit_tol_m=0.0))
+    assert errors(loose.placement, TRUTH, centre)[1] > 0.015

@@ -44,7 +44,8 @@ class FuseConfig:
     face (a wardrobe) does not drag the room."""
     fit_tol_m: float = 0.05
     """Fit score: the share of the shell's length lying within this of a plan face of the same
-    orientation after registration."""
+    orientation after registration; also the distance within which a wall takes part in the fine
+    registration's translation (`register2d.consensus`)."""
     min_fit_score: float = 0.5
     """A room whose best fit score is below this is not placed (reported with its score)."""
     door_weight: float = 1.0

@@ -409,7 +409,7 @@ def optimal_fit(
         # of its own and must not pull the ones that have)
         moved = placement.segments(shell)
         options = collinear_faces(moved, faces, matched, cfg.max_residual_m, 2 * cfg.plan_simplify_m)
-        matched = consensus(midpoints(moved), w, faces, matched, cfg.consensus_tol_m, options)
+        matched = consensus(midpoints(moved), w, faces, matched, cfg.consensus_tol_m, options, cfg.fit_tol_m)
         shift = np.zeros(2)
         for _ in range(5):  # Gauss-Newton (eq 7.9, 7.10); linear in t, so it settles at once
             moved = placement.segments(shell)
@@ -474,6 +474,7 @@ def consensus(
     matched: NDArray[np.intp],
     tol_m: float,
     options: list[NDArray[np.intp]] | None = None,
+    close_m: float = 0.0,
 ) -> NDArray[np.intp]:
     """The correspondences that agree on one translation (the others set to -1): every translation that
     puts two non-parallel walls (or one wall, along its normal) on their faces is tried, and the one that
@@ -483,7 +484,12 @@ def consensus(
     the walls that do match drift out of the residual gate; the largest consistent set is not. With
     `options` (collinear_faces) a wall may stand for any of its faces: at every translation tried it
     counts with the one nearest to it, and the winner's choice is returned (a plan face drawn a few
-    centimetres off its collinear neighbour is not followed when the room's other walls disagree)."""
+    centimetres off its collinear neighbour is not followed when the room's other walls disagree).
+    With `close_m`, ties on that length go to the most wall length within close_m, and a wall farther
+    than close_m from its face at the winner is dropped where another wall facing the same way lies
+    within close_m of its own: a wall 10 cm off a face the plan drew too thick lies within tol_m of
+    every candidate and would otherwise pull the least-squares translation by centimetres, while the
+    two ends of a corridor modelled 1 % long stay and centre it."""
     m = np.flatnonzero(matched >= 0)
     if len(m) < 2 or not math.isfinite(tol_m):
         return matched
@@ -510,12 +516,21 @@ def consensus(
     ww = w[m]
     inl = r <= tol_m
     weight = (inl * ww[None]).sum(1)
+    close = ((r <= close_m) * ww[None]).sum(1)
     ssr = (np.where(inl, r, 0.0) ** 2 * ww[None]).sum(1)
-    order = np.lexsort((np.hypot(s[:, 0], s[:, 1]), ssr, -np.round(weight, 9)))
+    order = np.lexsort((np.hypot(s[:, 0], s[:, 1]), ssr, -np.round(close, 9), -np.round(weight, 9)))
     win = order[0]
+    keep = inl[win]
+    if close_m > 0:
+        # a wall off its face while a wall facing the same way sits on its own: the plan drew one of
+        # them off (a stretched or shrunk model moves opposite faces apart, not faces facing one way)
+        near = r[win] <= close_m
+        nm = faces.inward[matched[m]]
+        same_way = (nm @ nm.T) > math.cos(math.radians(5.0))
+        keep = keep & (near | ~(same_way & near[None, :]).any(axis=1))
     out = matched.copy()
     for q, k in enumerate(m):
-        if not inl[win, q]:
+        if not keep[q]:
             out[k] = -1
             continue
         own = r_obs[win, starts[q] : starts[q] + len(options[k])]
