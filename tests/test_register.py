@@ -560,17 +560,22 @@ def test_neighbour_depth_check_on_a_rendered_room_finds_a_misplaced_frame(shift_
     assert len(neighbour_depth_consistency(iter(frames), placed, cam, 0.03, 0.02, 0.75, 50).pairs) == 10
 
 
-def test_register_room_maps_again_when_a_frame_disagrees_with_the_depth(tmp_path, monkeypatch):
-    """A map placing one frame 0.58 m off (what seed 0 did to survey 812's r1) is made again with the next
-    seed and the consistent one kept; when every seed misplaces the frame, the map is kept without it (the
-    frame unplaced, the verdict in the metrics)."""
+def _ring_capture(tmp_path: Path) -> tuple:
+    """(camera, poses, frames.parquet) of 12 grey frames on a ring in the test box, rendered with depth."""
     cam = small_camera()
     poses = _ring_in_box(12)
     frames = [
         (int(k * 1e8), box_hits(cam, T)[0], np.full((120, 160, 3), 128, np.uint8))
         for k, T in enumerate(poses)
     ]
-    path = write_rendered_frames(tmp_path / "frames.parquet", frames)
+    return cam, poses, write_rendered_frames(tmp_path / "frames.parquet", frames)
+
+
+def test_register_room_maps_again_when_a_frame_disagrees_with_the_depth(tmp_path, monkeypatch):
+    """A map placing one frame 0.58 m off (what seed 0 did to survey 812's r1) is made again with the next
+    seed and the consistent one kept; when every seed misplaces the frame, the map is kept without it (the
+    frame unplaced, the verdict in the metrics)."""
+    cam, poses, path = _ring_capture(tmp_path)
     bad_seeds: set[int] = {0}
 
     def placed(seed: int) -> dict[str, np.ndarray]:
@@ -605,13 +610,7 @@ def test_register_room_reports_a_map_broken_between_two_frames(tmp_path, monkeyp
     did to survey 731's r4 between its frames 5 and 6: that pair 0.63 in agreement, 8 cm ATE) has no
     inconsistent frame, but its pair 5-6 disagrees while each frame agrees with its other neighbour: the
     metrics name the broken link; a whole map reports none."""
-    cam = small_camera()
-    poses = _ring_in_box(12)
-    frames = [
-        (int(k * 1e8), box_hits(cam, T)[0], np.full((120, 160, 3), 128, np.uint8))
-        for k, T in enumerate(poses)
-    ]
-    path = write_rendered_frames(tmp_path / "frames.parquet", frames)
+    cam, poses, path = _ring_capture(tmp_path)
     G = _moved(np.eye(4), (0.3, 0.0, 0.0), 0.0)
     broken = {"on": True}
 
