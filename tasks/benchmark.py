@@ -19,7 +19,9 @@ import pyarrow.compute as pc
 from numpy.typing import NDArray
 
 from tasks.artefacts import read_json, read_segments, read_table
+from tasks.cloud import DegenerateInputError
 from tasks.evaluate import evaluate_walls
+from tasks.register.scale import horn_similarity
 
 
 @dataclass(frozen=True)
@@ -48,20 +50,15 @@ def rigid_2d(
 
 
 def similarity_scale(est: NDArray[np.float64], true: NDArray[np.float64]) -> float:
-    """The scale λ of the least-squares similarity est ≈ λ · R · true + t (Umeyama; (N, D) points, N >= 2):
-    the size of an estimated trajectory relative to the true one, with the errors taken in the estimate.
-    Unlike the ratio of path lengths, position noise does not lengthen it: one camera 3.6 cm off its
-    neighbour on a 0.22 m step made data/mini r2's path 0.2 % long while this scale was 0.02 % off."""
-    e = np.asarray(est, dtype=np.float64)
-    t = np.asarray(true, dtype=np.float64)
-    ec, tc = e - e.mean(axis=0), t - t.mean(axis=0)
-    var = float((tc**2).sum())
-    if len(e) < 2 or var <= 0.0:
+    """The scale λ of the least-squares similarity est ≈ λ · R · true + t (the register stage's Horn fit,
+    eq 3.16, errors taken in the estimate; (N, 3) points), NaN for fewer than 3 or coincident points: the
+    size of an estimated trajectory relative to the true one. Unlike the ratio of path lengths, position
+    noise does not lengthen it: one camera 3.6 cm off its neighbour on a 0.22 m step made data/mini r2's
+    path 0.2 % long while this scale was 0.02 % off."""
+    try:
+        return horn_similarity(true, est)[0]
+    except DegenerateInputError:
         return float("nan")
-    u, sv, vt = np.linalg.svd(ec.T @ tc)
-    signs = np.ones(len(sv))
-    signs[-1] = np.sign(np.linalg.det(u @ vt)) or 1.0
-    return float((sv * signs).sum() / var)
 
 
 def move_segments(

@@ -53,6 +53,15 @@ def errors(est: Placement, truth: Placement, centre: np.ndarray) -> tuple[float,
 
 TRUTH = Placement(math.radians(30.0), (12.0, -4.0))
 
+
+def room_model(walls: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(model walls in the room frame, their polygon's centroid, inward normals) of plan-frame walls at TRUTH."""
+    model = to_room_frame(walls, TRUTH)
+    poly = Polygon(model[:, :2])
+    centre = np.array(poly.centroid.coords[0])
+    return model, centre, inward_normals(model, poly, centre)
+
+
 # an asymmetric cell: walls 0.30 thick in the west, 0.10 in the east, 0.20 north and south
 CELL = box(0.0, 0.0, 5.0, 3.0)
 FACES = Polygon([(0.15, 0.10), (4.95, 0.10), (4.95, 2.90), (0.15, 2.90)])
@@ -85,9 +94,7 @@ L_ROOM = Polygon([(0, 0), (6, 0), (6, 2.5), (3.5, 2.5), (3.5, 5), (0, 5)])
 
 
 def test_fine_registration_converges_from_any_start_within_45_deg_and_1_m() -> None:
-    model = to_room_frame(ring_segments(L_ROOM), TRUTH)
-    centre = np.array(Polygon(model.reshape(-1, 4)[:, :2]).centroid.coords[0])
-    inward = inward_normals(model, Polygon(model[:, :2]), centre)
+    model, centre, inward = room_model(ring_segments(L_ROOM))
     shell = shell_mask(model, CFG.shell_tol_m)
     assert shell.all()  # the notch's walls look out of the model: shell, though off the convex hull
     faces = polygon_faces(L_ROOM)
@@ -103,9 +110,7 @@ def test_a_plan_face_drawn_a_degree_off_does_not_turn_the_room() -> None:
     """Room 102's slanted wall vectorized 1 degree off on the plan: the rotation (eq 7.4) comes from the
     walls that agree, the room is not turned by the slanted face's share of the length (0.25 deg)."""
     slanted = Polygon([(0, 0), (6, 0), (6, 4), (1.46, 4)])  # the west wall at about 70 degrees
-    model = to_room_frame(ring_segments(slanted), TRUTH)
-    centre = np.array(Polygon(model[:, :2]).centroid.coords[0])
-    inward = inward_normals(model, Polygon(model[:, :2]), centre)
+    model, centre, inward = room_model(ring_segments(slanted))
     faces = polygon_faces(slanted)
     d = np.abs(faces.segments[:, 2:] - faces.segments[:, :2])
     k = int(np.argmax((d > 0.1).all(axis=1)))  # the slanted face
@@ -135,9 +140,7 @@ def test_a_wall_along_collinear_faces_a_plan_drew_apart_follows_the_one_the_othe
     drawn = Polygon([(0, 0), (1.0, 0), (1.0, 0.04), (1.9, 0.04), (1.9, 0.08), (6, 0.08), (6, 5), (0, 5)])
     doors = np.array([[1.0, 0.04, 1.9, 0.04]])
     faces = polygon_faces(drawn, doors=doors, simplify_m=0.0)
-    model = to_room_frame(ring_segments(room), TRUTH)
-    centre = np.array(Polygon(model[:, :2]).centroid.coords[0])
-    inward = inward_normals(model, Polygon(model[:, :2]), centre)
+    model, centre, inward = room_model(ring_segments(room))
     start = Placement(TRUTH.theta + math.radians(2.0), (TRUTH.t[0] + 0.3, TRUTH.t[1] - 0.2))
     fit = fine_register(model, inward, centre, faces, start, CFG)
     assert errors(fit.placement, TRUTH, centre) == pytest.approx((0.0, 0.0), abs=1e-6)
@@ -157,9 +160,7 @@ def test_a_corridor_a_percent_long_is_centred_and_a_door_drawn_off_does_not_pull
     a door pair whose centres lie 0.3 m apart along the wall (found in part, or drawn off) is dropped by
     the gate, one 2 cm off is kept."""
     long = ring_segments(CORRIDOR) * np.array([1.01, 1.0, 1.01, 1.0]) - np.array([0.075, 0, 0.075, 0])
-    model = to_room_frame(long, TRUTH)
-    centre = np.array(Polygon(model[:, :2]).centroid.coords[0])
-    inward = inward_normals(model, Polygon(model[:, :2]), centre)
+    model, centre, inward = room_model(long)
     faces = polygon_faces(CORRIDOR)
     start = Placement(TRUTH.theta + math.radians(3.0), (TRUTH.t[0] + 0.4, TRUTH.t[1] - 0.2))
     fit = fine_register(model, inward, centre, faces, start, CFG)
@@ -270,10 +271,7 @@ def test_a_room_with_one_wall_that_has_no_plan_face_is_still_placed_within_1_cm(
     """The wardrobe's front (2.2 m of 18.9) has no plan face: the walls that match decide the translation
     and the fit score counts them; a least-squares translation over every wall is dragged 12 cm east
     and the residual gate then drops the west and east walls with it."""
-    model = to_room_frame(WARDROBE_MODEL, TRUTH)
-    poly = Polygon(model[:, :2])
-    centre = np.array(poly.centroid.coords[0])
-    inward = inward_normals(model, poly, centre)
+    model, centre, inward = room_model(WARDROBE_MODEL)
     shell = shell_mask(model, CFG.shell_tol_m)
     assert shell.all()  # the wardrobe's walls look out of the model: shell like any notch
     faces = polygon_faces(WARDROBE_ROOM)
@@ -750,10 +748,7 @@ def test_a_wall_along_a_plan_face_drawn_too_thick_does_not_pull_the_room() -> No
             [0.0, 4.0, 0.0, 0.0],
         ]
     )
-    model = to_room_frame(truth_walls, TRUTH)
-    poly = Polygon(model[:, :2])
-    centre = np.array(poly.centroid.coords[0])
-    inward = inward_normals(model, poly, centre)
+    model, centre, inward = room_model(truth_walls)
     plan_room = Polygon([(0.0, 0.095), (2.6, 0.095), (2.6, 0.0), (5.0, 0.0), (5.0, 4.0), (0.0, 4.0)])
     faces = polygon_faces(plan_room)
     fit = fine_register(model, inward, centre, faces, TRUTH, CFG)
