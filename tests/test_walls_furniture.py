@@ -317,3 +317,58 @@ def test_a_plant_s_facets_are_lone_directions_and_a_wall_at_its_own_angle_is_not
     short = np.array([room[0], [5.0, 0.0, *(np.array([5.0, 0.0]) + 0.5 * u)], room[3]], dtype=float)
     assert lone_directions(short, 0.75, 3.0, 0.02).tolist() == [False, True, False]
     assert not lone_directions(short, 0.0, 3.0, 0.02).any()
+
+
+def test_the_next_room_s_corner_seen_through_a_door_does_not_join_its_far_wall_to_the_room():
+    """Seen through a door in the south wall (two pieces, 1.2 m and 1.6 m, the door between them): the
+    next room's far wall 2.3 m beyond, running behind the west piece's data, and its west wall's end by its
+    corner (a short line across, wholly beyond the room's reach too). That line lies between the south
+    wall's line and the far wall, but it joins nothing of this room to it: the far wall goes all the same
+    (it stayed when any line there counted). An L-room's wing, whose west wall runs from the room's line
+    to the far wall, keeps its wall."""
+    from tasks.walls.evidence import beyond_the_room
+
+    room = np.array(
+        [
+            [0, 4, 4, 4],  # north
+            [4, 4, 4, 0],  # east
+            [2.1, 0, 3.6, 0],  # south, east of the door
+            [0, 0, 1.2, 0],  # south, west of the door
+            [0.0, -2.3, 1.6, -2.3],  # the next room's far wall
+            [0.0, -1.75, 0.0, -2.3],  # the next room's west wall, by its corner
+            [0, 4, 0, 0.7],  # west
+        ],
+        dtype=float,
+    )
+    found = beyond_the_room(room, np.array([2.0, 2.0]), CFG, 3.0)
+    assert found.tolist() == [False] * 4 + [True, False, False]
+    # a wing: its west wall runs from the south wall's line down to the far wall, which stays
+    wing = room.copy()
+    wing[5] = [0.0, 0.0, 0.0, -2.3]
+    assert not beyond_the_room(wing, np.array([2.0, 2.0]), CFG, 3.0)[4]
+
+
+def test_a_corridor_s_far_wall_is_not_behind_a_short_piece_by_the_lines_centre():
+    """A corridor 2 m wide: its south wall in pieces (doors between them) and the walls of the rooms south
+    of it seen through them pull the lines' length-weighted centre to 0.1 m from the south wall's line, where
+    a door's 0.3 m jamb face runs (at the corridor's west end, the west wall beside it barely seen). Judged
+    by that centre, the jamb's back is the corridor and its north wall lies 1.6 m behind it: that line has no
+    side to tell (the centre is nearer it than the depth asked for), and the north wall stays."""
+    from tasks.walls.evidence import beyond_the_room
+
+    lines = np.array(
+        [
+            [6.5, 2.0, 9.3, 2.0],  # north, in two pieces (a jog of 6 cm)
+            [9.3, 1.94, 13.0, 1.94],
+            [-0.3, 0.4, 0.0, 0.4],  # a jamb's face by the west end
+            [0.0, 0.0, 1.2, 0.0],  # south, in pieces
+            [2.1, 0.0, 3.6, 0.0],
+            [4.5, 0.0, 7.3, 0.0],
+            [8.3, 0.0, 10.4, 0.0],
+            [3.0, -1.0, 3.0, -2.2],  # the rooms south of it, seen through the doors
+            [0.0, -2.1, 0.0, 0.4],  # ...and the west wall's line below the jamb
+            [0.0, 1.6, 0.0, 2.0],  # west, barely seen above it
+        ],
+        dtype=float,
+    )
+    assert not beyond_the_room(lines, np.array([6.0, 0.1]), CFG, 3.0)[:2].any()

@@ -929,8 +929,13 @@ def beyond_the_room(
     pts, owner = sample_segments(lines, 0.05)
     thin = cfg.thin_wall_max_m
     end_tol = cfg.thin_wall_end_tol_m
+    # the room's side of a line is judged by the interior: a line passing nearer it than the depth asked
+    # for (a short piece in a corridor, whose lines' centre lies by its long wall) has no side to tell
+    clear = (
+        np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= cfg.beyond_room_min_depth_m
+    )
     for w in np.argsort(-L):
-        if not ok[w] or out[w]:
+        if not ok[w] or out[w] or not clear[w]:
             continue
         rel = pts - lines[w, :2]
         depth, t = rel @ back[w], rel @ u[w]
@@ -960,6 +965,7 @@ def beyond_the_room(
         along = np.abs(np.cos(ang - ang[w])) >= math.sqrt(0.5)
         cand = ~shallow & ~out & along & ((L < max(L[w], float(np.ptp(span)))) | corner)
         cand[w] = False
+        joins = nearest <= cfg.beyond_room_min_depth_m + cfg.lines.max_gap_m
         for c in np.flatnonzero(cand):
             others = ~_collinear_with(lines, ang, normal, c, cos_tol, cfg.lines.offset_tol_m) & ~out
             others[w] = True
@@ -969,8 +975,12 @@ def beyond_the_room(
             if not rest.any() or t[rest].min() > lo + thin or t[rest].max() < hi - thin:
                 continue  # beyond the end of the room's lines: an L-room's wing
             far = float(depth[mine].min())
+            # a line joining L to the room (a wing's side wall) starts within furniture's depth and the
+            # largest occlusion (`lines.max_gap_m`) of W's line: one that stays deeper behind it (the next
+            # room's wall across, seen through the same door) joins nothing of this room to L
             between = (
                 rest
+                & joins[owner]
                 & (owner != w)
                 & (depth > thin)
                 & (depth < far - thin)

@@ -125,6 +125,7 @@ def model_for(
             top = TopCells(binary & proj.top, grid, binary)
             found = _topology(hough, cfg.lines, cfg, grid, binary, top, proj, low_share, xy)
     bridged = None
+    held_refused: list[float] = []
     # the usual reach's walls, for the corners: the wider reaches' joins across the room were refused
     last = found if found.polygon is None else None
     for gap in cfg.bridge_gaps_m if found.polygon is None else ():
@@ -139,6 +140,10 @@ def model_for(
             wider.polygon is not None
             and not (wider.share(wider.walls[long_made]) < cfg.lines.min_overlap).any()
         ):
+            # ...and the room it closes must hold most of the walls seen (not a box in a corner)
+            if _held_share(found.walls, found.origin, wider.polygon, cfg.lines.offset_tol_m) < HELD_MIN_SHARE:
+                held_refused.append(gap)
+                continue
             found, bridged = wider, gap
             break
     if corners is not None and found.polygon is None and last is not None:
@@ -167,6 +172,7 @@ def model_for(
         "walls_hung_from_ceiling": int(found.hung.sum()),
         "walls_stray": found.stray,
         "bridged_gap_m": bridged,
+        "bridged_refused_outside_m": held_refused,
         "sparse_px": sparse_px,
         "walls": len(found.walls),
     }
@@ -615,6 +621,27 @@ def _centre(lines: NDArray) -> NDArray | None:
     if len(lines) == 0 or weight.sum() <= 0:
         return None
     return (0.5 * (lines[:, :2] + lines[:, 2:]) * weight[:, None]).sum(axis=0) / weight.sum()
+
+
+HELD_MIN_SHARE = 0.5
+"""A room closed only by the wider reaches (`bridge_gaps_m`) must hold at least this share of the observed wall
+length the usual reach found (on or inside its outline, `_held_share`): a box that the wider joins made of a
+corner's walls and furniture across the room, leaving most of the walls seen outside it, is not the room
+(`bridged_refused_outside_m` in the metrics lists the reaches refused so)."""
+
+
+def _held_share(walls: NDArray, origin: NDArray, polygon: Any, tol_m: float) -> float:
+    """Share of the observed walls' length (`walls` (M, 4), `origin`) within `tol_m` of the room `polygon`
+    (on or inside its outline); 1 without observed walls."""
+    seen = walls[origin == OBSERVED]
+    total = float(lengths(seen).sum())
+    if total <= 0:
+        return 1.0
+    import shapely
+
+    lines = shapely.linestrings(seen.reshape(-1, 2, 2))
+    held = shapely.length(shapely.intersection(lines, polygon.buffer(tol_m, join_style="mitre"))).sum()
+    return float(held) / total
 
 
 def _lines_away_from(lines: NDArray, polygon: Any, tol_m: float) -> NDArray[np.bool_]:
