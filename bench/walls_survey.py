@@ -19,7 +19,8 @@ Run from the repository root. Every seed is a whole building (`tasks.synth.build
   on its sides, captured like an RGB-D room (its poorly textured walls matter to SfM only, and the poses
   here are true). Its walls are seen from close range and, where the walk passes quickly, sparsely.
 
-Each cloud goes through `preprocess` and `model_walls` with the default configuration (configs/default.yaml
+Each cloud goes through `preprocess` and the walls stage's model (`room_model`: `model_walls`, again on the
+walls' noise grid or with a partition's second face from under the slice where that applies) with the default configuration (configs/default.yaml
 plus any `--set`), the walls are mapped back into the plan frame and scored against the truth inner wall
 faces with `tasks.evaluate.evaluate_walls`. Per room: completeness, correctness, mean accuracy, corner F1,
 angle error, time (wall and CPU seconds of preprocess and walls), and what the capture saw where the wall stage looks: `seen`, the share of the truth wall
@@ -73,8 +74,7 @@ from tasks.evaluate import evaluate_walls  # noqa: E402
 from tasks.lines import sample_segments  # noqa: E402
 from tasks.preprocess.pipeline import preprocess  # noqa: E402
 from tasks.register.fusion import fuse_capture  # noqa: E402
-from tasks.walls.model import model_walls  # noqa: E402
-from tasks.walls.stage import levelled_to_input, segments_to_input  # noqa: E402
+from tasks.walls.stage import levelled_to_input, room_model, segments_to_input  # noqa: E402
 
 SPLITS = {
     "tune": (0, 1, 2, 3, 4, 5),
@@ -242,7 +242,7 @@ def run_room(
     t, cpu = time.perf_counter(), time.process_time()
     try:
         pre = preprocess(Cloud(points), cfg.preprocess)
-        model = model_walls(pre.slice.points, pre.floor_z_m, pre.ceiling_z_m, cfg.walls)
+        model, _ = room_model(pre.slice.points, pre.cloud.points, pre.floor_z_m, pre.ceiling_z_m, cfg.walls)
     except Exception as exc:  # a benchmark reports a failing room and goes on
         nan = math.nan
         return RoomResult(
