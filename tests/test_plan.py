@@ -708,3 +708,28 @@ def test_outside_corner_between_outer_walls_is_no_room() -> None:
         -4.0, join_style="mitre"
     )
     assert room.area == pytest.approx(inside.area, rel=0.03)
+
+
+def test_room_faces_at_the_centre_of_drawn_face_lines():
+    """Known answer: a room 4 m x 3 m inside walls 0.2 m thick drawn as their faces' lines 3 px wide
+    (a CAD or architect's outline, each line centred on its face), at 0.02 m per pixel, a door 0.9 m
+    wide in its south wall (its line closes the room on the wall's centreline). The room's faces
+    lie at the lines' centres, not where their ink ends: it measures 12 m2 (its free space alone, 1.5 px
+    short on every side, 11.6 m2), its west, east and north faces where they were drawn, and the lines'
+    half width is recorded."""
+    s = 0.02
+    img = np.full((320, 400, 3), 255, np.uint8)
+    x0, y0 = 100, 80  # the room's inside corner (pixels); 200 x 150 px inside
+    cv2.rectangle(img, (x0, y0), (x0 + 200, y0 + 150), (0, 0, 0), 3)
+    cv2.rectangle(img, (x0 - 10, y0 - 10), (x0 + 210, y0 + 160), (0, 0, 0), 3)
+    img[y0 + 140 : y0 + 170, x0 + 60 : x0 + 105] = 255  # the door's gap, 45 px
+    cv2.line(img, (x0 + 60, y0 + 148), (x0 + 60, y0 + 162), (0, 0, 0), 3)  # its jambs' faces
+    cv2.line(img, (x0 + 105, y0 + 148), (x0 + 105, y0 + 162), (0, 0, 0), 3)
+    res = parse_plan(img, PlanScale(m_per_px=s), PlanConfig(), name="outline room")
+    assert len(res.rooms) == 1
+    # the door line runs on the wall's centreline, 0.1 m out: 0.9 m x 0.1 m more
+    assert res.rooms[0][0].area == pytest.approx(12.0 + 0.09, abs=0.1)
+    x_min, _, x_max, y_max = res.rooms[0][0].bounds
+    assert (x_min, x_max, -y_max) == pytest.approx((x0 * s, (x0 + 200) * s, y0 * s), abs=0.3 * s)
+    line_px = float((img[y0 + 75, x0 - 20 : x0 + 20, 0] < 128).sum()) / 2  # as OpenCV drew them
+    assert res.metrics["face_line_half_width_m"] == pytest.approx(line_px / 2 * s, abs=0.5 * s)

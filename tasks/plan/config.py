@@ -138,6 +138,11 @@ class PlanConfig:
     border when every gap between wall ends a door could fill (door_min_m to door_max_m) is closed, and
     narrower ones by a door_min_m square: a window or a bay left as a gap in an outer wall does not open
     its room to the outside, and an acute corner between two outer walls stays outside."""
+    face_lines_min_share: float = 0.25
+    """Rooms reach past their free space by half the wall faces' line width (a wall drawn by its faces'
+    lines has its face at the line's centre) when walls measured with two face lines apart make up at
+    least this share of the wall length (an architect's double or hatched walls: 0.6 to 0.8; an
+    evacuation plan's solid walls: under 0.01)."""
     min_room_area_m2: float = 1.0
     """Free-space regions smaller than this are not rooms (shafts, wall interiors)."""
     min_extent_m: float = 2.0

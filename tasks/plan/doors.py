@@ -57,7 +57,10 @@ def swing_share(
     add up to a swing. With `hidden_f` (h, w), the removed symbols: a stretch of arc under one (a pen
     mark drawn across the swing) does not break the run, but only the angles with ink count; and a jamb
     whose end lies under one (the wall's ink stops where the mark begins) may end anywhere along the
-    hidden stretch that runs on from it into the gap, so the hinge is also sought that far out."""
+    hidden stretch that runs on from it into the gap, so the hinge is also sought that far out. Where a
+    mark hides the arc and the leaf is drawn (`_leaf_drawn`: the straight line from the hinge out to the
+    radius, square to the wall), the hidden angles count as arc: a mark across most of a swing left a
+    third of its arc (drawing 320's scan), and the leaf says the rest of it is there."""
     w = float(np.hypot(*(q - p)))
     if w <= 0:
         return 0.0
@@ -80,10 +83,35 @@ def swing_share(
                 flat = pts.reshape(-1, 2)
                 ink = sample_mask(thin_f, flat).reshape(len(radii), len(band), len(ts)) > 0.5
                 hidden = None
+                hit = ink.any(axis=1)
                 if hidden_f is not None:
                     hidden = (sample_mask(hidden_f, flat).reshape(ink.shape) > 0.5).any(axis=1)
-                best = max(best, _longest_run(ink.any(axis=1), hidden) / len(ts))
+                    if hidden.any():
+                        # the leaf drawn from the hinge out to the radius: under the mark the arc went on
+                        hit = hit | (hidden & _leaf_drawn(c, side, along, radii, thin_f, hidden_f)[:, None])
+                best = max(best, _longest_run(hit, hidden) / len(ts))
     return best
+
+
+def _leaf_drawn(
+    c: NDArray,
+    side: NDArray,
+    along: NDArray,
+    radii: NDArray,
+    thin_f: NDArray[np.float32],
+    hidden_f: NDArray[np.float32],
+) -> NDArray[np.bool_]:
+    """(R,) whether a door leaf of each radius is drawn from the hinge point c (pixels) along the unit
+    direction `side` (the swing's side of the wall): thin ink within a pixel and a half of the line from
+    a fifth of the radius to nine tenths of it (off the wall's face and the arc's end) at all its samples
+    but a tenth, at least half of them ink rather than under a removed symbol."""
+    fr = np.linspace(0.2, 0.9, 15)
+    band = np.array([-1.5, -0.75, 0.0, 0.75, 1.5])
+    pts = c + (radii[:, None, None] * fr[None, :, None])[..., None] * side + band[None, None, :, None] * along
+    flat = pts.reshape(-1, 2)
+    ink = (sample_mask(thin_f, flat).reshape(pts.shape[:3]) > 0.5).any(axis=2)
+    hid = (sample_mask(hidden_f, flat).reshape(pts.shape[:3]) > 0.5).any(axis=2)
+    return ((ink | hid).mean(axis=1) >= 0.9) & (ink.mean(axis=1) >= 0.5)
 
 
 def _hidden_run(p: NDArray, u: NDArray, max_px: float, hidden_f: NDArray[np.float32] | None) -> float:
@@ -183,7 +211,9 @@ def _find_doors(
                 if cfg_px["door_min"] <= along <= cfg_px["door_max"] and lateral < max(thick[i], 2.0) / 2:
                     if (best is None or along < best[0]) and swung(p, pt, i):
                         best = (along, pt.copy(), (j, ej))
-            hit = lines.line_intersection(np.concatenate([p, p + u]), t)
+            # a crossing wall's face: a parallel wall's line meets the ray only by its slight tilt (drawing
+            # 310's scan: the far jamb's wall, 0.2 degrees off, put the door's end 8 px short of it)
+            hit = None if parallel else lines.line_intersection(np.concatenate([p, p + u]), t)
             if hit is not None:
                 x, s_ray, s_seg = hit
                 # the wall's end may stop at the face of the wall the ray runs along (a door at a corner)

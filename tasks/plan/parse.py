@@ -147,7 +147,17 @@ def parse_plan(
     if raster.heavy_pen and cfg.seal_heavy_pen_outline:  # every door-wide gap, its swing drawn or not
         gaps = wall_gaps(segs, thick, mask_f, px, cfg)
     seal = round(cfg.door_min_m * px)
-    rooms_px = free_space_rooms(walls_r, segs, thick, doors, sp, cfg, seal, found.dark, gaps)
+    # walls drawn by their faces' lines (the faces measured apart by less than the raster's width): the
+    # lines' half width lies inside the room. Not from a stray wall or two (generator plan 3: one wall of
+    # an evacuation plan's solid ones, 0.5 % of their length, took a room's IoU from 0.970 to 0.865)
+    faced = thick_faces < thick - 1.0
+    face_px = 0.0
+    if (
+        faced.any()
+        and lines.lengths(segs)[faced].sum() >= cfg.face_lines_min_share * lines.lengths(segs).sum()
+    ):
+        face_px = float(np.median(thick[faced] - thick_faces[faced])) / 2
+    rooms_px = free_space_rooms(walls_r, segs, thick, doors, sp, cfg, seal, found.dark, gaps, face_px)
     rooms_m = rooms_in_metres(rooms_px, f, s, labels)
     timings["rooms_s"] = time.perf_counter() - t
     if not rooms_m:
@@ -163,6 +173,7 @@ def parse_plan(
         "rectified_by": rectified,
         "plan_region_px": [u0 * f, v0 * f, u1 * f, v1 * f],
         "walls_heavy_pen": raster.heavy_pen,
+        "face_line_half_width_m": face_px * sp,
         "dark_share": dark_share,
         "working_m_per_px": sp,
         "downsample_factor": f,

@@ -431,8 +431,41 @@ def _thin_line_openings(
         opened = cv2.morphologyEx(gaps.astype(np.uint8), cv2.MORPH_OPEN, across).astype(bool)
         fill = (covered >= 0.7 * np.maximum(size, 1)) & (np.bincount(lab[opened], minlength=n) > 0)
         fill[0] = False
+        for c in np.flatnonzero(fill):
+            fill[c] = not _passing_ends(walls, lab == c, axis)
         out |= fill[lab] & opened
     return out
+
+
+def _passing_ends(walls: NDArray[np.bool_], gap: NDArray[np.bool_], axis: int) -> bool:
+    """Whether the gap (h, w) running along `axis` (1: along the rows) is no opening in one wall: a
+    window's gap lies in a wall whose pieces at its two ends run on along it (their ink across the gap
+    no wider than the gap), or, beside a corner, ends at a wall across it that ends there too (running
+    past the gap on one side). When the walls at its ends run past it on opposite sides (a corridor's
+    two walls, one ending where the other begins: drawing 321, two door leaves drawn in line across the
+    corridor) or one runs past it on both sides (the gap ends on a wall's face: drawing 323, a door's
+    leaf drawn along a wall beside its jamb) the thin line in it is no window."""
+    w, g = (walls, gap) if axis == 1 else (walls.T, gap.T)
+    ys, xs = np.nonzero(g)
+    y0, y1, x0, x1 = int(ys.min()), int(ys.max()) + 1, int(xs.min()), int(xs.max()) + 1
+    width = y1 - y0
+    sides = []
+    for col in (x0 - 1, x1):
+        if not 0 <= col < w.shape[1]:
+            return False
+        line = w[:, col]
+        if not line[y0:y1].any():
+            return False
+        up = y0 - 1
+        while up >= 0 and line[up]:
+            up -= 1
+        down = y1
+        while down < len(line) and line[down]:
+            down += 1
+        ext_up, ext_down = y0 - 1 - up, down - y1
+        sides.append((ext_up > width, ext_down > width))
+    (a_up, a_down), (b_up, b_down) = sides
+    return (a_up and a_down) or (b_up and b_down) or (a_up and b_down) or (a_down and b_up)
 
 
 def plan_region(
