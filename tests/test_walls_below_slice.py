@@ -67,24 +67,6 @@ def test_a_stub_face_seen_only_under_the_slice_is_found_and_modelled(rng):
     assert len(north) == 1 and abs(north[0, 2] - north[0, 0]) == pytest.approx(1.5, abs=0.03)
 
 
-def test_a_stub_face_sparse_in_the_slice_is_stood_up(rng):
-    """The north face seen at all heights but sparsely (one point in ten: the walk passed it at a glancing
-    angle): the slice holds it, too thinly for the model, which keeps the stub as one dangling face. The
-    face found beside the stub is stood up all the same, and the stub gets both faces and its end."""
-    levelled, truth = stub_room(rng, north_top=0.0)
-    north = face((0, 1.55), (1.5, 1.55), 0.0, 2.5, rng)
-    levelled = np.concatenate([levelled, north[rng.random(len(north)) < 0.1]])
-    slice_points = in_band(levelled)
-    off, _ = room_model(slice_points, levelled, 0.0, 2.5, replace(CFG, below_slice_min_share=0))
-    assert len(_stubs(off.walls)) == 1  # the sparse face is not in the model by itself
-    model, choices = room_model(slice_points, levelled, 0.0, 2.5, CFG)
-    found = choices["faces_below_slice"]
-    assert len(found) == 1 and found[0]["offset_m"] == pytest.approx(0.1, abs=0.01), found
-    assert found[0]["in_slice"] > 0.5  # the slice held the face: a stub is what says the model lacks it
-    ev = evaluate_walls(model.walls, truth)
-    assert ev["completeness"] >= 0.97 and ev["correctness"] >= 0.99 and ev["corner_f1"] == 1.0, ev
-
-
 def test_a_face_already_in_the_slice_or_a_corner_is_left_alone(rng):
     """Both faces in the slice: nothing is looked for (no stub dangles). A room corner is not a stub."""
     levelled, _ = stub_room(rng, north_top=2.5)

@@ -441,16 +441,13 @@ def faces_below_slice(
             in_slice = np.bincount(
                 np.minimum((st[s_on] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins
             )
-            # what the slice holds of that face there: a stub means the model did not keep it (too sparse
-            # in the slice beside the stub's well-seen face), so the face is stood up however much of it
-            # the slice holds
-            seen = float((in_slice > 0).mean())
-            if cover >= cfg.below_slice_min_share and height >= cfg.min_column_height_m:
+            seen = float((in_slice > 0).mean())  # the slice holds that face there already
+            if cover >= cfg.below_slice_min_share and height >= cfg.min_column_height_m and seen < 0.2:
                 if best is None or cover > best[0]:
-                    best = (cover, offset, on, height, seen)
+                    best = (cover, offset, on, height)
         if best is None:
             continue
-        cover, offset, on, height, seen = best
+        cover, offset, on, height = best
         faces.append(below[on, :2])
         found.append(
             {
@@ -459,7 +456,6 @@ def faces_below_slice(
                 "cover": round(cover, 3),
                 "height_span_m": round(height, 3),
                 "points": int(on.sum()),
-                "in_slice": round(seen, 3),
             }
         )
     return faces, found
