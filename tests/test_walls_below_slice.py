@@ -103,12 +103,13 @@ def test_a_smeared_cloud_gets_a_grid_of_its_noise(rng):
     smeared = np.concatenate(
         [face(c[i], c[(i + 1) % 4], 1.5, 2.4, rng, step=0.02, noise=0.03) for i in range(4)]
     )
-    model, choices = room_model(smeared, smeared, 0.0, 2.5, CFG)
+    on = replace(CFG, grid_noise_ratio=1.5)  # off by default
+    model, choices = room_model(smeared, smeared, 0.0, 2.5, on)
     assert choices["grid_from_noise"] and choices["wall_noise_m"] == pytest.approx(0.03, abs=0.006), choices
     assert model.metrics["grid_size_m"] == pytest.approx(choices["wall_noise_m"], abs=0.001)
     truth = np.array([[*c[i], *c[(i + 1) % 4]] for i in range(4)], dtype=float)
     ev = evaluate_walls(model.walls, truth)
     assert model.closed and ev["completeness"] >= 0.95 and ev["correctness"] >= 0.95, ev
     crisp = np.concatenate([face(c[i], c[(i + 1) % 4], 1.5, 2.4, rng, noise=0.003) for i in range(4)])
-    _, crisp_choices = room_model(crisp, crisp, 0.0, 2.5, CFG)
+    _, crisp_choices = room_model(crisp, crisp, 0.0, 2.5, on)
     assert not crisp_choices["grid_from_noise"] and crisp_choices["wall_noise_m"] < 0.01

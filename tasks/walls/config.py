@@ -21,12 +21,14 @@ class WallsConfig:
     grid_spacing_ratio: float = 0.5
     """Grid = this times the slice's median nearest-neighbour spacing, when that is above `grid_size_m`
     (two cells per point spacing: the 3x3 closing bridges the one empty cell between points)."""
-    grid_noise_ratio: float = 1.5
+    grid_noise_ratio: float = 0.0
     """When the slice's points spread about the walls found (1.4826 x the median distance of those within
     `noise_band_m`: a Gaussian's sigma) by more than this times the grid, the walls stage makes the model again
     on a grid of that spread (table 6.3: the grid from the cloud's noise): a real handheld cloud's walls,
-    smeared over centimetres by registration, fall apart into dots on a grid finer than that. 0 switches it
-    off."""
+    smeared over centimetres by registration, fall apart into dots on a grid finer than that. 0 (the default)
+    switches it off: measured, the coarser grid cost more accuracy than it gave (a 70-degree wall 8.7 -> 14.3
+    mm, degraded rooms' correctness 0.99 -> 0.79, the 7-Scenes kitchen's walls cut at 1.5 m agreeing 0.976
+    instead of 1.000 with the full cloud's); the spread is measured and recorded all the same."""
     noise_band_m: float = 0.1
     """...the points within this distance of a wall count for its spread."""
     sparse_grid_ratio: float = 4.0
