@@ -22,7 +22,8 @@ def test_real_kitchen_walls_survive_a_handheld_subsample_and_cut(realdata):
     points = seven_scenes_cloud(realdata("rgbd_7scenes_redkitchen"), cfg)
     full = model_cloud(points, cfg)
     assert not full.pre.metrics["ceiling_captured"] and "top of the walls" in full.pre.metrics["slice_reason"]
-    assert 0.015 <= full.choices["wall_noise_m"] <= 0.04, full.choices  # measured (the grid stays the spacing's)
+    # the walls' noise is measured (the grid stays the point spacing's)
+    assert 0.015 <= full.choices["wall_noise_m"] <= 0.04, full.choices
     assert len(full.walls) >= 2 and _back_wall_m(full.walls) >= 4.5 and lengths(full.walls).sum() >= 6.5
     cut = handheld_cut(points, full.pre, 0.04, 1.5)
     assert len(cut) < 0.3 * len(points)
