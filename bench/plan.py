@@ -9,7 +9,8 @@ error and run time per plan; with --generator-seeds, on the survey generator's e
 The drawing split (`--drawing-seeds`): the generator's architect's drawings (furniture, fixtures, stairs,
 door swings, hatched / filled / double-line walls, dimensions, turned text, legend and title block) as
 paper scans, phone photos of the whole sheet and close-up phone photos whose view ends inside the sheet
-(`closeup`: rectified from the plan's own orthogonal directions, there is no border). Seeds 0-99 were used while developing; report on seeds from 100 up. A photo
+(`closeup`: rectified from the plan's own orthogonal directions, there is no border). Seeds 0-324 were used while developing (tuned
+on); report on seeds from 325 up. A photo
 is parsed at no given scale (the printed scale bar is read; when it is not, the bar's ends are given as
 known_distance and `scale_bar_read` says so); `scale_err` is the scale's error against the true one in
 the parse's frame, `rooms_found` the plan rooms matched with IoU >= 0.8, `rectified_by` what took the
