@@ -1009,3 +1009,106 @@ def lone_directions(
     tol = np.maximum(math.radians(angle_tol_deg), np.arctan2(2 * grid_m, np.maximum(L, 1e-12)))
     near = np.abs(np.sin(ang[:, None] - ang[None, :])) <= np.sin(tol)[:, None]
     return (near * L[None, :]).sum(axis=1) < min_total_m
+
+
+def across_beyond_the_room(
+    lines: NDArray, interior: NDArray | None, cfg: WallsConfig, angle_tol_deg: float
+) -> tuple[NDArray, NDArray[np.bool_]]:
+    """For a slice with nothing seen above it (a handheld scan): the walls of the next rooms that run
+    *across* a wall W of this room behind W's line (away from the room's `interior`), seen through a door
+    in W (`beyond_the_room` takes those that run along W). Returns (the lines, with those running on past
+    a corner of the room cut there; (M,) lines wholly beyond the room).
+
+    A line L across W (nearer its normal than its direction), shorter than W's collinear pieces span (the
+    room's wall is seen along more than a wall seen through its door), wholly behind W's line, by more than
+    `thin_wall_end_tol_m` (not standing on W's line as a wall of the room leaving it outward, an alcove's
+    or a wing's side, does), is beyond the room when
+    - its foot (where its line meets W's) lies on W's data, `thin_wall_end_tol_m` inside one of W's
+      collinear pieces: nothing of the room lies behind the room's seen wall (the next room's partition
+      standing on W's back face);
+    - or its foot lies in a gap of W's collinear pieces (a door), L is wholly more than `thin_wall_max_m`
+      behind, and no other line comes within `lines.max_gap_m` of L (an alcove's back wall or a wing's far
+      wall would hold it) nor leaves W's line outward within that of the foot (a wing's or an alcove's
+      side);
+    - or it lies in line with a wall of the room that ends on W's line at an end of W's collinear pieces
+      (the room's corner) and reaches more than `beyond_room_min_depth_m` behind (deeper than furniture
+      stands before a wall): the building's wall going on past the room's corner.
+
+    A line that runs from the room (more than `thin_wall_end_tol_m` in front of W's line) through W's line
+    at an end of W's collinear pieces and on more than `beyond_room_min_depth_m` behind it is that corner's
+    wall and the building's wall beyond it seen as one: it is cut at W's line.
+
+    W's collinear pieces are the lines parallel to it within `thin_wall_end_tol_m` of its line. W is one
+    of the room's lines at least `thin_wall_max_m` from the interior (nearer, it has no side to
+    tell; a corridor's lines' centre lies within a metre of its long walls); `beyond_room_min_depth_m` 0
+    switches the test off."""
+    lines = np.asarray(lines, dtype=np.float64).copy()
+    m = len(lines)
+    out = np.zeros(m, dtype=bool)
+    if cfg.beyond_room_min_depth_m <= 0 or interior is None or m < 3:
+        return lines, out
+    L = lengths(lines)
+    ok = L > 0
+    u = np.zeros((m, 2))
+    u[ok] = (lines[ok, 2:] - lines[ok, :2]) / L[ok, None]
+    normal = np.column_stack([-u[:, 1], u[:, 0]])
+    back = normal.copy()
+    back[((np.asarray(interior) - lines[:, :2]) * back).sum(axis=1) > 0] *= -1
+    ang = angles(lines)
+    cos_tol = math.cos(math.radians(angle_tol_deg))
+    thin, end_tol, gap = cfg.thin_wall_max_m, cfg.thin_wall_end_tol_m, cfg.lines.max_gap_m
+    deep = cfg.beyond_room_min_depth_m
+    clear = np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= thin
+    apart = point_segment_distances(lines.reshape(-1, 2), lines).reshape(m, 2, m).min(axis=1)
+    for w in np.argsort(-L):
+        if not ok[w] or out[w] or not clear[w]:
+            continue
+        # its pieces: a wall at a few tenths of a degree off the next piece's angle misses it by centimetres
+        same = _collinear_with(lines, ang, normal, w, cos_tol, end_tol)
+        t0 = (lines[same, :2] - lines[w, :2]) @ u[w]
+        t1 = (lines[same, 2:] - lines[w, :2]) @ u[w]
+        pieces = np.column_stack([np.minimum(t0, t1), np.maximum(t0, t1)])
+        lo, hi = float(pieces[:, 0].min()), float(pieces[:, 1].max())
+        rel = lines.reshape(-1, 2) - lines[w, :2]
+        depth = (rel @ back[w]).reshape(m, 2)
+        along = (rel @ u[w]).reshape(m, 2)
+        across = ok & ~out & (np.abs(np.cos(ang - ang[w])) < math.sqrt(0.5))
+        # where each line across meets W's line
+        dd = depth[:, 1] - depth[:, 0]
+        safe = np.where(np.abs(dd) > 1e-12, dd, 1.0)
+        foot = np.where(
+            np.abs(dd) > 1e-12, along[:, 0] - depth[:, 0] * (along[:, 1] - along[:, 0]) / safe, along[:, 0]
+        )
+        at_corner = np.minimum(np.abs(foot - lo), np.abs(foot - hi)) <= end_tol
+        # the room's walls ending on W's line from the room's side, and those leaving it outward
+        inside = across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) <= end_tol)
+        outward = across & (np.abs(depth.min(axis=1)) <= end_tol) & (depth.max(axis=1) > thin)
+        for c in np.flatnonzero(across):
+            if depth[c].min() < -end_tol and depth[c].max() > deep:
+                if at_corner[c]:
+                    k = int(np.argmax(depth[c]))
+                    a, b = lines[c, 2 * (1 - k) : 4 - 2 * k], lines[c, 2 * k : 2 * k + 2]
+                    lines[c, 2 * k : 2 * k + 2] = a + (b - a) * (
+                        -depth[c, 1 - k] / (depth[c, k] - depth[c, 1 - k])
+                    )
+                continue
+            if depth[c].min() <= end_tol or not lo - end_tol <= foot[c] <= hi + end_tol or L[c] >= hi - lo:
+                continue
+            on_data = bool(((pieces[:, 0] + end_tol <= foot[c]) & (foot[c] <= pieces[:, 1] - end_tol)).any())
+            near = apart[c] <= gap
+            near[c] = False
+            wing = outward & (np.abs(foot - foot[c]) <= gap)
+            wing[c] = False
+            lined = (
+                inside
+                & at_corner
+                & (np.abs(np.cos(ang - ang[c])) >= cos_tol)
+                & (np.abs((lines[:, :2] - lines[c, :2]) @ normal[c]) <= cfg.lines.offset_tol_m)
+            )
+            if (
+                on_data
+                or (depth[c].min() > thin and not near.any() and not wing.any())
+                or (lined.any() and depth[c].max() > deep)
+            ):
+                out[c] = True
+    return lines, out

@@ -29,6 +29,7 @@ from tasks.lines import (
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import (
     TopCells,
+    across_beyond_the_room,
     backed_bridges,
     beyond_the_room,
     extend_to_data,
@@ -292,6 +293,8 @@ def _topology(
     if proj.open_top:
         # nothing seen above the slice (a handheld scan): the wall in front of a door may be barely seen
         beyond = beyond_the_room(refined, _centre(refined), cfg, lcfg.angle_tol_deg)
+        refined, across = across_beyond_the_room(refined, _centre(refined), cfg, lcfg.angle_tol_deg)
+        beyond |= across & ~through
         through |= beyond
         beyond_lines = int(beyond.sum())
     if through.any():

@@ -1,0 +1,72 @@
+"""Walls of the next rooms that run across one of the room's walls, seen through its doors in a slice with
+nothing seen above it (a handheld scan): `evidence.across_beyond_the_room`."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from tasks.walls.config import WallsConfig
+from tasks.walls.evidence import across_beyond_the_room
+
+CFG = WallsConfig()
+INTERIOR = np.array([6.0, 1.0])
+
+# a corridor 12 m x 2 m: its south wall (y = 0) has doors at x = 3-4 and x = 7-8, its north wall (y = 2)
+# one at x = 5-6
+CORRIDOR = [
+    [0, 0, 3, 0],
+    [4, 0, 7, 0],
+    [8, 0, 12, 0],
+    [0, 2, 5, 2],
+    [6, 2, 12, 2],
+    [12, 0, 12, 2],
+]
+
+
+def _run(extra: list[list[float]], cfg: WallsConfig = CFG) -> tuple[np.ndarray, np.ndarray]:
+    lines = np.array(CORRIDOR + extra, dtype=float)
+    return across_beyond_the_room(lines, INTERIOR, cfg, 3.0)
+
+
+def test_the_next_rooms_partitions_behind_a_corridor_wall_go():
+    new, out = _run(
+        [
+            [10, -0.25, 10, -1.5],  # a partition standing on the south wall's back face: behind its data
+            [3.5, -1.2, 3.5, -2.5],  # seen through the door at x = 3-4, deep behind it, held by nothing
+        ]
+    )
+    assert out.tolist() == [False] * 6 + [True, True]
+    assert np.array_equal(new, np.array(CORRIDOR + [[10, -0.25, 10, -1.5], [3.5, -1.2, 3.5, -2.5]]))
+
+
+def test_the_building_wall_beyond_a_corner_is_cut_or_goes():
+    # the west end wall seen with the outer wall that goes on past the corner (through the north door)
+    new, out = _run([[0, 0, 0, 3.8]])
+    assert not out.any()
+    np.testing.assert_allclose(new[-1], [0, 0, 0, 2])
+    # and seen apart from it: the piece in line with the end wall, 1 m behind the south wall, goes
+    new, out = _run([[0, 0.2, 0, 2], [0, -1.0, 0, -2.2]])
+    assert out.tolist() == [False] * 7 + [True]
+
+
+def test_an_alcove_and_a_wing_stay():
+    # an alcove behind the door gap x = 7-8: its sides stand on the south wall's line, its back joins them
+    alcove = [[7, 0, 7, -0.9], [7, -0.9, 8, -0.9], [8, -0.9, 8, 0]]
+    new, out = _run(alcove)
+    assert not out.any()
+    assert np.array_equal(new, np.array(CORRIDOR + alcove, dtype=float))
+    # an alcove side seen only from 0.4 m behind the line, with the alcove's back beside it
+    new, out = _run([[7, -0.4, 7, -0.9], [7, -0.9, 8, -0.9]])
+    assert not out.any()
+    # a wing's side leaving the line outward next to a far piece: the room goes on there
+    new, out = _run([[8, 0, 8, -2.0], [7.2, -1.0, 7.2, -1.8]])
+    assert not out.any()
+
+
+def test_switched_off():
+    off = replace(CFG, beyond_room_min_depth_m=0.0)
+    new, out = _run([[10, -0.25, 10, -1.5], [0, 0, 0, 3.8]], off)
+    assert not out.any()
+    assert new[-1].tolist() == [0, 0, 0, 3.8]
