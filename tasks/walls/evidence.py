@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from tasks.connect import OBSERVED
-from tasks.lines import angles, lengths, point_segment_distances, sample_segments
+from tasks.lines import angles, lengths, line_intersection, point_segment_distances, sample_segments
 from tasks.walls.config import WallsConfig
 from tasks.walls.image import Grid
 
@@ -903,8 +903,8 @@ def beyond_the_room(
     `beyond_room_min_depth_m` behind the line of a line W of the room (on its side away from the room's
     `interior`: deeper than furniture stands before a wall) and runs along W (within 45°: a wall drawn from
     the few points seen through a door may lie some degrees off), the room's other lines run along the
-    whole of L (to within `thin_wall_max_m`: the next room's wall goes on past this room's by the partition's
-    thickness), and no line of the room lies between W's line and L's (more than `thin_wall_max_m` from
+    whole of L (to within `lines.max_gap_m`: the next room's wall goes on past this room's by the partition's
+    thickness and as far as the door's view reaches; a wing further out has side walls), and no line of the room lies between W's line and L's (more than `thin_wall_max_m` from
     either) within `lines.max_gap_m` of L's span: an L-shaped room's far wing or an alcove is joined to the
     rest by its side walls, which lie there. W must bound the room: no line of the room runs on from W's
     line to behind it (the room goes on there: an L-room's wing, the far side of a partition), and L is
@@ -957,9 +957,7 @@ def beyond_the_room(
         )
         across = (np.abs(np.cos(ang - ang[w])) <= sin_loose) & (deepest <= end_tol)
         across[w] = False
-        corner = bool(across.any()) and bool(
-            (point_segment_distances(lines[w].reshape(2, 2), lines[across]) <= end_tol).any()
-        )
+        corner = bool(across.any()) and _meets_at_end(lines[w], lines[across], end_tol)
         # L runs along W (closer to its direction than to its normal; a wall drawn from the few points seen
         # through a door may lie some degrees off), not across it: a line across W's line is a wall joining it
         along = np.abs(np.cos(ang - ang[w])) >= math.sqrt(0.5)
@@ -972,7 +970,8 @@ def beyond_the_room(
             mine = owner == c
             lo, hi = float(t[mine].min()), float(t[mine].max())
             rest = others[owner]
-            if not rest.any() or t[rest].min() > lo + thin or t[rest].max() < hi - thin:
+            reach = cfg.lines.max_gap_m
+            if not rest.any() or t[rest].min() > lo + reach or t[rest].max() < hi - reach:
                 continue  # beyond the end of the room's lines: an L-room's wing
             far = float(depth[mine].min())
             # a line joining L to the room (a wing's side wall) starts within furniture's depth and the
@@ -990,6 +989,25 @@ def beyond_the_room(
             if not between.any():
                 out[c] = True
     return out
+
+
+def _meets_at_end(w: NDArray, others: NDArray, tol_m: float) -> bool:
+    """Whether one of `others` (K, 4) meets segment `w` at one of w's ends: an end of w within `tol_m` of
+    the other segment, or the two lines crossing within `tol_m` of an end of each (a corner whose last
+    centimetres neither wall's data reached)."""
+    if (point_segment_distances(w.reshape(2, 2), others) <= tol_m).any():
+        return True
+    for o in others:
+        hit = line_intersection(w, o)
+        if hit is None:
+            continue
+        x = hit[0]
+        if (
+            min(np.hypot(*(x - w[:2])), np.hypot(*(x - w[2:]))) <= tol_m
+            and min(np.hypot(*(x - o[:2])), np.hypot(*(x - o[2:]))) <= tol_m
+        ):
+            return True
+    return False
 
 
 def lone_directions(
@@ -1019,8 +1037,10 @@ def across_beyond_the_room(
     in W (`beyond_the_room` takes those that run along W). Returns (the lines, with those running on past
     a corner of the room cut there; (M,) lines wholly beyond the room).
 
-    A line L across W (nearer its normal than its direction), shorter than W's collinear pieces span (the
-    room's wall is seen along more than a wall seen through its door), wholly behind W's line, by more than
+    Only lines shorter than the span of W's collinear pieces are judged (the room's wall is seen along more
+    than a wall seen through its door, and a short line across a wall, a door's jamb or a box's side, is no
+    wall of the room to judge by). A line L across W (nearer its normal than its direction) wholly behind
+    W's line, by more than
     `thin_wall_end_tol_m` (not standing on W's line as a wall of the room leaving it outward, an alcove's
     or a wing's side, does), is beyond the room when
     - its foot (where its line meets W's) lies on W's data, `thin_wall_end_tol_m` inside one of W's
@@ -1038,8 +1058,10 @@ def across_beyond_the_room(
     at an end of W's collinear pieces and on more than `beyond_room_min_depth_m` behind it is that corner's
     wall and the building's wall beyond it seen as one: it is cut at W's line.
 
-    W's collinear pieces are the lines parallel to it within `thin_wall_end_tol_m` of its line. W is one
-    of the room's lines at least `thin_wall_max_m` from the interior (nearer, it has no side to
+    W's collinear pieces are the lines parallel to it within `thin_wall_end_tol_m` of its line. W must
+    bound the room: no line across it runs from the room through its line and on behind it other than at
+    its ends (the room goes on there: a partition's face, an L-room's inner wall). W is one of the room's
+    lines at least `thin_wall_max_m` from the interior (nearer, it has no side to
     tell; a corridor's lines' centre lies within a metre of its long walls); `beyond_room_min_depth_m` 0
     switches the test off."""
     lines = np.asarray(lines, dtype=np.float64).copy()
@@ -1083,7 +1105,9 @@ def across_beyond_the_room(
         # the room's walls ending on W's line from the room's side, and those leaving it outward
         inside = across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) <= end_tol)
         outward = across & (np.abs(depth.min(axis=1)) <= end_tol) & (depth.max(axis=1) > thin)
-        for c in np.flatnonzero(across):
+        if (across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) > thin) & ~at_corner).any():
+            continue  # a wall of the room runs on from the room through W's line: the room goes on behind it
+        for c in np.flatnonzero(across & (L < hi - lo)):
             if depth[c].min() < -end_tol and depth[c].max() > deep:
                 if at_corner[c]:
                     k = int(np.argmax(depth[c]))
@@ -1092,7 +1116,7 @@ def across_beyond_the_room(
                         -depth[c, 1 - k] / (depth[c, k] - depth[c, 1 - k])
                     )
                 continue
-            if depth[c].min() <= end_tol or not lo - end_tol <= foot[c] <= hi + end_tol or L[c] >= hi - lo:
+            if depth[c].min() <= end_tol or not lo - end_tol <= foot[c] <= hi + end_tol:
                 continue
             on_data = bool(((pieces[:, 0] + end_tol <= foot[c]) & (foot[c] <= pieces[:, 1] - end_tol)).any())
             near = apart[c] <= gap
