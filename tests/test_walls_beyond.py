@@ -70,3 +70,24 @@ def test_switched_off():
     new, out = _run([[10, -0.25, 10, -1.5], [0, 0, 0, 3.8]], off)
     assert not out.any()
     assert new[-1].tolist() == [0, 0, 0, 3.8]
+
+
+def test_a_wall_seen_through_a_door_goes_when_the_corner_s_last_centimetres_are_unseen():
+    from tasks.walls.evidence import beyond_the_room
+
+    room = np.array(
+        [
+            [0.14, 4, 1.7, 4],  # the north wall, seen up to 14 cm short of the corner, a door east of it
+            [0, 3.91, 0, 0],  # the west wall, seen up to 9 cm short of it
+            [0, 0, 5, 0],
+            [5, 0, 5, 2.2],
+            # the next room's wall seen through the door 2.1 m beyond, on past the west wall's line by 0.5 m
+            [-0.5, 6.1, 1.9, 6.1],
+        ],
+        dtype=float,
+    )
+    assert beyond_the_room(room, np.array([2.5, 2.0]), CFG, 3.0).tolist() == [False] * 4 + [True]
+    # a wing: the far wall runs on 1.5 m past the room's lines (its side walls unseen), so it stays
+    wing = room.copy()
+    wing[4] = [-1.5, 6.1, 1.9, 6.1]
+    assert not beyond_the_room(wing, np.array([2.5, 2.0]), CFG, 3.0).any()
