@@ -1033,37 +1033,37 @@ def across_beyond_the_room(
     lines: NDArray, interior: NDArray | None, cfg: WallsConfig, angle_tol_deg: float
 ) -> tuple[NDArray, NDArray[np.bool_]]:
     """For a slice with nothing seen above it (a handheld scan): the walls of the next rooms that run
-    *across* a wall W of this room behind W's line (away from the room's `interior`), seen through a door
-    in W (`beyond_the_room` takes those that run along W). Returns (the lines, with those running on past
-    a corner of the room cut there; (M,) lines wholly beyond the room).
+        *across* a wall W of this room behind W's line (away from the room's `interior`), seen through a door
+        in W (`beyond_the_room` takes those that run along W). Returns (the lines, with those running on past
+        a corner of the room cut there; (M,) lines wholly beyond the room).
 
-    Only lines shorter than the span of W's collinear pieces are judged (the room's wall is seen along more
-    than a wall seen through its door, and a short line across a wall, a door's jamb or a box's side, is no
-    wall of the room to judge by). A line L across W (nearer its normal than its direction) wholly behind
-    W's line, by more than
-    `thin_wall_end_tol_m` (not standing on W's line as a wall of the room leaving it outward, an alcove's
-    or a wing's side, does), is beyond the room when
-    - its foot (where its line meets W's) lies on W's data, `thin_wall_end_tol_m` inside one of W's
-      collinear pieces: nothing of the room lies behind the room's seen wall (the next room's partition
-      standing on W's back face);
-    - or its foot lies in a gap of W's collinear pieces (a door), L is wholly more than `thin_wall_max_m`
-      behind, and no other line comes within `lines.max_gap_m` of L (an alcove's back wall or a wing's far
-      wall would hold it) nor leaves W's line outward within that of the foot (a wing's or an alcove's
-      side);
-    - or it lies in line with a wall of the room that ends on W's line at an end of W's collinear pieces
-      (the room's corner) and reaches more than `beyond_room_min_depth_m` behind (deeper than furniture
-      stands before a wall): the building's wall going on past the room's corner.
+        Only lines shorter than the span of W's collinear pieces are judged (the room's wall is seen along more
+        than a wall seen through its door, and a short line across a wall, a door's jamb or a box's side, is no
+        wall of the room to judge by). A line L across W (nearer its normal than its direction) wholly behind
+        W's line, by more than
+        `thin_wall_end_tol_m` (not standing on W's line as a wall of the room leaving it outward, an alcove's
+        or a wing's side, does), is beyond the room when
+        - its foot (where its line meets W's) lies on W's data, `thin_wall_end_tol_m` inside one of W's
+          collinear pieces: nothing of the room lies behind the room's seen wall (the next room's partition
+          standing on W's back face);
+        - or its foot lies in a gap of W's collinear pieces (a door), L is wholly more than `thin_wall_max_m`
+          behind, and no other line comes within `lines.max_gap_m` of L (an alcove's back wall or a wing's far
+          wall would hold it) nor leaves W's line outward within that of the foot (a wing's or an alcove's
+          side);
+        - or it lies in line with a wall of the room that ends on W's line at an end of W's collinear pieces
+          (the room's corner) and reaches more than `beyond_room_min_depth_m` behind (deeper than furniture
+          stands before a wall): the building's wall going on past the room's corner.
 
-    A line that runs from the room (more than `thin_wall_end_tol_m` in front of W's line) through W's line
-    at an end of W's collinear pieces and on more than `beyond_room_min_depth_m` behind it is that corner's
-    wall and the building's wall beyond it seen as one: it is cut at W's line.
+        A line that runs from the room (more than `thin_wall_end_tol_m` in front of W's line) through W's line
+        at an end of W's collinear pieces and on more than `beyond_room_min_depth_m` behind it is that corner's
+        wall and the building's wall beyond it seen as one: it is cut at W's line.
 
-    W's collinear pieces are the lines parallel to it within `thin_wall_end_tol_m` of its line. W must
-    bound the room: no line across it runs from the room through its line and on behind it other than at
-    its ends (the room goes on there: a partition's face, an L-room's inner wall). W is one of the room's
-    lines at least `thin_wall_max_m` from the interior (nearer, it has no side to
-    tell; a corridor's lines' centre lies within a metre of its long walls); `beyond_room_min_depth_m` 0
-    switches the test off."""
+        W's collinear pieces are the lines parallel to it within `thin_wall_end_tol_m` of its line. W must
+        bound the room: no line across it runs from the room through its line and on behind it other than at
+        its ends (the room goes on there: a partition's face, an L-room's inner wall). W is one of the room's
+    lines more than `lines.offset_tol_m` from the interior (a line through it has no
+        side to tell; a corridor seen mostly along one wall has its lines' centre a few decimetres from that
+        wall, on the room's side); `beyond_room_min_depth_m` 0 switches the test off."""
     lines = np.asarray(lines, dtype=np.float64).copy()
     m = len(lines)
     out = np.zeros(m, dtype=bool)
@@ -1080,7 +1080,7 @@ def across_beyond_the_room(
     cos_tol = math.cos(math.radians(angle_tol_deg))
     thin, end_tol, gap = cfg.thin_wall_max_m, cfg.thin_wall_end_tol_m, cfg.lines.max_gap_m
     deep = cfg.beyond_room_min_depth_m
-    clear = np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= thin
+    clear = np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= cfg.lines.offset_tol_m
     apart = point_segment_distances(lines.reshape(-1, 2), lines).reshape(m, 2, m).min(axis=1)
     for w in np.argsort(-L):
         if not ok[w] or out[w] or not clear[w]:
