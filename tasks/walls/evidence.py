@@ -1119,7 +1119,13 @@ def across_beyond_the_room(
             if depth[c].min() <= end_tol or not lo - end_tol <= foot[c] <= hi + end_tol:
                 continue
             on_data = bool(((pieces[:, 0] + end_tol <= foot[c]) & (foot[c] <= pieces[:, 1] - end_tol)).any())
-            near = apart[c] <= gap
+            # the partition's other face (parallel, within a thin wall's thickness, behind W too) holds nothing
+            face = (
+                (np.abs(np.cos(ang - ang[c])) >= cos_tol)
+                & (np.abs((0.5 * (lines[:, :2] + lines[:, 2:]) - lines[c, :2]) @ normal[c]) <= thin)
+                & (depth.min(axis=1) > end_tol)
+            )
+            near = (apart[c] <= gap) & ~face
             near[c] = False
             wing = outward & (np.abs(foot - foot[c]) <= gap)
             wing[c] = False
