@@ -1082,6 +1082,7 @@ def across_beyond_the_room(
     deep = cfg.beyond_room_min_depth_m
     clear = np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= cfg.lines.offset_tol_m
     apart = point_segment_distances(lines.reshape(-1, 2), lines).reshape(m, 2, m).min(axis=1)
+    apart = np.minimum(apart, apart.T)  # the segments' distance: an end of either to the other
     for w in np.argsort(-L):
         if not ok[w] or out[w] or not clear[w]:
             continue
@@ -1116,9 +1117,8 @@ def across_beyond_the_room(
                         -depth[c, 1 - k] / (depth[c, k] - depth[c, 1 - k])
                     )
                 continue
-            if depth[c].min() <= end_tol or not lo - end_tol <= foot[c] <= hi + end_tol:
+            if not lo - end_tol <= foot[c] <= hi + end_tol:
                 continue
-            on_data = bool(((pieces[:, 0] + end_tol <= foot[c]) & (foot[c] <= pieces[:, 1] - end_tol)).any())
             # the partition's other face (parallel, within a thin wall's thickness, behind W too) holds nothing
             face = (
                 (np.abs(np.cos(ang - ang[c])) >= cos_tol)
@@ -1129,6 +1129,15 @@ def across_beyond_the_room(
             near[c] = False
             wing = outward & (np.abs(foot - foot[c]) <= gap)
             wing[c] = False
+            if outward[c]:
+                # standing on W's line at a door's jamb, away from the room's corners, and held by nothing but
+                # W's own pieces: no back wall or other side as an alcove or a wing has
+                if lo + end_tol < foot[c] < hi - end_tol and not (near & ~same).any() and not wing.any():
+                    out[c] = True
+                continue
+            if depth[c].min() <= end_tol:
+                continue
+            on_data = bool(((pieces[:, 0] + end_tol <= foot[c]) & (foot[c] <= pieces[:, 1] - end_tol)).any())
             lined = (
                 inside
                 & at_corner
