@@ -113,3 +113,27 @@ def test_a_smeared_cloud_gets_a_grid_of_its_noise(rng):
     crisp = np.concatenate([face(c[i], c[(i + 1) % 4], 1.5, 2.4, rng, noise=0.003) for i in range(4)])
     _, crisp_choices = room_model(crisp, crisp, 0.0, 2.5, on)
     assert not crisp_choices["grid_from_noise"] and crisp_choices["wall_noise_m"] < 0.01
+
+
+def test_a_stub_face_the_slice_holds_sparsely_is_stood_up_at_the_first_faces_density(rng):
+    """The north face seen over the whole height but sparsely (one point per 5 cm x 5 cm, a 25th of
+    the south face's density: a face seen at a grazing angle): the slice holds it, too sparsely for the
+    binarization, so the stub dangles as one face. The face is found beside the stub ("sparse": the slice
+    holds under half the first face's points per bin), the first face's slice points are moved onto it, and
+    the stub gets both faces and its end. Full columns are not stood up: no cell's count exceeds the
+    first face's."""
+    levelled, truth = stub_room(rng, north_top=0.0)
+    levelled = np.concatenate([levelled, face((0, 1.55), (1.5, 1.55), 0.0, 2.5, rng, step=0.05)])
+    slice_points = in_band(levelled)
+    off, _ = room_model(slice_points, levelled, 0.0, 2.5, replace(CFG, below_slice_sparse_ratio=0))
+    assert len(_stubs(off.walls)) == 1  # the sparse face is lost: the stub dangles
+    model, choices = room_model(slice_points, levelled, 0.0, 2.5, CFG)
+    found = choices["faces_below_slice"]
+    assert len(found) == 1 and found[0]["kind"] == "sparse", found
+    assert found[0]["offset_m"] == pytest.approx(0.1, abs=0.01) and found[0]["slice_density_ratio"] < 0.2
+    ev = evaluate_walls(model.walls, truth)
+    assert ev["completeness"] >= 0.97 and ev["correctness"] >= 0.99 and ev["corner_f1"] == 1.0, ev
+    faces, _ = faces_below_slice(off.walls, levelled, slice_points, 0.0, CFG, 0.01)
+    extra = lifted(faces, 1.5, 2.4, 0.01)
+    south = slice_points[(np.abs(slice_points[:, 1] - 1.45) < 0.02) & (slice_points[:, 0] < 1.5)]
+    assert len(extra) <= len(south)  # the first face's points, moved: its density, not full columns

@@ -104,6 +104,11 @@ class WallsConfig:
     share of the stub's length; 0 switches that off."""
     below_slice_min_z_m: float = 0.3
     """...looking from this height above the floor (skirting boards and what lies on the floor stay out)."""
+    below_slice_sparse_ratio: float = 0.5
+    """...and also when the slice holds that face, but at under this share of the stub's first face's points
+    per 10 cm (a face seen at a grazing angle or from close range: the binarization's α drops it; issue 14,
+    0.06-0.3 on the dev rooms' stubs). Such a face is stood up at the first face's density (its slice points
+    moved onto it), not as full columns that would outweigh the room's sparse walls; 0 switches that off."""
     shadow_m: float = 1.0
     """A line below the slice top is still a wall when it is at least `open_min_length_m` long and data
     reaching the top lies within this distance beside it (further than `shadow_gap_m`) along less than half

@@ -390,12 +390,21 @@ def faces_below_slice(
     """The second faces of partition stubs, looked for in the levelled cloud under the slice.
 
     A stub of the wall model (`_stubs`: one free end, the other standing on a wall at a T) whose other
-    face the slice does not hold (a face seen only from close range, below the slice): the levelled
-    points (N, 3) between `below_slice_min_z_m` above the floor and the slice's bottom, beside the stub
-    (further than two grid cells, at most `thin_wall_max_m`) and along it, are histogrammed by their
-    offset on either side; the peak (within 2 cm) is a face when its points cover at least
-    `below_slice_min_share` of the stub's length (10 cm bins) and span `min_column_height_m` in height,
-    and the slice holds no data there. Returns each face's points (K, 2) and what was found (for the
+    face the slice does not hold, or holds too sparsely for the binarization (a face seen only from close
+    range, below the camera's view of the slice, or at a grazing angle): the levelled points (N, 3) between
+    `below_slice_min_z_m` above the floor and the slice's bottom, beside the stub (further than two grid
+    cells, at most `thin_wall_max_m`) and along it, are binned by their offset on either side (1 cm); the
+    face is the offset whose points (within 2 cm) cover the most of the stub's length (10 cm bins; ties: the
+    most points), not the one with the most points: a Kinect's mixed pixels at the stub's free end lie
+    between the two faces, many at one place. It is a face when its points cover at least
+    `below_slice_min_share` of the stub's length and span `min_column_height_m` in height, and the slice holds
+    no data there (under a fifth of the bins: "below") or holds it at under `below_slice_sparse_ratio` of the
+    stub's first face's points per bin ("sparse"), no wall of the model lying there already.
+
+    Returns each face's points (K, 3): for a face below the slice its points (K, 2) under the slice (stood
+    up as full columns by `lifted`); for a sparse face, the stub's first face's slice points moved onto it
+    (`mirrored`: the face gets the first face's density and heights, so that neither it nor the room's walls
+    outweigh the other in the projection image), with its own slice points; and what was found (for the
     metrics)."""
     faces: list[NDArray] = []
     found: list[dict[str, Any]] = []
@@ -419,36 +428,65 @@ def faces_below_slice(
         srel = slice_points[:, :2] - a
         st, sd = srel @ u, srel @ n
         s_near = (st >= 0.1 * L) & (st <= 0.9 * L)  # clear of the host wall and the stub's end
+        n_bins = max(1, math.ceil(L / bin_m))
+        mid = np.zeros(n_bins, dtype=bool)
+        mid[int(0.1 * L / bin_m) : max(int(0.1 * L / bin_m) + 1, int(0.9 * L / bin_m))] = True
+
+        def per_bin(tt: NDArray, n_bins: int = n_bins) -> NDArray:
+            return np.bincount(np.minimum((tt / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins)
+
+        # the stub's own (first) face in the slice: its points per bin, the reference for a sparse face
+        first = (np.abs(sd) <= 0.02) & (st >= 0) & (st <= L)
+        first_density = float(np.median(per_bin(st[first])[mid]))
         best = None
         for side in (1.0, -1.0):
             sel = near & (side * d > 0)
             if sel.sum() < 10:
                 continue
-            hist, edges = np.histogram(
-                side * d[sel], bins=np.arange(2 * grid_m, cfg.thin_wall_max_m + 0.01, 0.01)
-            )
-            peak = 0.5 * (edges[np.argmax(hist)] + edges[np.argmax(hist) + 1])
+            edges = np.arange(2 * grid_m, cfg.thin_wall_max_m + 0.01, 0.01)
+            n_off = len(edges) - 1
+            if n_off < 1:
+                continue
+            ob = np.clip(np.floor((side * d[sel] - edges[0]) / 0.01).astype(np.intp), 0, n_off - 1)
+            tb = np.minimum((t[sel] / bin_m).astype(np.intp), n_bins - 1)
+            occ = np.zeros((n_off + 4, n_bins), dtype=bool)
+            occ[ob + 2, tb] = True
+            counts = np.bincount(ob, minlength=n_off)
+            # the bins of the stub's length that the points within 2 cm of each offset cover
+            window = occ[:-4] | occ[1:-3] | occ[2:-2] | occ[3:-1] | occ[4:]
+            covered = window.sum(axis=1)
+            near_counts = np.convolve(counts, np.ones(5), mode="same")
+            pk = int(np.lexsort((-near_counts, -covered))[0])
+            peak = 0.5 * (edges[pk] + edges[pk + 1])
             on = sel & (np.abs(side * d - peak) <= 0.02)
             offset = side * float(np.median(side * d[on]))
-            n_bins = max(1, math.ceil(L / bin_m))
-            cover = float(
-                (
-                    np.bincount(np.minimum((t[on] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins) > 0
-                ).mean()
-            )
+            cover = float((per_bin(t[on]) > 0).mean())
             height = float(np.ptp(below[on, 2]))
             s_on = s_near & (np.abs(sd - offset) <= 0.02)
-            in_slice = np.bincount(
-                np.minimum((st[s_on] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins
-            )
+            in_slice = per_bin(st[s_on])
             seen = float((in_slice > 0).mean())  # the slice holds that face there already
-            if cover >= cfg.below_slice_min_share and height >= cfg.min_column_height_m and seen < 0.2:
-                if best is None or cover > best[0]:
-                    best = (cover, offset, on, height)
+            density = float(np.median(in_slice[mid]))
+            ratio = density / first_density if first_density > 0 else math.inf
+            if cover < cfg.below_slice_min_share or height < cfg.min_column_height_m:
+                continue
+            if seen < 0.2:
+                kind = "below"
+            elif ratio < cfg.below_slice_sparse_ratio and not _wall_along(walls, i, a, u, n, offset, L):
+                kind = "sparse"
+            else:
+                continue
+            if best is None or cover > best[0]:
+                best = (cover, offset, on, height, kind, seen, ratio)
         if best is None:
             continue
-        cover, offset, on, height = best
-        faces.append(below[on, :2])
+        cover, offset, on, height, kind, seen, ratio = best
+        if kind == "below":
+            faces.append(below[on, :2])
+        else:
+            moved = slice_points[first].copy()
+            moved[:, :2] += offset * n
+            moved = moved[(st[first] >= float(t[on].min())) & (st[first] <= float(t[on].max()))]
+            faces.append(moved)
         found.append(
             {
                 "stub": [round(float(v), 3) for v in walls[i]],
@@ -456,22 +494,50 @@ def faces_below_slice(
                 "cover": round(cover, 3),
                 "height_span_m": round(height, 3),
                 "points": int(on.sum()),
+                "kind": kind,
+                "slice_seen": round(seen, 3),
+                "slice_density_ratio": round(ratio, 3) if math.isfinite(ratio) else None,
             }
         )
     return faces, found
 
 
+def _wall_along(walls: NDArray, i: int, a: NDArray, u: NDArray, n: NDArray, offset: float, L: float) -> bool:
+    """Does a wall of the model other than i run along the stub i's line at `offset` (within 2 cm, parallel
+    within 5 degrees) over half its length `L` (from `a` along `u`)?"""
+    for j in range(len(walls)):
+        if j == i:
+            continue
+        p, q = walls[j, :2] - a, walls[j, 2:] - a
+        dj = q - p
+        lj = float(np.hypot(*dj))
+        if lj <= 0 or abs(float(dj @ n)) > math.sin(math.radians(5)) * lj:
+            continue
+        if abs(0.5 * float(p @ n + q @ n) - offset) > 0.02:
+            continue
+        lo, hi = sorted((float(p @ u), float(q @ u)))
+        if min(hi, L) - max(lo, 0.0) >= 0.5 * L:
+            return True
+    return False
+
+
 def lifted(faces: list[NDArray], z_lo: float, z_hi: float, step_m: float) -> NDArray:
     """The faces' points (K, 2 each), one per `step_m` cell, stood up over the slice's height band
     [z_lo, z_hi] every `step_m` (M, 3): a partition goes from floor to ceiling, so the face seen under the
-    slice stands in it as the wall it is."""
+    slice stands in it as the wall it is. Faces given as (K, 3) points (`faces_below_slice`'s sparse faces,
+    already at the first face's density and heights) are passed on as they are."""
     if not faces:
         return np.zeros((0, 3))
-    xy = np.concatenate(faces)
+    ready = [f for f in faces if f.shape[1] == 3]
+    flat = [f for f in faces if f.shape[1] == 2]
+    if not flat:
+        return np.concatenate(ready)
+    xy = np.concatenate(flat)
     _, first = np.unique(np.floor(xy / step_m).astype(np.int64), axis=0, return_index=True)
     xy = xy[np.sort(first)]
     z = np.arange(z_lo, z_hi + 1e-9, step_m)
-    return np.column_stack([np.repeat(xy, len(z), axis=0), np.tile(z, len(xy))])
+    out = np.column_stack([np.repeat(xy, len(z), axis=0), np.tile(z, len(xy))])
+    return np.concatenate([out, *ready]) if ready else out
 
 
 def seen_through_gaps(
