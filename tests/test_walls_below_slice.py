@@ -137,3 +137,29 @@ def test_a_stub_face_the_slice_holds_sparsely_is_stood_up_at_the_first_faces_den
     extra = lifted(faces, 1.5, 2.4, 0.01)
     south = slice_points[(np.abs(slice_points[:, 1] - 1.45) < 0.02) & (slice_points[:, 0] < 1.5)]
     assert len(extra) <= len(south)  # the first face's points, moved: its density, not full columns
+
+
+def test_a_stub_whose_second_face_was_never_seen_takes_it_from_its_end(rng):
+    """The north face never seen (the camera stayed south of the stub), the stub's 0.1 m end face seen from
+    floor to ceiling: the end's width is the wall's thickness, so the second face is stood up 0.1 m from the
+    first ("end"), and the stub has both faces and its end. A stub whose end face runs on into a wall (a
+    corner: data beyond the thickness) or is thinner than a partition gets nothing."""
+    levelled, truth = stub_room(rng, north_top=0.0)
+    slice_points = in_band(levelled)
+    off, _ = room_model(slice_points, levelled, 0.0, 2.5, replace(CFG, end_cap_min_height_m=0))
+    assert len(_stubs(off.walls)) == 1
+    model, choices = room_model(slice_points, levelled, 0.0, 2.5, CFG)
+    found = choices["faces_below_slice"]
+    assert len(found) == 1 and found[0]["kind"] == "end", found
+    assert found[0]["offset_m"] == pytest.approx(0.1, abs=0.015)
+    ev = evaluate_walls(model.walls, truth)
+    assert ev["completeness"] >= 0.97 and ev["correctness"] >= 0.99 and ev["corner_f1"] == 1.0, ev
+    # the end face running on 0.3 m past the thickness: not a thin wall's end
+    longer = np.concatenate([levelled, face((1.5, 1.55), (1.5, 1.85), 0, 2.5, rng)])
+    _, found = faces_below_slice(off.walls, longer, in_band(longer), 0.0, CFG, 0.01)
+    assert found == []
+    # an end face 3 cm wide: the stub's own noise or a board, not a partition
+    thin = levelled[~((np.abs(levelled[:, 0] - 1.5) < 0.01) & (levelled[:, 1] > 1.45))]
+    thin = np.concatenate([thin, face((1.5, 1.45), (1.5, 1.48), 0, 2.5, rng)])
+    _, found = faces_below_slice(off.walls, thin, in_band(thin), 0.0, CFG, 0.01)
+    assert found == []

@@ -399,7 +399,9 @@ def faces_below_slice(
     between the two faces, many at one place. It is a face when its points cover at least
     `below_slice_min_share` of the stub's length and span `min_column_height_m` in height, and the slice holds
     no data there (under a fifth of the bins: "below") or holds it at under `below_slice_sparse_ratio` of the
-    stub's first face's points per bin ("sparse"), no wall of the model lying there already.
+    stub's first face's points per bin ("sparse": then at least `thin_wall_min_m` from the first face, beyond
+    its noise), no wall of the model lying there already. A stub with neither takes its second face from its
+    free end's own face (`_end_cap`, "end") when `end_cap_min_height_m` is on.
 
     Returns each face's points (K, 3): for a face below the slice its points (K, 2) under the slice (stood
     up as full columns by `lifted`); for a sparse face, the stub's first face's slice points moved onto it
@@ -412,7 +414,8 @@ def faces_below_slice(
         return faces, found
     z_lo = floor_z_m + cfg.below_slice_min_z_m
     z_hi = float(slice_points[:, 2].min())
-    below = points[(points[:, 2] >= z_lo) & (points[:, 2] < z_hi)]
+    high = points[points[:, 2] >= z_lo]
+    below = high[high[:, 2] < z_hi]
     if len(below) == 0:
         return faces, found
     bin_m = 0.1
@@ -471,16 +474,35 @@ def faces_below_slice(
                 continue
             if seen < 0.2:
                 kind = "below"
-            elif ratio < cfg.below_slice_sparse_ratio and not _wall_along(walls, i, a, u, n, offset, L):
+            elif (
+                ratio < cfg.below_slice_sparse_ratio
+                and abs(offset) >= cfg.thin_wall_min_m
+                and not _wall_along(walls, i, a, u, n, offset, L)
+            ):
                 kind = "sparse"
             else:
                 continue
             if best is None or cover > best[0]:
                 best = (cover, offset, on, height, kind, seen, ratio)
+        if best is None and cfg.end_cap_min_height_m > 0:
+            # no face along the stub: the end's face, as wide as the wall is thick, gives its second face
+            cap = _end_cap(high, a, u, n, L, cfg, grid_m)
+            if cap is not None and not _wall_along(walls, i, a, u, n, cap[0], L):
+                offset, height = cap
+                s_on = s_near & (np.abs(sd - offset) <= 0.02)
+                in_slice = per_bin(st[s_on])
+                ratio = float(np.median(in_slice[mid])) / first_density if first_density > 0 else math.inf
+                if ratio < cfg.below_slice_sparse_ratio:
+                    on = np.zeros(len(below), dtype=bool)
+                    best = (0.0, offset, on, height, "end", float((in_slice > 0).mean()), ratio)
         if best is None:
             continue
         cover, offset, on, height, kind, seen, ratio = best
-        if kind == "below":
+        if kind == "end":
+            moved = slice_points[first].copy()
+            moved[:, :2] += offset * n
+            faces.append(moved)
+        elif kind == "below":
             faces.append(below[on, :2])
         else:
             moved = slice_points[first].copy()
@@ -493,13 +515,56 @@ def faces_below_slice(
                 "offset_m": round(offset, 4),
                 "cover": round(cover, 3),
                 "height_span_m": round(height, 3),
-                "points": int(on.sum()),
+                "points": int(on.sum()),  # under the slice, beside the stub ("end": none taken)
                 "kind": kind,
                 "slice_seen": round(seen, 3),
                 "slice_density_ratio": round(ratio, 3) if math.isfinite(ratio) else None,
             }
         )
     return faces, found
+
+
+def _end_cap(
+    points: NDArray, a: NDArray, u: NDArray, n: NDArray, L: float, cfg: WallsConfig, grid_m: float
+) -> tuple[float, float] | None:
+    """The second face of a stub (from its foot `a` along `u`, `L` long) told by its free end's own face:
+    the points (N, 3) within 5 cm of the end (inward, 2 cm outward), binned by their offset along `n` (1 cm),
+    occupy a run of bins from the stub's face (within 3 cm) out to the wall's thickness on one side
+    (each bin at least a quarter of the fullest beyond the stub's own face), nothing stands beyond it for 10 cm (a corner's or a
+    wall's run on would), the thickness lies between three grid cells and `thin_wall_max_m`, and the end's
+    face spans `end_cap_min_height_m` in height. Returns (the signed offset of the second face: the 95th
+    percentile of the run's points, the end's height span) or None."""
+    rel = points[:, :2] - a
+    t, d = rel @ u, rel @ n
+    at_end = (t >= L - 0.05) & (t <= L + 0.02) & (np.abs(d) <= cfg.thin_wall_max_m + 0.1)
+    if at_end.sum() < 20:
+        return None
+    best = None
+    for side in (1.0, -1.0):
+        sd = side * d[at_end]
+        k = math.ceil((cfg.thin_wall_max_m + 0.1) / 0.01)
+        hist = np.bincount(np.clip(np.floor(sd / 0.01).astype(np.intp), -1, k) + 1, minlength=k + 2)[1:]
+        # the stub's own face (its first 2 cm) does not set the scale: it holds far more points
+        ref = float(hist[2:].max())
+        full = hist >= max(5.0, 0.25 * ref)
+        if not full[:3].any():
+            continue
+        stop = int(np.argmax(full[:3]))
+        while stop + 1 < k and full[stop + 1]:
+            stop += 1
+        width = (stop + 1) * 0.01
+        if not max(3 * grid_m, cfg.thin_wall_min_m) <= width <= cfg.thin_wall_max_m:
+            continue
+        if hist[stop + 2 : stop + 11].max(initial=0) >= max(5.0, 0.1 * ref):
+            continue  # data beyond the end's face: the wall does not end there
+        run = (sd >= 0) & (sd < width)
+        height = float(np.ptp(points[at_end][run, 2]))
+        if height < cfg.end_cap_min_height_m:
+            continue
+        offset = side * float(np.quantile(sd[run], 0.95))
+        if best is None or width < abs(best[0]):
+            best = (offset, height)
+    return best
 
 
 def _wall_along(walls: NDArray, i: int, a: NDArray, u: NDArray, n: NDArray, offset: float, L: float) -> bool:
