@@ -10,7 +10,7 @@ import pytest
 
 from tasks.evaluate import evaluate_walls
 from tasks.walls.config import WallsConfig
-from tasks.walls.evidence import _stubs, faces_below_slice, lifted
+from tasks.walls.evidence import _capped_stubs, _stubs, faces_below_slice, lifted
 from tasks.walls.stage import room_model
 from tests.scenes import wall_points
 
@@ -163,3 +163,22 @@ def test_a_stub_whose_second_face_was_never_seen_takes_it_from_its_end(rng):
     thin = np.concatenate([thin, face((1.5, 1.45), (1.5, 1.48), 0, 2.5, rng)])
     _, found = faces_below_slice(off.walls, thin, in_band(thin), 0.0, CFG, 0.01)
     assert found == []
+
+
+def test_a_stub_face_modelled_only_near_the_end_is_run_on_to_the_host_wall(rng):
+    """The north face seen only from x = 0.6 m to the stub's end: the model holds the stub's first face, its
+    end and a second face that stops 0.6 m short of the west wall (a corner missing). The stretch the model
+    lacks gets the first face's points at the second face's offset ("capped"), and the second face runs on
+    to the west wall: every corner found."""
+    levelled, truth = stub_room(rng, north_top=0.0)
+    levelled = np.concatenate([levelled, face((0.6, 1.55), (1.5, 1.55), 0.0, 2.5, rng)])
+    slice_points = in_band(levelled)
+    off, _ = room_model(slice_points, levelled, 0.0, 2.5, replace(CFG, below_slice_sparse_ratio=0))
+    assert len(_capped_stubs(off.walls, CFG.thin_wall_max_m + 0.05)) == 1
+    assert evaluate_walls(off.walls, truth)["corner_f1"] < 0.95
+    model, choices = room_model(slice_points, levelled, 0.0, 2.5, CFG)
+    found = choices["faces_below_slice"]
+    assert len(found) == 1 and found[0]["kind"] == "capped", found
+    assert found[0]["offset_m"] == pytest.approx(0.1, abs=0.01) and found[0]["filled_m"] == pytest.approx(0.7)
+    ev = evaluate_walls(model.walls, truth)
+    assert ev["completeness"] >= 0.97 and ev["correctness"] >= 0.99 and ev["corner_f1"] == 1.0, ev

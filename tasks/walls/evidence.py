@@ -384,6 +384,53 @@ def _stubs(walls: NDArray, angle_min_deg: float = 45.0) -> list[tuple[int, int]]
     return out
 
 
+def _capped_stubs(walls: NDArray, cap_max_m: float, tol_m: float = 0.01) -> list[tuple[int, int, int]]:
+    """Partition stubs whose second face the model holds only in part: (wall i, its end k standing on a
+    wall at a T as in `_stubs`, the second face s) for every wall i whose other end meets a short wall (its
+    end face, at most `cap_max_m`, across i) whose other end meets s, parallel to i (within 5 degrees), with
+    a free end: s stops short of the host wall where the slice saw that face too sparsely."""
+    m = len(walls)
+    if m < 3:
+        return []
+    ends = np.concatenate([walls[:, :2], walls[:, 2:]])
+    d = point_segment_distances(ends, walls)
+    d[np.arange(2 * m), np.tile(np.arange(m), 2)] = np.inf
+    touching = d <= tol_m
+    L = lengths(walls)
+    th = angles(walls)
+    out = []
+    for i in range(m):
+        for k in (0, 1):
+            p = ends[i + k * m]
+            hosts = [
+                j
+                for j in np.flatnonzero(d[i + k * m] <= 1e-6)
+                if 0.05
+                < float((p - walls[j, :2]) @ (walls[j, 2:] - walls[j, :2])) / max(L[j], 1e-12)
+                < L[j] - 0.05
+                and abs(math.sin(th[i] - th[j])) > math.sqrt(0.5)
+            ]
+            if not hosts:
+                continue
+            for c in np.flatnonzero(touching[i + (1 - k) * m]):
+                if L[c] > cap_max_m or abs(math.sin(th[i] - th[c])) <= math.sqrt(0.5):
+                    continue
+                # the cap's end away from i
+                far = (
+                    1
+                    if np.hypot(*(walls[c, :2] - ends[i + (1 - k) * m]))
+                    < np.hypot(*(walls[c, 2:] - ends[i + (1 - k) * m]))
+                    else 0
+                )
+                for s in np.flatnonzero(touching[c + far * m]):
+                    if s in (i, c) or abs(math.sin(th[i] - th[s])) > math.sin(math.radians(5)):
+                        continue
+                    free = [not touching[s + e * m].any() for e in (0, 1)]
+                    if any(free):
+                        out.append((i, k, int(s)))
+    return out
+
+
 def faces_below_slice(
     walls: NDArray, points: NDArray, slice_points: NDArray, floor_z_m: float, cfg: WallsConfig, grid_m: float
 ) -> tuple[list[NDArray], list[dict[str, Any]]]:
@@ -401,11 +448,14 @@ def faces_below_slice(
     no data there (under a fifth of the bins: "below") or holds it at under `below_slice_sparse_ratio` of the
     stub's first face's points per bin ("sparse": then at least `thin_wall_min_m` from the first face, beyond
     its noise), no wall of the model lying there already. A stub with neither takes its second face from its
-    free end's own face (`_end_cap`, "end") when `end_cap_min_height_m` is on.
+    free end's own face (`_end_cap`, "end") when `end_cap_min_height_m` is on. A stub whose second face
+    the model holds in part (`_capped_stubs`: the face stops short of the host wall) gets the first face's
+    points at that face's offset along the stretch the model lacks, where the slice holds it sparsely
+    ("capped").
 
     Returns each face's points (K, 3): for a face below the slice its points (K, 2) under the slice (stood
-    up as full columns by `lifted`); for a sparse face, the stub's first face's slice points moved onto it
-    (`mirrored`: the face gets the first face's density and heights, so that neither it nor the room's walls
+    up as full columns by `lifted`); for a sparse, end or capped face, the stub's first face's slice points moved
+    onto it (the face gets the first face's density and heights, so that neither it nor the room's walls
     outweigh the other in the projection image), with its own slice points; and what was found (for the
     metrics)."""
     faces: list[NDArray] = []
@@ -521,7 +571,64 @@ def faces_below_slice(
                 "slice_density_ratio": round(ratio, 3) if math.isfinite(ratio) else None,
             }
         )
+    done = {tuple(np.round(f["stub"], 3)) for f in found}
+    for i, k, s_ in (
+        _capped_stubs(walls, cfg.thin_wall_max_m + 0.05) if cfg.below_slice_sparse_ratio > 0 else ()
+    ):
+        if tuple(np.round(walls[i], 3)) in done:
+            continue
+        a = walls[i, 2 * k : 2 * k + 2]
+        b = walls[i, 2 * (1 - k) : 2 * (1 - k) + 2]
+        L = float(np.hypot(*(b - a)))
+        u = (b - a) / L
+        n = np.array([-u[1], u[0]])
+        offset = 0.5 * float((walls[s_, :2] - a) @ n + (walls[s_, 2:] - a) @ n)
+        if not cfg.thin_wall_min_m <= abs(offset) <= cfg.thin_wall_max_m:
+            continue
+        srel = slice_points[:, :2] - a
+        st, sd = srel @ u, srel @ n
+        n_bins = max(1, math.ceil(L / bin_m))
+        first = (np.abs(sd) <= 0.02) & (st >= 0) & (st <= L)
+        ref = _per_bin(st[first], n_bins, bin_m)
+        mid = np.zeros(n_bins, dtype=bool)
+        mid[int(0.1 * L / bin_m) : max(int(0.1 * L / bin_m) + 1, int(0.9 * L / bin_m))] = True
+        first_density = float(np.median(ref[mid]))
+        if first_density <= 0:
+            continue
+        held = _per_bin(st[(np.abs(sd - offset) <= 0.02) & (st >= 0) & (st <= L)], n_bins, bin_m)
+        # the bins of the second face that the slice holds too sparsely get the first face's points
+        sparse = held < cfg.below_slice_sparse_ratio * first_density
+        # ...where the model's second face does not run already (its missing stretch, up to the host wall)
+        ts = np.sort([(walls[s_, :2] - a) @ u, (walls[s_, 2:] - a) @ u])
+        centres = (np.arange(n_bins) + 0.5) * bin_m
+        sparse &= (centres < ts[0]) | (centres > ts[1])
+        if not sparse.any():
+            continue
+        tb = np.minimum((st[first] / bin_m).astype(np.intp), n_bins - 1)
+        pick = sparse[tb]
+        moved = slice_points[first][pick].copy()
+        # onto the second face's own line (its direction as modelled), each point as far from it as from the
+        # first face's
+        sa = walls[s_, :2]
+        us = (walls[s_, 2:] - sa) / max(float(np.hypot(*(walls[s_, 2:] - sa))), 1e-12)
+        q = a + np.outer(st[first][pick], u) - sa
+        moved[:, :2] = sa + np.outer(q @ us, us) + np.outer(sd[first][pick], n)
+        faces.append(moved)
+        found.append(
+            {
+                "stub": [round(float(v), 3) for v in walls[i]],
+                "offset_m": round(offset, 4),
+                "cover": round(float((~sparse).mean()), 3),
+                "kind": "capped",
+                "filled_m": round(float(sparse.sum()) * bin_m, 2),
+            }
+        )
     return faces, found
+
+
+def _per_bin(t: NDArray, n_bins: int, bin_m: float) -> NDArray:
+    """Counts of the positions `t` (metres along a line, from 0) in `n_bins` bins of `bin_m`."""
+    return np.bincount(np.minimum((t / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins)
 
 
 def _end_cap(
