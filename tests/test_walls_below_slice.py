@@ -10,7 +10,7 @@ import pytest
 
 from tasks.evaluate import evaluate_walls
 from tasks.walls.config import WallsConfig
-from tasks.walls.evidence import _stubs, faces_below_slice, lifted
+from tasks.walls.evidence import _capped_stubs, _stubs, faces_below_slice, lifted
 from tasks.walls.stage import room_model
 from tests.scenes import wall_points
 
@@ -113,3 +113,72 @@ def test_a_smeared_cloud_gets_a_grid_of_its_noise(rng):
     crisp = np.concatenate([face(c[i], c[(i + 1) % 4], 1.5, 2.4, rng, noise=0.003) for i in range(4)])
     _, crisp_choices = room_model(crisp, crisp, 0.0, 2.5, on)
     assert not crisp_choices["grid_from_noise"] and crisp_choices["wall_noise_m"] < 0.01
+
+
+def test_a_stub_face_the_slice_holds_sparsely_is_stood_up_at_the_first_faces_density(rng):
+    """The north face seen over the whole height but sparsely (one point per 5 cm x 5 cm, a 25th of
+    the south face's density: a face seen at a grazing angle): the slice holds it, too sparsely for the
+    binarization, so the stub dangles as one face. The face is found beside the stub ("sparse": the slice
+    holds under half the first face's points per bin), the first face's slice points are moved onto it, and
+    the stub gets both faces and its end. Full columns are not stood up: no cell's count exceeds the
+    first face's."""
+    levelled, truth = stub_room(rng, north_top=0.0)
+    levelled = np.concatenate([levelled, face((0, 1.55), (1.5, 1.55), 0.0, 2.5, rng, step=0.05)])
+    slice_points = in_band(levelled)
+    off, _ = room_model(slice_points, levelled, 0.0, 2.5, replace(CFG, below_slice_sparse_ratio=0))
+    assert len(_stubs(off.walls)) == 1  # the sparse face is lost: the stub dangles
+    model, choices = room_model(slice_points, levelled, 0.0, 2.5, CFG)
+    found = choices["faces_below_slice"]
+    assert len(found) == 1 and found[0]["kind"] == "sparse", found
+    assert found[0]["offset_m"] == pytest.approx(0.1, abs=0.01) and found[0]["slice_density_ratio"] < 0.2
+    ev = evaluate_walls(model.walls, truth)
+    assert ev["completeness"] >= 0.97 and ev["correctness"] >= 0.99 and ev["corner_f1"] == 1.0, ev
+    faces, _ = faces_below_slice(off.walls, levelled, slice_points, 0.0, CFG, 0.01)
+    extra = lifted(faces, 1.5, 2.4, 0.01)
+    south = slice_points[(np.abs(slice_points[:, 1] - 1.45) < 0.02) & (slice_points[:, 0] < 1.5)]
+    assert len(extra) <= len(south)  # the first face's points, moved: its density, not full columns
+
+
+def test_a_stub_whose_second_face_was_never_seen_takes_it_from_its_end(rng):
+    """The north face never seen (the camera stayed south of the stub), the stub's 0.1 m end face seen from
+    floor to ceiling: the end's width is the wall's thickness, so the second face is stood up 0.1 m from the
+    first ("end"), and the stub has both faces and its end. A stub whose end face runs on into a wall (a
+    corner: data beyond the thickness) or is thinner than a partition gets nothing."""
+    levelled, truth = stub_room(rng, north_top=0.0)
+    slice_points = in_band(levelled)
+    off, _ = room_model(slice_points, levelled, 0.0, 2.5, replace(CFG, end_cap_min_height_m=0))
+    assert len(_stubs(off.walls)) == 1
+    model, choices = room_model(slice_points, levelled, 0.0, 2.5, CFG)
+    found = choices["faces_below_slice"]
+    assert len(found) == 1 and found[0]["kind"] == "end", found
+    assert found[0]["offset_m"] == pytest.approx(0.1, abs=0.015)
+    ev = evaluate_walls(model.walls, truth)
+    assert ev["completeness"] >= 0.97 and ev["correctness"] >= 0.99 and ev["corner_f1"] == 1.0, ev
+    # the end face running on 0.3 m past the thickness: not a thin wall's end
+    longer = np.concatenate([levelled, face((1.5, 1.55), (1.5, 1.85), 0, 2.5, rng)])
+    _, found = faces_below_slice(off.walls, longer, in_band(longer), 0.0, CFG, 0.01)
+    assert found == []
+    # an end face 3 cm wide: the stub's own noise or a board, not a partition
+    thin = levelled[~((np.abs(levelled[:, 0] - 1.5) < 0.01) & (levelled[:, 1] > 1.45))]
+    thin = np.concatenate([thin, face((1.5, 1.45), (1.5, 1.48), 0, 2.5, rng)])
+    _, found = faces_below_slice(off.walls, thin, in_band(thin), 0.0, CFG, 0.01)
+    assert found == []
+
+
+def test_a_stub_face_modelled_only_near_the_end_is_run_on_to_the_host_wall(rng):
+    """The north face seen only from x = 0.6 m to the stub's end: the model holds the stub's first face, its
+    end and a second face that stops 0.6 m short of the west wall (a corner missing). The stretch the model
+    lacks gets the first face's points at the second face's offset ("capped"), and the second face runs on
+    to the west wall: every corner found."""
+    levelled, truth = stub_room(rng, north_top=0.0)
+    levelled = np.concatenate([levelled, face((0.6, 1.55), (1.5, 1.55), 0.0, 2.5, rng)])
+    slice_points = in_band(levelled)
+    off, _ = room_model(slice_points, levelled, 0.0, 2.5, replace(CFG, below_slice_sparse_ratio=0))
+    assert len(_capped_stubs(off.walls, CFG.thin_wall_max_m + 0.05)) == 1
+    assert evaluate_walls(off.walls, truth)["corner_f1"] < 0.95
+    model, choices = room_model(slice_points, levelled, 0.0, 2.5, CFG)
+    found = choices["faces_below_slice"]
+    assert len(found) == 1 and found[0]["kind"] == "capped", found
+    assert found[0]["offset_m"] == pytest.approx(0.1, abs=0.01) and found[0]["filled_m"] == pytest.approx(0.7)
+    ev = evaluate_walls(model.walls, truth)
+    assert ev["completeness"] >= 0.97 and ev["correctness"] >= 0.99 and ev["corner_f1"] == 1.0, ev

@@ -71,6 +71,11 @@ class WallsConfig:
     from the room), with at least this share of its length straight behind that line's data, was seen through
     a gap in it (a door): a wall of the room beyond, dropped before the walls are connected
     (`evidence.seen_through_gaps`); 0 switches that off."""
+    thin_wall_min_m: float = 0.06
+    """A partition's second face taken from sparse data (`below_slice_sparse_ratio`, `end_cap_min_height_m`)
+    lies at least this far from its first (the thinnest stud partition is 7.5 cm thick): nearer, sparse
+    points are the first face's own noise (a degraded handheld scan's 3-5 cm spacing spreads a wall over
+    centimetres)."""
     thin_wall_end_tol_m: float = 0.15
     """The two faces of such a wall end within this distance of each other, at the wall's free end."""
     thin_wall_clear_m: float = 0.3
@@ -104,6 +109,16 @@ class WallsConfig:
     share of the stub's length; 0 switches that off."""
     below_slice_min_z_m: float = 0.3
     """...looking from this height above the floor (skirting boards and what lies on the floor stay out)."""
+    below_slice_sparse_ratio: float = 0.5
+    """...and also when the slice holds that face, but at under this share of the stub's first face's points
+    per 10 cm (a face seen at a grazing angle or from close range: the binarization's α drops it; issue 14,
+    0.06-0.3 on the dev rooms' stubs). Such a face is stood up at the first face's density (its slice points
+    moved onto it), not as full columns that would outweigh the room's sparse walls; 0 switches that off."""
+    end_cap_min_height_m: float = 0.5
+    """A stub with no second face beside it in the cloud (the camera never saw that side) whose free end's own
+    face shows the wall's thickness (`evidence._end_cap`: a run of points from the stub's face out to at most
+    `thin_wall_max_m`, nothing beyond it, spanning this height) gets its second face at that thickness, at
+    the first face's density (a partition's faces are parallel); 0 switches that off."""
     shadow_m: float = 1.0
     """A line below the slice top is still a wall when it is at least `open_min_length_m` long and data
     reaching the top lies within this distance beside it (further than `shadow_gap_m`) along less than half

@@ -384,18 +384,79 @@ def _stubs(walls: NDArray, angle_min_deg: float = 45.0) -> list[tuple[int, int]]
     return out
 
 
+def _capped_stubs(walls: NDArray, cap_max_m: float, tol_m: float = 0.01) -> list[tuple[int, int, int]]:
+    """Partition stubs whose second face the model holds only in part: (wall i, its end k standing on a
+    wall at a T as in `_stubs`, the second face s) for every wall i whose other end meets a short wall (its
+    end face, at most `cap_max_m`, across i) whose other end meets s, parallel to i (within 5 degrees), with
+    a free end: s stops short of the host wall where the slice saw that face too sparsely."""
+    m = len(walls)
+    if m < 3:
+        return []
+    ends = np.concatenate([walls[:, :2], walls[:, 2:]])
+    d = point_segment_distances(ends, walls)
+    d[np.arange(2 * m), np.tile(np.arange(m), 2)] = np.inf
+    touching = d <= tol_m
+    L = lengths(walls)
+    th = angles(walls)
+    out = []
+    for i in range(m):
+        for k in (0, 1):
+            p = ends[i + k * m]
+            hosts = [
+                j
+                for j in np.flatnonzero(d[i + k * m] <= 1e-6)
+                if 0.05
+                < float((p - walls[j, :2]) @ (walls[j, 2:] - walls[j, :2])) / max(L[j], 1e-12)
+                < L[j] - 0.05
+                and abs(math.sin(th[i] - th[j])) > math.sqrt(0.5)
+            ]
+            if not hosts:
+                continue
+            for c in np.flatnonzero(touching[i + (1 - k) * m]):
+                if L[c] > cap_max_m or abs(math.sin(th[i] - th[c])) <= math.sqrt(0.5):
+                    continue
+                # the cap's end away from i
+                far = (
+                    1
+                    if np.hypot(*(walls[c, :2] - ends[i + (1 - k) * m]))
+                    < np.hypot(*(walls[c, 2:] - ends[i + (1 - k) * m]))
+                    else 0
+                )
+                for s in np.flatnonzero(touching[c + far * m]):
+                    if s in (i, c) or abs(math.sin(th[i] - th[s])) > math.sin(math.radians(5)):
+                        continue
+                    free = [not touching[s + e * m].any() for e in (0, 1)]
+                    if any(free):
+                        out.append((i, k, int(s)))
+    return out
+
+
 def faces_below_slice(
     walls: NDArray, points: NDArray, slice_points: NDArray, floor_z_m: float, cfg: WallsConfig, grid_m: float
 ) -> tuple[list[NDArray], list[dict[str, Any]]]:
     """The second faces of partition stubs, looked for in the levelled cloud under the slice.
 
     A stub of the wall model (`_stubs`: one free end, the other standing on a wall at a T) whose other
-    face the slice does not hold (a face seen only from close range, below the slice): the levelled
-    points (N, 3) between `below_slice_min_z_m` above the floor and the slice's bottom, beside the stub
-    (further than two grid cells, at most `thin_wall_max_m`) and along it, are histogrammed by their
-    offset on either side; the peak (within 2 cm) is a face when its points cover at least
-    `below_slice_min_share` of the stub's length (10 cm bins) and span `min_column_height_m` in height,
-    and the slice holds no data there. Returns each face's points (K, 2) and what was found (for the
+    face the slice does not hold, or holds too sparsely for the binarization (a face seen only from close
+    range, below the camera's view of the slice, or at a grazing angle): the levelled points (N, 3) between
+    `below_slice_min_z_m` above the floor and the slice's bottom, beside the stub (further than two grid
+    cells, at most `thin_wall_max_m`) and along it, are binned by their offset on either side (1 cm); the
+    face is the offset whose points (within 2 cm) cover the most of the stub's length (10 cm bins; ties: the
+    most points), not the one with the most points: a Kinect's mixed pixels at the stub's free end lie
+    between the two faces, many at one place. It is a face when its points cover at least
+    `below_slice_min_share` of the stub's length and span `min_column_height_m` in height, and the slice holds
+    no data there (under a fifth of the bins: "below") or holds it at under `below_slice_sparse_ratio` of the
+    stub's first face's points per bin ("sparse": then at least `thin_wall_min_m` from the first face, beyond
+    its noise), no wall of the model lying there already. A stub with neither takes its second face from its
+    free end's own face (`_end_cap`, "end") when `end_cap_min_height_m` is on. A stub whose second face
+    the model holds in part (`_capped_stubs`: the face stops short of the host wall) gets the first face's
+    points at that face's offset along the stretch the model lacks, where the slice holds it sparsely
+    ("capped").
+
+    Returns each face's points (K, 3): for a face below the slice its points (K, 2) under the slice (stood
+    up as full columns by `lifted`); for a sparse, end or capped face, the stub's first face's slice points moved
+    onto it (the face gets the first face's density and heights, so that neither it nor the room's walls
+    outweigh the other in the projection image), with its own slice points; and what was found (for the
     metrics)."""
     faces: list[NDArray] = []
     found: list[dict[str, Any]] = []
@@ -403,7 +464,8 @@ def faces_below_slice(
         return faces, found
     z_lo = floor_z_m + cfg.below_slice_min_z_m
     z_hi = float(slice_points[:, 2].min())
-    below = points[(points[:, 2] >= z_lo) & (points[:, 2] < z_hi)]
+    high = points[points[:, 2] >= z_lo]
+    below = high[high[:, 2] < z_hi]
     if len(below) == 0:
         return faces, found
     bin_m = 0.1
@@ -419,59 +481,235 @@ def faces_below_slice(
         srel = slice_points[:, :2] - a
         st, sd = srel @ u, srel @ n
         s_near = (st >= 0.1 * L) & (st <= 0.9 * L)  # clear of the host wall and the stub's end
+        n_bins = max(1, math.ceil(L / bin_m))
+        mid = np.zeros(n_bins, dtype=bool)
+        mid[int(0.1 * L / bin_m) : max(int(0.1 * L / bin_m) + 1, int(0.9 * L / bin_m))] = True
+
+        def per_bin(tt: NDArray, n_bins: int = n_bins) -> NDArray:
+            return np.bincount(np.minimum((tt / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins)
+
+        # the stub's own (first) face in the slice: its points per bin, the reference for a sparse face
+        first = (np.abs(sd) <= 0.02) & (st >= 0) & (st <= L)
+        first_density = float(np.median(per_bin(st[first])[mid]))
         best = None
         for side in (1.0, -1.0):
             sel = near & (side * d > 0)
             if sel.sum() < 10:
                 continue
-            hist, edges = np.histogram(
-                side * d[sel], bins=np.arange(2 * grid_m, cfg.thin_wall_max_m + 0.01, 0.01)
-            )
-            peak = 0.5 * (edges[np.argmax(hist)] + edges[np.argmax(hist) + 1])
+            edges = np.arange(2 * grid_m, cfg.thin_wall_max_m + 0.01, 0.01)
+            n_off = len(edges) - 1
+            if n_off < 1:
+                continue
+            ob = np.clip(np.floor((side * d[sel] - edges[0]) / 0.01).astype(np.intp), 0, n_off - 1)
+            tb = np.minimum((t[sel] / bin_m).astype(np.intp), n_bins - 1)
+            occ = np.zeros((n_off + 4, n_bins), dtype=bool)
+            occ[ob + 2, tb] = True
+            counts = np.bincount(ob, minlength=n_off)
+            # the bins of the stub's length that the points within 2 cm of each offset cover
+            window = occ[:-4] | occ[1:-3] | occ[2:-2] | occ[3:-1] | occ[4:]
+            covered = window.sum(axis=1)
+            near_counts = np.convolve(counts, np.ones(5), mode="same")
+            pk = int(np.lexsort((-near_counts, -covered))[0])
+            peak = 0.5 * (edges[pk] + edges[pk + 1])
             on = sel & (np.abs(side * d - peak) <= 0.02)
             offset = side * float(np.median(side * d[on]))
-            n_bins = max(1, math.ceil(L / bin_m))
-            cover = float(
-                (
-                    np.bincount(np.minimum((t[on] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins) > 0
-                ).mean()
-            )
+            cover = float((per_bin(t[on]) > 0).mean())
             height = float(np.ptp(below[on, 2]))
             s_on = s_near & (np.abs(sd - offset) <= 0.02)
-            in_slice = np.bincount(
-                np.minimum((st[s_on] / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins
-            )
+            in_slice = per_bin(st[s_on])
             seen = float((in_slice > 0).mean())  # the slice holds that face there already
-            if cover >= cfg.below_slice_min_share and height >= cfg.min_column_height_m and seen < 0.2:
-                if best is None or cover > best[0]:
-                    best = (cover, offset, on, height)
+            density = float(np.median(in_slice[mid]))
+            ratio = density / first_density if first_density > 0 else math.inf
+            if cover < cfg.below_slice_min_share or height < cfg.min_column_height_m:
+                continue
+            if seen < 0.2:
+                kind = "below"
+            elif (
+                ratio < cfg.below_slice_sparse_ratio
+                and abs(offset) >= cfg.thin_wall_min_m
+                and not _wall_along(walls, i, a, u, n, offset, L)
+            ):
+                kind = "sparse"
+            else:
+                continue
+            if best is None or cover > best[0]:
+                best = (cover, offset, on, height, kind, seen, ratio)
+        if best is None and cfg.end_cap_min_height_m > 0:
+            # no face along the stub: the end's face, as wide as the wall is thick, gives its second face
+            cap = _end_cap(high, a, u, n, L, cfg, grid_m)
+            if cap is not None and not _wall_along(walls, i, a, u, n, cap[0], L):
+                offset, height = cap
+                s_on = s_near & (np.abs(sd - offset) <= 0.02)
+                in_slice = per_bin(st[s_on])
+                ratio = float(np.median(in_slice[mid])) / first_density if first_density > 0 else math.inf
+                if ratio < cfg.below_slice_sparse_ratio:
+                    on = np.zeros(len(below), dtype=bool)
+                    best = (0.0, offset, on, height, "end", float((in_slice > 0).mean()), ratio)
         if best is None:
             continue
-        cover, offset, on, height = best
-        faces.append(below[on, :2])
+        cover, offset, on, height, kind, seen, ratio = best
+        if kind == "end":
+            moved = slice_points[first].copy()
+            moved[:, :2] += offset * n
+            faces.append(moved)
+        elif kind == "below":
+            faces.append(below[on, :2])
+        else:
+            moved = slice_points[first].copy()
+            moved[:, :2] += offset * n
+            moved = moved[(st[first] >= float(t[on].min())) & (st[first] <= float(t[on].max()))]
+            faces.append(moved)
         found.append(
             {
                 "stub": [round(float(v), 3) for v in walls[i]],
                 "offset_m": round(offset, 4),
                 "cover": round(cover, 3),
                 "height_span_m": round(height, 3),
-                "points": int(on.sum()),
+                "points": int(on.sum()),  # under the slice, beside the stub ("end": none taken)
+                "kind": kind,
+                "slice_seen": round(seen, 3),
+                "slice_density_ratio": round(ratio, 3) if math.isfinite(ratio) else None,
+            }
+        )
+    done = {tuple(np.round(f["stub"], 3)) for f in found}
+    for i, k, s_ in (
+        _capped_stubs(walls, cfg.thin_wall_max_m + 0.05) if cfg.below_slice_sparse_ratio > 0 else ()
+    ):
+        if tuple(np.round(walls[i], 3)) in done:
+            continue
+        a = walls[i, 2 * k : 2 * k + 2]
+        b = walls[i, 2 * (1 - k) : 2 * (1 - k) + 2]
+        L = float(np.hypot(*(b - a)))
+        u = (b - a) / L
+        n = np.array([-u[1], u[0]])
+        offset = 0.5 * float((walls[s_, :2] - a) @ n + (walls[s_, 2:] - a) @ n)
+        if not cfg.thin_wall_min_m <= abs(offset) <= cfg.thin_wall_max_m:
+            continue
+        srel = slice_points[:, :2] - a
+        st, sd = srel @ u, srel @ n
+        n_bins = max(1, math.ceil(L / bin_m))
+        first = (np.abs(sd) <= 0.02) & (st >= 0) & (st <= L)
+        ref = _per_bin(st[first], n_bins, bin_m)
+        mid = np.zeros(n_bins, dtype=bool)
+        mid[int(0.1 * L / bin_m) : max(int(0.1 * L / bin_m) + 1, int(0.9 * L / bin_m))] = True
+        first_density = float(np.median(ref[mid]))
+        if first_density <= 0:
+            continue
+        held = _per_bin(st[(np.abs(sd - offset) <= 0.02) & (st >= 0) & (st <= L)], n_bins, bin_m)
+        # the bins of the second face that the slice holds too sparsely get the first face's points
+        sparse = held < cfg.below_slice_sparse_ratio * first_density
+        # ...where the model's second face does not run already (its missing stretch, up to the host wall)
+        ts = np.sort([(walls[s_, :2] - a) @ u, (walls[s_, 2:] - a) @ u])
+        centres = (np.arange(n_bins) + 0.5) * bin_m
+        sparse &= (centres < ts[0]) | (centres > ts[1])
+        if not sparse.any():
+            continue
+        tb = np.minimum((st[first] / bin_m).astype(np.intp), n_bins - 1)
+        pick = sparse[tb]
+        moved = slice_points[first][pick].copy()
+        # onto the second face's own line (its direction as modelled), each point as far from it as from the
+        # first face's
+        sa = walls[s_, :2]
+        us = (walls[s_, 2:] - sa) / max(float(np.hypot(*(walls[s_, 2:] - sa))), 1e-12)
+        q = a + np.outer(st[first][pick], u) - sa
+        moved[:, :2] = sa + np.outer(q @ us, us) + np.outer(sd[first][pick], n)
+        faces.append(moved)
+        found.append(
+            {
+                "stub": [round(float(v), 3) for v in walls[i]],
+                "offset_m": round(offset, 4),
+                "cover": round(float((~sparse).mean()), 3),
+                "kind": "capped",
+                "filled_m": round(float(sparse.sum()) * bin_m, 2),
             }
         )
     return faces, found
 
 
+def _per_bin(t: NDArray, n_bins: int, bin_m: float) -> NDArray:
+    """Counts of the positions `t` (metres along a line, from 0) in `n_bins` bins of `bin_m`."""
+    return np.bincount(np.minimum((t / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins)
+
+
+def _end_cap(
+    points: NDArray, a: NDArray, u: NDArray, n: NDArray, L: float, cfg: WallsConfig, grid_m: float
+) -> tuple[float, float] | None:
+    """The second face of a stub (from its foot `a` along `u`, `L` long) told by its free end's own face:
+    the points (N, 3) within 5 cm of the end (inward, 2 cm outward), binned by their offset along `n` (1 cm),
+    occupy a run of bins from the stub's face (within 3 cm) out to the wall's thickness on one side
+    (each bin at least a quarter of the fullest beyond the stub's own face), nothing stands beyond it for 10 cm (a corner's or a
+    wall's run on would), the thickness lies between three grid cells and `thin_wall_max_m`, and the end's
+    face spans `end_cap_min_height_m` in height. Returns (the signed offset of the second face: the 95th
+    percentile of the run's points, the end's height span) or None."""
+    rel = points[:, :2] - a
+    t, d = rel @ u, rel @ n
+    at_end = (t >= L - 0.05) & (t <= L + 0.02) & (np.abs(d) <= cfg.thin_wall_max_m + 0.1)
+    if at_end.sum() < 20:
+        return None
+    best = None
+    for side in (1.0, -1.0):
+        sd = side * d[at_end]
+        k = math.ceil((cfg.thin_wall_max_m + 0.1) / 0.01)
+        hist = np.bincount(np.clip(np.floor(sd / 0.01).astype(np.intp), -1, k) + 1, minlength=k + 2)[1:]
+        # the stub's own face (its first 2 cm) does not set the scale: it holds far more points
+        ref = float(hist[2:].max())
+        full = hist >= max(5.0, 0.25 * ref)
+        if not full[:3].any():
+            continue
+        stop = int(np.argmax(full[:3]))
+        while stop + 1 < k and full[stop + 1]:
+            stop += 1
+        width = (stop + 1) * 0.01
+        if not max(3 * grid_m, cfg.thin_wall_min_m) <= width <= cfg.thin_wall_max_m:
+            continue
+        if hist[stop + 2 : stop + 11].max(initial=0) >= max(5.0, 0.1 * ref):
+            continue  # data beyond the end's face: the wall does not end there
+        run = (sd >= 0) & (sd < width)
+        height = float(np.ptp(points[at_end][run, 2]))
+        if height < cfg.end_cap_min_height_m:
+            continue
+        offset = side * float(np.quantile(sd[run], 0.95))
+        if best is None or width < abs(best[0]):
+            best = (offset, height)
+    return best
+
+
+def _wall_along(walls: NDArray, i: int, a: NDArray, u: NDArray, n: NDArray, offset: float, L: float) -> bool:
+    """Does a wall of the model other than i run along the stub i's line at `offset` (within 2 cm, parallel
+    within 5 degrees) over half its length `L` (from `a` along `u`)?"""
+    for j in range(len(walls)):
+        if j == i:
+            continue
+        p, q = walls[j, :2] - a, walls[j, 2:] - a
+        dj = q - p
+        lj = float(np.hypot(*dj))
+        if lj <= 0 or abs(float(dj @ n)) > math.sin(math.radians(5)) * lj:
+            continue
+        if abs(0.5 * float(p @ n + q @ n) - offset) > 0.02:
+            continue
+        lo, hi = sorted((float(p @ u), float(q @ u)))
+        if min(hi, L) - max(lo, 0.0) >= 0.5 * L:
+            return True
+    return False
+
+
 def lifted(faces: list[NDArray], z_lo: float, z_hi: float, step_m: float) -> NDArray:
     """The faces' points (K, 2 each), one per `step_m` cell, stood up over the slice's height band
     [z_lo, z_hi] every `step_m` (M, 3): a partition goes from floor to ceiling, so the face seen under the
-    slice stands in it as the wall it is."""
+    slice stands in it as the wall it is. Faces given as (K, 3) points (`faces_below_slice`'s sparse faces,
+    already at the first face's density and heights) are passed on as they are."""
     if not faces:
         return np.zeros((0, 3))
-    xy = np.concatenate(faces)
+    ready = [f for f in faces if f.shape[1] == 3]
+    flat = [f for f in faces if f.shape[1] == 2]
+    if not flat:
+        return np.concatenate(ready)
+    xy = np.concatenate(flat)
     _, first = np.unique(np.floor(xy / step_m).astype(np.int64), axis=0, return_index=True)
     xy = xy[np.sort(first)]
     z = np.arange(z_lo, z_hi + 1e-9, step_m)
-    return np.column_stack([np.repeat(xy, len(z), axis=0), np.tile(z, len(xy))])
+    out = np.column_stack([np.repeat(xy, len(z), axis=0), np.tile(z, len(xy))])
+    return np.concatenate([out, *ready]) if ready else out
 
 
 def seen_through_gaps(
