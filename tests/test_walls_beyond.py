@@ -38,7 +38,7 @@ def test_the_next_rooms_partitions_behind_a_corridor_wall_go():
         ]
     )
     assert out.tolist() == [False] * 6 + [True, True]
-    assert np.array_equal(new, np.array(CORRIDOR + [[10, -0.25, 10, -1.5], [3.5, -1.2, 3.5, -2.5]]))
+    assert np.array_equal(new, np.array([*CORRIDOR, [10, -0.25, 10, -1.5], [3.5, -1.2, 3.5, -2.5]]))
     # both faces of that partition seen: each is held by nothing but the other
     new, out = _run([[3.4, -1.2, 3.4, -2.5], [3.55, -1.3, 3.55, -2.4]])
     assert out.tolist() == [False] * 6 + [True, True]
