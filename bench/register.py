@@ -88,8 +88,11 @@ def digest(points: np.ndarray, colors: np.ndarray | None) -> str:
     return h.hexdigest()[:16]
 
 
-def child(folder: Path, threads: int, profile: int, save: str) -> None:
-    from tasks.register.config import RegisterConfig, SfmConfig
+def child(folder: Path, threads: int, profile: int, save: str, sets: list[str]) -> None:
+    from dataclasses import replace
+
+    from tasks.config import load_config
+    from tasks.register.config import RegisterConfig
     from tasks.register.room import register_room
 
     info = json.loads((folder / "camera_info.json").read_text())
@@ -105,7 +108,7 @@ def child(folder: Path, threads: int, profile: int, save: str) -> None:
             info,
             None,
             RegisterConfig(),
-            SfmConfig(num_threads=threads),
+            replace(load_config([], sets).sfm, num_threads=threads),
             Path(tmp),
             track=track,
         )
@@ -131,8 +134,10 @@ def child(folder: Path, threads: int, profile: int, save: str) -> None:
         "fuse_s": m.get("fuse_s"),
         "scale_s": m.get("scale_s"),
         "sfm_s": (m.get("sfm") or {}).get("total_s"),
+        "sfm_metrics": m.get("sfm") or {},
         "peak_rss_gb": c1.ru_maxrss / 1024**2,
         "cloud_digest": digest(res.cloud.points, res.cloud.colors),
+        "ate_mm": walk_ate_mm(res.poses, len(track)),
     }
     print(json.dumps(out))
 
@@ -147,6 +152,22 @@ def walk_poses(n: int) -> dict[int, np.ndarray]:
         position = np.array([0.25, 0.25, 1.4]) + 0.6 * np.array([np.cos(a), np.sin(a), 0])
         poses[k] = look_pose(position, a + 0.4, -0.45)
     return poses
+
+
+def walk_ate_mm(poses: dict[str, np.ndarray], n: int) -> float:
+    """RMS distance (mm) of the placed depth-camera centres to the walk's true ones after the best
+    similarity (the map's bend, not its frame or scale); NaN with fewer than 3 placed frames."""
+    from tasks.register.scale import horn_similarity
+
+    truth = walk_poses(n)
+    ok = np.isfinite(poses["tx"])
+    ids = np.asarray(poses["frame_id"])[ok]
+    if len(ids) < 3:
+        return float("nan")
+    A = np.column_stack([poses[c][ok] for c in ("tx", "ty", "tz")])
+    B = np.array([truth[int(i)][:3, 3] for i in ids])
+    lam, R, T = horn_similarity(A, B)
+    return float(1000 * np.sqrt(np.mean(np.sum((lam * A @ R.T + T - B) ** 2, axis=1))))
 
 
 def fusion_only(folder: Path, n: int, profile: int, save: str) -> None:
@@ -195,6 +216,7 @@ def main() -> None:
     ap.add_argument("--save-cloud", default="", help="write the fused cloud to this .npz")
     ap.add_argument("--fusion-only", action="store_true", help="only fusion, with the walk's true poses")
     ap.add_argument("--compare", nargs=2, metavar="NPZ", help="compare two saved clouds and exit")
+    ap.add_argument("--set", dest="sets", action="append", default=[], metavar="sfm.KEY=VALUE")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.compare:
@@ -202,7 +224,7 @@ def main() -> None:
         return
     folder = Path(args.frames_dir or Path(tempfile.gettempdir()) / f"bench-register-{args.frames}")
     if args.child:
-        child(folder, args.threads, args.profile, args.save_cloud)
+        child(folder, args.threads, args.profile, args.save_cloud, args.sets)
         return
     if not (folder / "camera_info.json").exists():
         t = time.perf_counter()
@@ -214,6 +236,7 @@ def main() -> None:
     cmd = [sys.executable, "-m", "bench.register", "--child", "--frames", str(args.frames)]
     cmd += ["--frames-dir", str(folder), "--threads", str(args.threads), "--profile", str(args.profile)]
     cmd += ["--save-cloud", args.save_cloud] if args.save_cloud else []
+    cmd += [f"--set={s}" for s in args.sets]
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
     if args.profile:
         print(proc.stderr[-12000:] if proc.returncode == 0 else "")
@@ -224,7 +247,13 @@ def main() -> None:
         f"register {m['frames']} frames: {m['seconds']:.1f} s wall, {m['cpu_s']:.1f} s CPU, peak RSS "
         f"{m['peak_rss_gb']:.2f} GB (targets <= 120 s, <= 1 GB); sfm {m['sfm_s']} s, scale {m['scale_s']} s, "
         f"fuse {m['fuse_s']} s; {m['sfm_registered']} registered by SfM, placed {m['methods']}; "
-        f"{m['cloud_points']:,} cloud points, digest {m['cloud_digest']}"
+        f"{m['cloud_points']:,} cloud points, digest {m['cloud_digest']}; walk ATE {m['ate_mm']:.1f} mm"
+    )
+    sm = m["sfm_metrics"]
+    print(
+        "sfm CPU s: "
+        + ", ".join(f"{k} {sm.get(k + '_cpu_s')}" for k in ("extract", "match", "map", "localize"))
+        + f"; {sm.get('keyframes')} key frames, {sm.get('localized')} localized"
     )
 
 

@@ -109,6 +109,8 @@ def bench_sfm_and_scale(n: int, cfg: SfmConfig) -> dict[str, Any]:
         "sfm_cpu_s_per_frame": sfm_cpu / n,
         "sfm_stages_s": {k: sfm.metrics[k] for k in stages},
         "sift_first_octave": sfm.metrics.get("sift_first_octave"),
+        "keyframes": sfm.metrics.get("keyframes"),
+        "localized": sfm.metrics.get("localized"),
         "scale_s_per_frame": scale_s / n,
         "scale_cpu_s_per_frame": scale_cpu / n,
         "scale_frames_used": len(report.frames_used),
@@ -286,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
             f"({r['registered']}/{r['frames']} registered, ATE {r['ate_cm']:.2f} cm; extract "
             f"{st['extract_s']:.1f} s / {st['extract_cpu_s']:.1f} s CPU, match {st['match_s']:.1f} / "
             f"{st['match_cpu_s']:.1f}, map {st['map_s']:.1f} / {st['map_cpu_s']:.1f}; SIFT first octave "
-            f"{r['sift_first_octave']})",
+            f"{r['sift_first_octave']}; {r['keyframes']} key frames mapped, {r['localized']} localized)",
             flush=True,
         )
         print(

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -55,6 +55,9 @@ class SfmResult:
     estimate (with its radial terms) when none was given or `fix_intrinsics` is off."""
     models: int = 1
     """Number of models the mapper produced (the largest is kept)."""
+    keyframes: list[str] = field(default_factory=list)
+    """The frames given to the mapper (all of them unless key frames were selected); the other registered
+    frames were localized against their map."""
     metrics: dict[str, float] = field(default_factory=dict)
     """Timings and counts."""
 
@@ -134,18 +137,38 @@ def _check_images(images: Sequence[tuple[str, NDArray]], cfg: SfmConfig) -> None
         )
 
 
-def _loop_pairs(names: list[str], cfg: SfmConfig) -> list[tuple[str, str]]:
+def _loop_pairs(names: list[str], cfg: SfmConfig, near: int | None = None) -> list[tuple[str, str]]:
+    """Every n-th of `names` with every other n-th farther apart than `near` places in the list (default:
+    the sequential overlap), the pairs sequential matching does not make."""
     stride = cfg.loop_keyframe_stride
     if stride <= 0:
         return []
+    near = cfg.sequential_overlap if near is None else near
     stride = max(stride, -(-len(names) // max(cfg.loop_max_keyframes, 2)))
     keys = list(range(0, len(names), stride))
-    return [
-        (names[i], names[j])
-        for n, i in enumerate(keys)
-        for j in keys[n + 1 :]
-        if j - i > cfg.sequential_overlap
-    ]
+    return [(names[i], names[j]) for n, i in enumerate(keys) for j in keys[n + 1 :] if j - i > near]
+
+
+def select_keyframes(
+    n: int, inliers: Callable[[int, int], int], min_tracked: float, min_matches: int, window: int
+) -> list[int]:
+    """Key frames of n frames in capture order from their verified matches: `inliers(i, j)` is the number
+    of inlier matches of frames i < j (0 when the pair was not matched). From each key frame k the segment
+    runs while the next frame still keeps at least `min_tracked` of the inliers k shares with k + 1 (and
+    `min_matches`) within `window` frames of k; its last frame is the next key frame. Both ends are key
+    frames, and so is k + 1 when k's chain to it is broken (fewer than `min_matches` inliers)."""
+    if n <= 0:
+        return []
+    keys, k = [0], 0
+    while k < n - 1:
+        ref, m = inliers(k, k + 1), k + 1
+        if ref >= min_matches:
+            need = max(min_tracked * ref, min_matches)
+            while m + 1 < n and m + 1 - k <= window and inliers(k, m + 1) >= need:
+                m += 1
+        keys.append(m)
+        k = m
+    return keys
 
 
 def sift_first_octave(camera: CameraModel | None, size: tuple[int, int], cfg: SfmConfig) -> int:
@@ -199,20 +222,42 @@ def run_sfm(
 
     t0, c0 = time.perf_counter(), time.process_time()
     mode = _match_features(db, workdir, names, cfg)
+    keys = list(range(len(names)))
+    pairs: _PairMatches | None = None
+    if mode == "sequential" and cfg.keyframes:
+        pairs = _PairMatches(db, names, cfg.sequential_overlap)
+        keys = select_keyframes(
+            len(names), pairs.count, cfg.keyframe_min_tracked, cfg.min_num_matches, cfg.sequential_overlap
+        )
+        _match_keyframes(db, workdir, names, keys, cfg)
     timings["match_s"], timings["match_cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
 
     t0, c0 = time.perf_counter(), time.process_time()
-    recs = _map(db, img_dir, workdir, camera, cfg)
+    mapped = [names[k] for k in keys] if len(keys) < len(names) else None
+    recs = _map(db, img_dir, workdir, camera, cfg, mapped)
     timings["map_s"], timings["map_cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
-    timings["total_s"] = time.perf_counter() - started
-    timings["total_cpu_s"] = time.process_time() - cpu_started
     # the frames were undistorted: their camera is the pinhole part of the calibrated one, unless the
     # mapper refined it (then the refined one is read back from the model)
     pinhole = None
     if camera is not None and cfg.fix_intrinsics:
         pinhole = CameraModel(camera.K, np.zeros(5), camera.size)
-    result = _result_from_models(names, recs, pinhole)
+    t0, c0 = time.perf_counter(), time.process_time()
+    localized: dict[str, tuple[Any, NDArray[np.float64], NDArray[np.int64]]] = {}
+    rec = _largest(recs)
+    if pairs is not None and rec is not None:
+        localized = _localize(rec, pairs, names, camera is not None and cfg.fix_intrinsics, cfg)
+        pairs.close()
+    timings["localize_s"], timings["localize_cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
+    timings["total_s"] = time.perf_counter() - started
+    timings["total_cpu_s"] = time.process_time() - cpu_started
+    result = _result_from_models(names, recs, pinhole, localized)
+    result.keyframes = [names[k] for k in keys]
     result.metrics.update({k: round(v, 3) for k, v in timings.items()})
+    result.metrics.update(
+        keyframes=len(keys),
+        keyframe_min_tracked=cfg.keyframe_min_tracked if pairs is not None else 0.0,
+        localized=len(localized),
+    )
     result.metrics.update(
         frames=len(names),
         registered=int(result.registered.sum()),
@@ -382,7 +427,7 @@ def _match_features(db: Path, workdir: Path, names: list[str], cfg: SfmConfig) -
             verification_options=verification,
             device=pycolmap.Device.cpu,
         )
-        loops = _loop_pairs(names, cfg)
+        loops = [] if cfg.keyframes else _loop_pairs(names, cfg)
         if loops:
             pairs_file = workdir / "loop_pairs.txt"
             pairs_file.write_text("".join(f"{a} {b}\n" for a, b in loops))
@@ -396,11 +441,142 @@ def _match_features(db: Path, workdir: Path, names: list[str], cfg: SfmConfig) -
     return mode
 
 
+class _PairMatches:
+    """The verified (inlier) matches of the sequential pairs, read from the database once: frames by index
+    in capture order, feature indices as COLMAP's point2D indices."""
+
+    def __init__(self, db: Path, names: list[str], window: int) -> None:
+        import pycolmap
+
+        self.database = pycolmap.Database.open(db)
+        ids = {im.name: im.image_id for im in self.database.read_all_images()}
+        self.ids = [ids[n] for n in names]
+        self.window = window
+        self._matches: dict[tuple[int, int], NDArray[np.int64]] = {}
+        for i in range(len(names)):
+            for j in range(i + 1, min(i + window + 1, len(names))):
+                m = np.zeros((0, 2), np.int64)
+                if self.database.exists_two_view_geometry(self.ids[i], self.ids[j]):
+                    tvg = self.database.read_two_view_geometry(self.ids[i], self.ids[j])
+                    m = np.asarray(tvg.inlier_matches, dtype=np.int64).reshape(-1, 2)
+                self._matches[(i, j)] = m
+
+    def count(self, i: int, j: int) -> int:
+        return len(self._matches.get((min(i, j), max(i, j)), ()))
+
+    def matches(self, i: int, j: int) -> NDArray[np.int64]:
+        """(M, 2) inlier matches (feature of i, feature of j)."""
+        m = self._matches.get((min(i, j), max(i, j)), np.zeros((0, 2), np.int64))
+        return m if i < j else m[:, ::-1]
+
+    def keypoints(self, i: int) -> NDArray[np.float64]:
+        """(N, 2) COLMAP pixel positions (centres at +0.5) of frame i's features."""
+        return np.asarray(self.database.read_keypoints(self.ids[i]), dtype=np.float64)[:, :2]
+
+    def close(self) -> None:
+        self.database.close()
+
+
+def _match_keyframes(db: Path, workdir: Path, names: list[str], keys: list[int], cfg: SfmConfig) -> None:
+    """Each key frame matched with its next `keyframe_overlap` key frames and the loop pairs among the key
+    frames, but for the pairs sequential matching already made."""
+    import pycolmap
+
+    keynames = [names[k] for k in keys]
+    near = [
+        (a, b) for a in range(len(keys)) for b in range(a + 1, min(a + cfg.keyframe_overlap + 1, len(keys)))
+    ]
+    index = {n: k for k, n in zip(keys, keynames, strict=True)}
+    pairs = [
+        (x, y)
+        for x, y in [(keynames[a], keynames[b]) for a, b in near]
+        + _loop_pairs(keynames, cfg, near=cfg.keyframe_overlap)
+        if index[y] - index[x] > cfg.sequential_overlap
+    ]
+    if not pairs:
+        return
+    pairs_file = workdir / "keyframe_pairs.txt"
+    pairs_file.write_text("".join(f"{a} {b}\n" for a, b in pairs))
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = cfg.random_seed
+    pycolmap.match_image_pairs(
+        db,
+        matching_options=pycolmap.FeatureMatchingOptions(num_threads=cfg.feature_threads),
+        pairing_options=pycolmap.ImportedPairingOptions(match_list_path=pairs_file),
+        verification_options=verification,
+        device=pycolmap.Device.cpu,
+    )
+
+
+def _largest(recs: dict) -> Any:
+    if not recs:
+        return None
+    return max(recs.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
+
+
+def _localize(
+    rec: Any, pairs: _PairMatches, names: list[str], fixed: bool, cfg: SfmConfig
+) -> dict[str, tuple[Any, NDArray[np.float64], NDArray[np.int64]]]:
+    """Every frame the model does not hold, posed against it: its verified matches with the model's frames
+    within the sequential window (nearest first) give 2D-3D correspondences, and LO-RANSAC (seeded) with
+    refinement gives the pose (intrinsics held when `fixed`). name -> (cam_from_world Rigid3d, (M, 2)
+    COLMAP pixels of the inlier observations, (M,) their point3D ids); frames with fewer than
+    `localize_min_inliers` inliers stay out."""
+    import pycolmap
+
+    by_name = {im.name: im for im in rec.images.values() if im.has_pose}
+    est = pycolmap.AbsolutePoseEstimationOptions()
+    est.ransac.max_error = cfg.localize_max_error_px
+    est.ransac.random_seed = cfg.random_seed
+    est.estimate_focal_length = False
+    ref = pycolmap.AbsolutePoseRefinementOptions()
+    ref.refine_focal_length = not fixed
+    ref.refine_extra_params = not fixed
+    camera = rec.cameras[next(iter(rec.cameras))]
+    out = {}
+    for j, name in enumerate(names):
+        if name in by_name:
+            continue
+        near = sorted(
+            (i for i in range(j - pairs.window, j + pairs.window + 1) if 0 <= i < len(names) and i != j),
+            key=lambda i: (abs(i - j), i),
+        )
+        point_of: dict[int, int] = {}
+        for i in near:
+            image = by_name.get(names[i])
+            if image is None:
+                continue
+            for fj, fi in pairs.matches(j, i):
+                p2d = image.points2D[int(fi)]
+                if int(fj) not in point_of and p2d.has_point3D():
+                    point_of[int(fj)] = int(p2d.point3D_id)
+        if len(point_of) < cfg.localize_min_inliers:
+            continue
+        feats = np.array(sorted(point_of), dtype=np.int64)
+        p3 = np.array([point_of[int(f)] for f in feats], dtype=np.int64)
+        xy = pairs.keypoints(j)[feats]
+        xyz = np.array([rec.points3D[int(p)].xyz for p in p3], dtype=np.float64)
+        answer = pycolmap.estimate_and_refine_absolute_pose(xy, xyz, camera, est, ref)
+        if answer is None:
+            continue
+        mask = np.asarray(answer["inlier_mask"], dtype=bool)
+        if mask.sum() < cfg.localize_min_inliers:
+            continue
+        out[name] = (answer["cam_from_world"], xy[mask], p3[mask])
+    return out
+
+
 def _map(
-    db: Path, img_dir: Path, workdir: Path, camera: CameraModel | None, cfg: SfmConfig
+    db: Path,
+    img_dir: Path,
+    workdir: Path,
+    camera: CameraModel | None,
+    cfg: SfmConfig,
+    image_names: list[str] | None = None,
 ) -> dict[int, Any]:
     """COLMAP's incremental mapper (bundle adjustment with the given intrinsics held fixed when
-    `fix_intrinsics`): model id -> reconstruction, several when the frames do not chain."""
+    `fix_intrinsics`) on `image_names` (all frames when None): model id -> reconstruction, several when
+    the frames do not chain."""
     import pycolmap
 
     opts = pycolmap.IncrementalPipelineOptions(
@@ -421,12 +597,16 @@ def _map(
         opts.ba_refine_extra_params = False
         opts.mapper.abs_pose_refine_focal_length = False
         opts.mapper.abs_pose_refine_extra_params = False
+    if image_names is not None:
+        opts.image_names = list(image_names)
     out_dir = workdir / "models"
     out_dir.mkdir(exist_ok=True)
     return pycolmap.incremental_mapping(db, img_dir, out_dir, options=opts)
 
 
-def _result_from_models(names: list[str], recs: dict, camera: CameraModel | None) -> SfmResult:
+def _result_from_models(
+    names: list[str], recs: dict, camera: CameraModel | None, localized: dict | None = None
+) -> SfmResult:
     if not recs:
         return SfmResult(
             names,
@@ -439,7 +619,7 @@ def _result_from_models(names: list[str], recs: dict, camera: CameraModel | None
             camera,
             models=0,
         )
-    rec = max(recs.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
+    rec = _largest(recs)
     point_ids = np.array(sorted(rec.point3D_ids()), dtype=np.int64)
     points = np.array([rec.points3D[int(i)].xyz for i in point_ids], dtype=np.float64).reshape(-1, 3)
     row_of = {int(pid): k for k, pid in enumerate(point_ids)}
@@ -465,8 +645,18 @@ def _result_from_models(names: list[str], recs: dict, camera: CameraModel | None
             errors[image.name] = float(np.mean(np.linalg.norm(proj - uv_a, axis=1)))
         else:
             errors[image.name] = float("nan")
+    cam = rec.cameras[next(iter(rec.cameras))]
+    for name, (pose, xy, p3) in (localized or {}).items():
+        T = np.eye(4)
+        T[:3, :3] = pose.rotation.matrix()
+        T[:3, 3] = pose.translation
+        poses[name] = T
+        rows_a = np.array([row_of[int(p)] for p in p3], dtype=np.intp)
+        uv_a = np.asarray(xy, dtype=np.float64).reshape(-1, 2) - 0.5
+        obs[name] = (rows_a, uv_a)
+        proj = _project(points[rows_a], T, cam)
+        errors[name] = float(np.mean(np.linalg.norm(proj - uv_a, axis=1)))
     if camera is None:
-        cam = rec.cameras[next(iter(rec.cameras))]
         camera = _pinhole_of(cam)
     registered = np.array([n in poses for n in names])
     return SfmResult(names, registered, poses, errors, points, point_ids, obs, camera, models=len(recs))
