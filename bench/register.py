@@ -88,13 +88,14 @@ def digest(points: np.ndarray, colors: np.ndarray | None) -> str:
     return h.hexdigest()[:16]
 
 
-def child(folder: Path, threads: int, profile: int, save: str, sets: list[str]) -> None:
+def child(folder: Path, threads: int | None, profile: int, save: str, sets: list[str]) -> None:
     from dataclasses import replace
 
     from tasks.config import load_config
     from tasks.register.config import RegisterConfig
     from tasks.register.room import register_room
 
+    sfm = load_config([], sets).sfm
     info = json.loads((folder / "camera_info.json").read_text())
     track = np.load(folder / "track.npy")
     # CPU time (every thread of the process): a profile of what the stage costs, not of the machine load
@@ -108,7 +109,7 @@ def child(folder: Path, threads: int, profile: int, save: str, sets: list[str]) 
             info,
             None,
             RegisterConfig(),
-            replace(load_config([], sets).sfm, num_threads=threads),
+            replace(sfm, num_threads=threads) if threads is not None else sfm,
             Path(tmp),
             track=track,
         )
@@ -211,7 +212,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=300, help="rendered 640x480 frames")
     ap.add_argument("--frames-dir", default="", help="where the frames are kept (default: /tmp/...-N)")
-    ap.add_argument("--threads", type=int, default=2, help="SfM threads")
+    ap.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="SfM mapper threads (default: the config's, sfm.num_threads)",
+    )
     ap.add_argument("--profile", type=int, default=0, help="print the top-N functions by cumulative time")
     ap.add_argument("--save-cloud", default="", help="write the fused cloud to this .npz")
     ap.add_argument("--fusion-only", action="store_true", help="only fusion, with the walk's true poses")
@@ -234,7 +240,8 @@ def main() -> None:
         fusion_only(folder, args.frames, args.profile, args.save_cloud)
         return
     cmd = [sys.executable, "-m", "bench.register", "--child", "--frames", str(args.frames)]
-    cmd += ["--frames-dir", str(folder), "--threads", str(args.threads), "--profile", str(args.profile)]
+    cmd += ["--frames-dir", str(folder), "--profile", str(args.profile)]
+    cmd += ["--threads", str(args.threads)] if args.threads is not None else []
     cmd += ["--save-cloud", args.save_cloud] if args.save_cloud else []
     cmd += [f"--set={s}" for s in args.sets]
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
