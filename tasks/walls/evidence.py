@@ -1132,6 +1132,19 @@ def furniture_in_front(
     return out
 
 
+def _line_frames(lines: NDArray, interior: NDArray) -> tuple[NDArray, ...]:
+    """Per line (M, 4): length, whether it has any, unit direction, unit normal, the normal pointing away
+    from `interior` (the line's back) and its angle."""
+    L = lengths(lines)
+    ok = L > 0
+    u = np.zeros((len(lines), 2))
+    u[ok] = (lines[ok, 2:] - lines[ok, :2]) / L[ok, None]
+    normal = np.column_stack([-u[:, 1], u[:, 0]])
+    back = normal.copy()
+    back[((np.asarray(interior) - lines[:, :2]) * back).sum(axis=1) > 0] *= -1
+    return L, ok, u, normal, back, angles(lines)
+
+
 def beyond_the_room(
     lines: NDArray, interior: NDArray | None, cfg: WallsConfig, angle_tol_deg: float
 ) -> NDArray[np.bool_]:
@@ -1154,14 +1167,7 @@ def beyond_the_room(
     out = np.zeros(m, dtype=bool)
     if cfg.beyond_room_min_depth_m <= 0 or interior is None or m < 3:
         return out
-    L = lengths(lines)
-    ok = L > 0
-    u = np.zeros((m, 2))
-    u[ok] = (lines[ok, 2:] - lines[ok, :2]) / L[ok, None]
-    normal = np.column_stack([-u[:, 1], u[:, 0]])
-    back = normal.copy()
-    back[((np.asarray(interior) - lines[:, :2]) * back).sum(axis=1) > 0] *= -1
-    ang = angles(lines)
+    L, ok, u, normal, back, ang = _line_frames(lines, interior)
     cos_tol = math.cos(math.radians(angle_tol_deg))
     sin_loose = math.sin(math.radians(2 * angle_tol_deg))
     pts, owner = sample_segments(lines, 0.05)
@@ -1271,50 +1277,42 @@ def across_beyond_the_room(
     lines: NDArray, interior: NDArray | None, cfg: WallsConfig, angle_tol_deg: float
 ) -> tuple[NDArray, NDArray[np.bool_]]:
     """For a slice with nothing seen above it (a handheld scan): the walls of the next rooms that run
-        *across* a wall W of this room behind W's line (away from the room's `interior`), seen through a door
-        in W (`beyond_the_room` takes those that run along W). Returns (the lines, with those running on past
-        a corner of the room cut there; (M,) lines wholly beyond the room).
+    *across* a wall W of this room behind W's line (away from the room's `interior`), seen through a door
+    in W (`beyond_the_room` takes those that run along W). Returns (the lines, with those running on past
+    a corner of the room cut there; (M,) lines beyond the room).
 
-        Only lines shorter than the span of W's collinear pieces are judged (the room's wall is seen along more
-        than a wall seen through its door, and a short line across a wall, a door's jamb or a box's side, is no
-        wall of the room to judge by). A line L across W (nearer its normal than its direction) wholly behind
-        W's line, by more than
-        `thin_wall_end_tol_m` (not standing on W's line as a wall of the room leaving it outward, an alcove's
-        or a wing's side, does), is beyond the room when
-        - its foot (where its line meets W's) lies on W's data, `thin_wall_end_tol_m` inside one of W's
-          collinear pieces: nothing of the room lies behind the room's seen wall (the next room's partition
-          standing on W's back face);
-        - or its foot lies in a gap of W's collinear pieces (a door), L is wholly more than `thin_wall_max_m`
-          behind, and no other line comes within `lines.max_gap_m` of L (an alcove's back wall or a wing's far
-          wall would hold it) nor leaves W's line outward within that of the foot (a wing's or an alcove's
-          side);
-        - or it lies in line with a wall of the room that ends on W's line at an end of W's collinear pieces
-          (the room's corner) and reaches more than `beyond_room_min_depth_m` behind (deeper than furniture
-          stands before a wall): the building's wall going on past the room's corner.
-
-        A line that runs from the room (more than `thin_wall_end_tol_m` in front of W's line) through W's line
-        at an end of W's collinear pieces and on more than `beyond_room_min_depth_m` behind it is that corner's
-        wall and the building's wall beyond it seen as one: it is cut at W's line.
-
-        W's collinear pieces are the lines parallel to it within `thin_wall_end_tol_m` of its line. W must
-        bound the room: no line across it runs from the room through its line and on behind it other than at
-        its ends (the room goes on there: a partition's face, an L-room's inner wall). W is one of the room's
-    lines more than `lines.offset_tol_m` from the interior (a line through it has no
-        side to tell; a corridor seen mostly along one wall has its lines' centre a few decimetres from that
-        wall, on the room's side); `beyond_room_min_depth_m` 0 switches the test off."""
+    W is a line of the room more than `lines.offset_tol_m` from the interior (a line through it has no
+    side to tell; a corridor seen mostly along one wall has its lines' centre a few decimetres from that
+    wall, on the room's side) that bounds the room: no line across it runs from the room through its line
+    and on behind it other than at its ends (the room goes on there: a partition's face, an L-room's inner
+    wall). Its collinear pieces are the lines parallel to it within `thin_wall_end_tol_m` of its line.
+    Only lines shorter than their span are judged (the room's wall is seen along more than a wall seen
+    through its door, and a short line across a wall, a door's jamb or a box's side, is no wall to judge
+    by). A line L across W (nearer its normal than its direction) whose foot (where its line meets W's)
+    lies within that span is beyond the room when
+    - it lies wholly more than `thin_wall_end_tol_m` behind W's line and its foot lies on W's data, that
+      far inside one of the pieces: nothing of the room lies behind the room's seen wall (the next room's
+      partition standing on W's back face);
+    - or it lies wholly more than `thin_wall_max_m` behind, in a gap of the pieces (a door), and no other
+      line comes within `lines.max_gap_m` of it (an alcove's back wall or a wing's far wall would hold it;
+      the partition's other face, parallel within `thin_wall_max_m` and behind W too, does not) nor leaves
+      W's line outward within that of the foot (an alcove's or a wing's side);
+    - or it stands on W's line (within `thin_wall_end_tol_m`) and reaches more than `thin_wall_max_m`
+      behind, away from the span's ends, held by nothing but W's pieces and with no other line leaving W's
+      line near it (no back wall or other side, as an alcove or a wing has): a partition at a door's jamb;
+    - or it lies wholly behind in line with a wall of the room that ends on W's line at an end of the span
+      (the room's corner) and reaches more than `beyond_room_min_depth_m` behind (deeper than furniture
+      stands before a wall): the building's wall going on past the room's corner.
+    A line that runs from the room (more than `thin_wall_end_tol_m` in front of W's line) through W's line
+    at an end of the span and on more than `beyond_room_min_depth_m` behind it is that corner's wall and the
+    building's wall beyond it seen as one: it is cut at W's line. `beyond_room_min_depth_m` 0 switches the
+    test off."""
     lines = np.asarray(lines, dtype=np.float64).copy()
     m = len(lines)
     out = np.zeros(m, dtype=bool)
     if cfg.beyond_room_min_depth_m <= 0 or interior is None or m < 3:
         return lines, out
-    L = lengths(lines)
-    ok = L > 0
-    u = np.zeros((m, 2))
-    u[ok] = (lines[ok, 2:] - lines[ok, :2]) / L[ok, None]
-    normal = np.column_stack([-u[:, 1], u[:, 0]])
-    back = normal.copy()
-    back[((np.asarray(interior) - lines[:, :2]) * back).sum(axis=1) > 0] *= -1
-    ang = angles(lines)
+    L, ok, u, normal, back, ang = _line_frames(lines, interior)
     cos_tol = math.cos(math.radians(angle_tol_deg))
     thin, end_tol, gap = cfg.thin_wall_max_m, cfg.thin_wall_end_tol_m, cfg.lines.max_gap_m
     deep = cfg.beyond_room_min_depth_m
