@@ -354,6 +354,16 @@ def _band_half_width(line: NDArray, cell_xy: NDArray, window_m: float = 0.3, sha
     return float(np.quantile(d[sel], share)) if sel.any() else 0.0
 
 
+def _end_distances(walls: NDArray) -> tuple[NDArray, NDArray]:
+    """The walls' ends (2M, 2: every first end, then every second) and each end's distance to every wall
+    (2M, M; infinite to its own)."""
+    m = len(walls)
+    ends = np.concatenate([walls[:, :2], walls[:, 2:]])
+    d = point_segment_distances(ends, walls)
+    d[np.arange(2 * m), np.tile(np.arange(m), 2)] = np.inf
+    return ends, d
+
+
 def _stubs(walls: NDArray, angle_min_deg: float = 45.0) -> list[tuple[int, int]]:
     """Partition stubs of a wall model (M, 4): (wall, its joined end 0 or 1) for every wall with one free
     end whose other end stands on another wall's inside (a T, not a corner: the host wall runs on past
@@ -361,9 +371,7 @@ def _stubs(walls: NDArray, angle_min_deg: float = 45.0) -> list[tuple[int, int]]
     m = len(walls)
     if m < 2:
         return []
-    ends = np.concatenate([walls[:, :2], walls[:, 2:]])
-    d = point_segment_distances(ends, walls)
-    d[np.arange(2 * m), np.tile(np.arange(m), 2)] = np.inf
+    ends, d = _end_distances(walls)
     touching = d <= 1e-6
     L = lengths(walls)
     th = angles(walls)
@@ -392,9 +400,7 @@ def _capped_stubs(walls: NDArray, cap_max_m: float, tol_m: float = 0.01) -> list
     m = len(walls)
     if m < 3:
         return []
-    ends = np.concatenate([walls[:, :2], walls[:, 2:]])
-    d = point_segment_distances(ends, walls)
-    d[np.arange(2 * m), np.tile(np.arange(m), 2)] = np.inf
+    ends, d = _end_distances(walls)
     touching = d <= tol_m
     L = lengths(walls)
     th = angles(walls)
