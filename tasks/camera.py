@@ -552,6 +552,24 @@ def depth_to_points(
     return points, np.stack([rows, cols], axis=1).astype(np.intp)
 
 
+def strided_depth_points(
+    depth_m: NDArray[np.floating], camera: CameraModel, stride: int
+) -> NDArray[np.float64]:
+    """`depth_to_points` of a depth image in metres (0/NaN = none) on every `stride`-th pixel of every
+    `stride`-th row only, in the same order: (N, 3) points in the camera frame."""
+    d = np.asarray(depth_m)
+    if d.ndim != 2 or (d.shape[1], d.shape[0]) != camera.size:
+        raise ValueError(
+            f"depth image of shape {d.shape} does not fit the {camera.size[0]}x{camera.size[1]} camera"
+        )
+    z = d[::stride, ::stride].astype(np.float64)
+    rays = camera.pixel_rays()[::stride, ::stride]
+    with np.errstate(invalid="ignore"):
+        keep = (z > 0) & np.isfinite(z) & np.isfinite(rays).all(axis=2)
+    zz = z[keep]
+    return np.column_stack([rays[keep] * zz[:, None], zz])
+
+
 def _bilinear(img: NDArray, u: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.uint8]:
     """(N, C) bilinear samples of an (H, W, C) uint8 image at pixel coordinates inside [0, W-1] × [0, H-1]
     (cv2.remap over the points laid out in rows of 4096, under its 32767-pixel limit)."""

@@ -27,6 +27,7 @@ from tasks.camera import (
     depth_to_points,
     photogrammetric_to_opencv,
     profile_calibration,
+    strided_depth_points,
     thesis_kinect_v1,
 )
 
@@ -678,6 +679,25 @@ def test_depth_to_points_disparity_shift_and_errors():
         depth_to_points(np.ones((240, 320)), "m", cam)
     with pytest.raises(ValueError, match="unknown depth kind"):
         depth_to_points(np.ones((480, 640)), "feet", cam)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("stride", [1, 2, 4])
+def test_strided_depth_points_are_those_of_every_stride_th_pixel(stride):
+    """The same points, in the same order, as `depth_to_points` of the depth with every other pixel
+    cleared; holes (0, NaN) stay holes; a depth image of another size is refused."""
+    cam = thesis_kinect_v1().ir
+    rng = np.random.default_rng(stride)
+    z = rng.uniform(0.5, 4.0, size=(480, 640))
+    z[rng.random(z.shape) < 0.2] = 0.0
+    z[rng.random(z.shape) < 0.05] = np.nan
+    thinned = np.zeros_like(z)
+    thinned[::stride, ::stride] = z[::stride, ::stride]
+    want, _ = depth_to_points(thinned, "m", cam)
+    got = strided_depth_points(z.astype(np.float32), cam, stride)
+    assert got.shape == want.shape and np.allclose(got, want, rtol=1e-6, atol=0)
+    assert np.array_equal(strided_depth_points(z, cam, stride), want)
+    with pytest.raises(ValueError, match="does not fit the 640x480 camera"):
+        strided_depth_points(np.ones((240, 320)), cam, stride)
 
 
 # ----------------------------------------------------------------------------------------------------------

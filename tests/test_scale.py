@@ -118,6 +118,55 @@ def test_ransac_similarity_ignores_outliers(rng):
     assert inl[15:].all() and inl[:15].sum() <= 1
 
 
+def _ransac_one_by_one(local, obj, cfg, rng):
+    """The RANSAC of eq 3.16 written as a plain loop over the hypotheses (the batched one must agree)."""
+    n = len(local)
+    thr = cfg.inlier_threshold_m + cfg.inlier_threshold_rel * np.linalg.norm(obj, axis=1)
+    best, best_count = None, 2
+    for _ in range(cfg.ransac_iterations):
+        idx = rng.choice(n, 3, replace=False)
+        a, b, c = obj[idx]
+        if np.linalg.norm(np.cross(b - a, c - a)) < 1e-4:
+            continue
+        lam, R, T = horn_similarity(local[idx], obj[idx])
+        inl = np.linalg.norm(obj - (lam * local @ R.T + T), axis=1) < thr
+        if inl.sum() > best_count:
+            best, best_count = inl, int(inl.sum())
+            if best_count == n:
+                break
+    if best is None:
+        return None
+    for _ in range(2):
+        lam, R, T = horn_similarity(local[best], obj[best])
+        new = np.linalg.norm(obj - (lam * local @ R.T + T), axis=1) < thr
+        if new.sum() < 3:
+            break
+        best = new
+    return horn_similarity(local[best], obj[best])[0], best
+
+
+@pytest.mark.parametrize("outliers", [0.0, 0.3, 0.8])
+def test_ransac_similarity_scores_its_hypotheses_as_a_loop_would(outliers):
+    """The batched hypotheses give the loop's best sample, and leave the generator where the loop (which
+    stops at a hypothesis explaining every point) leaves it: the next frame's samples are the same."""
+    g = np.random.default_rng(3)
+    cfg = ScaleConfig()
+    for n in (3, 40, 700):
+        local = g.normal(size=(n, 3))
+        R = Rotation.from_rotvec(g.normal(size=3)).as_matrix()
+        obj = 1.3 * local @ R.T + np.array([0.2, -0.1, 2.5]) + g.normal(scale=0.004, size=(n, 3))
+        bad = g.random(n) < outliers
+        obj[bad] += g.normal(scale=0.6, size=(int(bad.sum()), 3))
+        ra, rb = np.random.default_rng(n), np.random.default_rng(n)
+        want = _ransac_one_by_one(local, obj, cfg, ra)
+        fit = ransac_similarity(local, obj, cfg, rb)
+        assert (want is None) == (fit is None)
+        if want is not None:
+            assert fit[0] == pytest.approx(want[0], rel=1e-12)
+            assert np.array_equal(fit[3], want[1])
+        assert ra.random() == rb.random()
+
+
 def test_combine_scales_is_robust_and_reports_spread():
     frames = [
         FrameScale(f"f{k}", s, np.eye(3), np.zeros(3), 50, 40, 0.01)

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from tasks.camera import CameraModel, depth_to_points
+from tasks.camera import CameraModel, strided_depth_points
 
 
 @dataclass
@@ -86,14 +86,6 @@ def _round(x: float) -> float | None:
     return round(float(x), 4) if np.isfinite(x) else None
 
 
-def _points(depth: NDArray[np.floating], camera: CameraModel, stride: int) -> NDArray[np.float64]:
-    d = np.asarray(depth, dtype=np.float64)
-    thinned = np.zeros_like(d)
-    thinned[::stride, ::stride] = d[::stride, ::stride]
-    pts, _ = depth_to_points(thinned, "m", camera)
-    return pts[(pts[:, 2] > 0) & np.isfinite(pts).all(axis=1)]
-
-
 def _project_into(
     pts_a: NDArray[np.float64],
     b_from_a: NDArray[np.float64],
@@ -143,7 +135,7 @@ def neighbour_depth_consistency(
             continue
         d = np.asarray(depth, dtype=np.float64)
         d = np.where(np.isfinite(d), d, 0.0)
-        pts = _points(d, camera, stride)
+        pts = strided_depth_points(d, camera, stride)
         if prev is not None:
             pid, pdepth, ppts = prev
             b_from_a = np.linalg.inv(poses[fid]) @ poses[pid]

@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 from tasks.camera import Calibration, CameraModel, colour_points, depth_to_points
 from tasks.cloud import Cloud, DegenerateInputError, apply_transform
 from tasks.register.config import RegisterConfig
+from tasks.threads import imap_ordered
 
 
 @dataclass(frozen=True)
@@ -360,18 +361,16 @@ def fuse_frames(
     acc = VoxelAccumulator(cfg.voxel_size_m)
     prev: NDArray[np.float64] | None = None
     can_colour = calibration.rgb is not None and calibration.ir_to_rgb is not None
-    used = 0
-    for frame_id, depth, rgb in frames:
+
+    def prepare(frame: FrameData) -> tuple[int, NDArray, NDArray, NDArray | None, NDArray | None] | None:
+        """A placed frame's depth points and their colours (each frame's own: made on the threads)."""
+        frame_id, depth, rgb = frame
         T = poses.get(int(frame_id))
         if T is None or not np.isfinite(T).all():
-            continue
+            return None
         pts = frame_points(depth, calibration, cfg, radial_k)
         if len(pts) == 0:
-            continue
-        if cfg.icp_refine:
-            T, prev = _icp_step(pts, T, prev, cfg)
-        if refined is not None:
-            refined[int(frame_id)] = T
+            return None
         colors = coloured = None
         if can_colour and rgb is not None and (rgb.shape[1], rgb.shape[0]) == calibration.rgb.size:
             colors, coloured = colour_points(
@@ -382,6 +381,18 @@ def fuse_frames(
                 cfg.colour_occlusion_tol_rel,
                 cfg.colour_zbuffer_splat_px,
             )
+        return int(frame_id), T, pts, colors, coloured
+
+    used = 0
+    # the frames go into the grid in capture order, as on one thread
+    for placed in imap_ordered(prepare, frames):
+        if placed is None:
+            continue
+        frame_id, T, pts, colors, coloured = placed
+        if cfg.icp_refine:
+            T, prev = _icp_step(pts, T, prev, cfg)
+        if refined is not None:
+            refined[frame_id] = T
         acc.add(transform_points(T, pts), colors, coloured)
         used += 1
     cloud = acc.cloud(cfg.min_points_per_voxel)

@@ -23,11 +23,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from tasks.camera import Calibration, CameraModel, depth_to_points
+from tasks.camera import Calibration, CameraModel, strided_depth_points
 from tasks.cloud import DegenerateInputError
 from tasks.register.config import ScaleConfig
 from tasks.register.fusion import radial_position
 from tasks.register.sfm import SfmResult
+from tasks.threads import imap_ordered
 
 ROOM_FROM_CAMERA_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 """Room axes from the first camera's: x right, y forward (the optical axis), z up (minus the image y)."""
@@ -113,38 +114,63 @@ def horn_similarity(
     d = np.asarray(obj, dtype=np.float64)
     if s.shape != d.shape or s.ndim != 2 or s.shape[1] != 3 or len(s) < 3:
         raise DegenerateInputError(f"similarity needs two (N>=3, 3) point sets, got {s.shape} and {d.shape}")
-    sc, dc = s.mean(axis=0), d.mean(axis=0)
-    s1, d1 = s - sc, d - dc
-    ss = float((s1**2).sum())
-    if ss <= 1e-18:
+    lam, R, T, ss = _horn_batch(s[None], d[None], scale_formula)
+    if ss[0] <= 1e-18:
         raise DegenerateInputError("similarity points coincide")
-    M = s1.T @ d1  # S_ab = Σ s'_a d'_b
-    (Sxx, Sxy, Sxz), (Syx, Syy, Syz), (Szx, Szy, Szz) = M
-    N = np.array(
+    return float(lam[0]), R[0], T[0]
+
+
+def _horn_batch(
+    s: NDArray[np.float64], d: NDArray[np.float64], scale_formula: str
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """`horn_similarity` of K point-set pairs at once: s, d (K, N, 3) → λ (K,), R (K, 3, 3), T (K, 3) and
+    Σ|local'|² (K,), where a set whose points coincide (Σ|local'|² ≈ 0) gives λ = NaN."""
+    sc, dc = s.mean(axis=1), d.mean(axis=1)
+    s1, d1 = s - sc[:, None], d - dc[:, None]
+    ss = (s1**2).sum(axis=(1, 2))
+    M = np.einsum("kna,knb->kab", s1, d1)  # S_ab = Σ s'_a d'_b
+    Sxx, Sxy, Sxz = M[:, 0, 0], M[:, 0, 1], M[:, 0, 2]
+    Syx, Syy, Syz = M[:, 1, 0], M[:, 1, 1], M[:, 1, 2]
+    Szx, Szy, Szz = M[:, 2, 0], M[:, 2, 1], M[:, 2, 2]
+    N = np.stack(
         [
-            [Sxx + Syy + Szz, Syz - Szy, Szx - Sxz, Sxy - Syx],
-            [Syz - Szy, Sxx - Syy - Szz, Sxy + Syx, Szx + Sxz],
-            [Szx - Sxz, Sxy + Syx, -Sxx + Syy - Szz, Syz + Szy],
-            [Sxy - Syx, Szx + Sxz, Syz + Szy, -Sxx - Syy + Szz],
-        ]
+            np.stack([Sxx + Syy + Szz, Syz - Szy, Szx - Sxz, Sxy - Syx], axis=-1),
+            np.stack([Syz - Szy, Sxx - Syy - Szz, Sxy + Syx, Szx + Sxz], axis=-1),
+            np.stack([Szx - Sxz, Sxy + Syx, -Sxx + Syy - Szz, Syz + Szy], axis=-1),
+            np.stack([Sxy - Syx, Szx + Sxz, Syz + Szy, -Sxx - Syy + Szz], axis=-1),
+        ],
+        axis=-2,
     )
     _w, v = np.linalg.eigh(N)
-    q0, qx, qy, qz = v[:, -1]
-    R = np.array(
+    q0, qx, qy, qz = np.moveaxis(v[:, :, -1], -1, 0)
+    R = np.stack(
         [
-            [q0 * q0 + qx * qx - qy * qy - qz * qz, 2 * (qx * qy - q0 * qz), 2 * (qx * qz + q0 * qy)],
-            [2 * (qy * qx + q0 * qz), q0 * q0 - qx * qx + qy * qy - qz * qz, 2 * (qy * qz - q0 * qx)],
-            [2 * (qz * qx - q0 * qy), 2 * (qz * qy + q0 * qx), q0 * q0 - qx * qx - qy * qy + qz * qz],
-        ]
+            np.stack(
+                [q0 * q0 + qx * qx - qy * qy - qz * qz, 2 * (qx * qy - q0 * qz), 2 * (qx * qz + q0 * qy)], -1
+            ),
+            np.stack(
+                [2 * (qy * qx + q0 * qz), q0 * q0 - qx * qx + qy * qy - qz * qz, 2 * (qy * qz - q0 * qx)], -1
+            ),
+            np.stack(
+                [2 * (qz * qx - q0 * qy), 2 * (qz * qy + q0 * qx), q0 * q0 - qx * qx - qy * qy + qz * qz], -1
+            ),
+        ],
+        axis=-2,
     )
-    if scale_formula == "symmetric":
-        lam = float(np.sqrt((d1**2).sum() / ss))
-    elif scale_formula == "asymmetric":
-        lam = float(np.einsum("ij,ij->", d1, s1 @ R.T) / ss)
-    else:
-        raise ValueError(f"unknown scale formula {scale_formula!r}: asymmetric or symmetric")
-    T = dc - lam * R @ sc
-    return lam, R, T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if scale_formula == "symmetric":
+            lam = np.sqrt((d1**2).sum(axis=(1, 2)) / ss)
+        elif scale_formula == "asymmetric":
+            lam = np.einsum("kni,knj,kij->k", d1, s1, R) / ss
+        else:
+            raise ValueError(f"unknown scale formula {scale_formula!r}: asymmetric or symmetric")
+    lam = np.where(ss > 1e-18, lam, np.nan)
+    T = dc - lam[:, None] * np.einsum("kij,kj->ki", R, sc)
+    return lam, R, T, ss
+
+
+_RANSAC_BATCH = 50
+"""Hypotheses scored at once in `ransac_similarity` (bounds its (batch, N, 3) residuals)."""
 
 
 def ransac_similarity(
@@ -159,24 +185,36 @@ def ransac_similarity(
     if n < 3:
         return None
     thr = cfg.inlier_threshold_m + cfg.inlier_threshold_rel * np.linalg.norm(obj, axis=1)
+    # all hypotheses at once; the samples are drawn as one by one (the generator runs on to the next frame
+    # exactly as far as a loop that stops at the first hypothesis explaining every point would draw)
+    thr2 = thr**2
+    state = rng.bit_generator.state
+    idx = np.array([rng.choice(n, 3, replace=False) for _ in range(cfg.ransac_iterations)], dtype=np.intp)
+    counts = np.full(len(idx), -1)
+    a, b, c = obj[idx[:, 0]], obj[idx[:, 1]], obj[idx[:, 2]]
+    usable = np.linalg.norm(np.cross(b - a, c - a), axis=1) >= 1e-4
+    for lo in range(0, len(idx), _RANSAC_BATCH):
+        k = np.flatnonzero(usable[lo : lo + _RANSAC_BATCH]) + lo
+        if len(k) == 0:
+            continue
+        lam, R, T, _ss = _horn_batch(local[idx[k]], obj[idx[k]], cfg.scale_formula)
+        fine = np.isfinite(lam)
+        k, lam, R, T = k[fine], lam[fine], R[fine], T[fine]
+        diff = obj[None] - (lam[:, None, None] * (local[None] @ R.transpose(0, 2, 1)) + T[:, None, :])
+        counts[k] = (np.einsum("kni,kni->kn", diff, diff) < thr2[None]).sum(axis=1)
+        if (counts[k] == n).any():
+            break
+    full = np.flatnonzero(counts == n)
+    if len(full):
+        rng.bit_generator.state = state
+        for _ in range(full[0] + 1):
+            rng.choice(n, 3, replace=False)
+        counts = counts[: full[0] + 1]
     best: NDArray[np.bool_] | None = None
-    best_count = 2
-    for _ in range(cfg.ransac_iterations):
-        idx = rng.choice(n, 3, replace=False)
-        a, b, c = obj[idx]
-        if np.linalg.norm(np.cross(b - a, c - a)) < 1e-4:
-            continue
-        try:
-            lam, R, T = horn_similarity(local[idx], obj[idx], cfg.scale_formula)
-        except DegenerateInputError:
-            continue
-        res = np.linalg.norm(obj - (lam * local @ R.T + T), axis=1)
-        inl = res < thr
-        count = int(inl.sum())
-        if count > best_count:
-            best, best_count = inl, count
-            if count == n:
-                break
+    if counts.max(initial=-1) > 2:
+        j = int(np.argmax(counts))
+        lam, R, T = horn_similarity(local[idx[j]], obj[idx[j]], cfg.scale_formula)
+        best = np.linalg.norm(obj - (lam * local @ R.T + T), axis=1) < thr
     if best is None:
         return None
     inl = best
@@ -216,15 +254,10 @@ def depth_in_rgb(
     depth, where Kinect noise is even. Keeping only the nearest point, the minimum of several noisy
     readings, made the depth short by about 0.1 %. The surface tolerance grows with the depth's own noise
     (`step_tolerance` with `noise_coef`, see `depth_noise_coefficient`)."""
-    d = np.asarray(depth_m, dtype=np.float64)
+    d = np.asarray(depth_m)
     stride = cfg.depth_stride or max(1, round(d.shape[1] / 320))
-    if stride > 1:
-        thinned = np.zeros_like(d)
-        thinned[::stride, ::stride] = d[::stride, ::stride]
-        d = thinned
-    pts, _ = depth_to_points(d, "m", calib.ir)
-    keep = (pts[:, 2] >= cfg.min_depth_m) & (pts[:, 2] <= cfg.max_depth_m)
-    pts = pts[keep]
+    pts = strided_depth_points(d, calib.ir, stride)
+    pts = pts[(pts[:, 2] >= cfg.min_depth_m) & (pts[:, 2] <= cfg.max_depth_m)]
     if radial_k and len(pts):
         pts = remove_radial_error(pts, calib.ir, radial_k)
     pose = calib.ir_to_rgb
@@ -262,16 +295,21 @@ def depth_noise_coefficient(depth_m: NDArray[np.floating]) -> float:
     over 3x3 windows holding nine readings of (max - min) / z² (m per m²; 0 when no window is complete).
     A disparity sensor's noise and quantization grow with z² (a Kinect v1's depth steps are 3-4 cm at
     3.5 m); for a low-noise sensor the value is small and the fixed tolerance rules."""
-    from scipy.ndimage import maximum_filter, minimum_filter
+    import cv2
 
-    d = np.asarray(depth_m, dtype=np.float64)
-    valid = np.isfinite(d) & (d > 0)
-    hi = maximum_filter(np.where(valid, d, np.inf), size=3, mode="constant", cval=np.inf)
-    lo = minimum_filter(np.where(valid, d, -np.inf), size=3, mode="constant", cval=-np.inf)
+    # the depth's own precision (a float32 image stays float32: max and min are exact in it)
+    d = np.asarray(depth_m)
+    d = d if d.dtype == np.float32 else d.astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(d) & (d > 0)
+    box = np.ones((3, 3), np.uint8)
+    hi = cv2.dilate(np.where(valid, d, np.inf), box, borderType=cv2.BORDER_CONSTANT, borderValue=np.inf)
+    lo = cv2.erode(np.where(valid, d, -np.inf), box, borderType=cv2.BORDER_CONSTANT, borderValue=-np.inf)
     ok = valid & np.isfinite(hi) & np.isfinite(lo)
     if not ok.any():
         return 0.0
-    return float(np.median((hi[ok] - lo[ok]) / d[ok] ** 2))
+    dd = d[ok].astype(np.float64)
+    return float(np.median((hi[ok].astype(np.float64) - lo[ok]) / dd**2))
 
 
 def step_tolerance(z: NDArray[np.float64], cfg: ScaleConfig, noise_coef: float = 0.0) -> NDArray[np.float64]:
@@ -301,13 +339,14 @@ def observation_points(
     uu = np.clip(ui[:, None] + du.ravel()[None], 0, w - 1)
     vv = np.clip(vi[:, None] + dv.ravel()[None], 0, h - 1)
     win = zbuf[vv, uu].astype(np.float64)
-    with np.errstate(all="ignore"):
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            z = np.nanmedian(win, axis=1)
-            step = np.nanmax(win, axis=1) - np.nanmin(win, axis=1)
+    # windows without any depth stay NaN (only the others go to the NaN-skipping reductions: their
+    # all-NaN warning is process-wide state, which threads must not toggle)
+    seen = np.isfinite(win).any(axis=1)
+    z = np.full(len(win), np.nan)
+    step = np.full(len(win), np.nan)
+    if seen.any():
+        z[seen] = np.nanmedian(win[seen], axis=1)
+        step[seen] = np.nanmax(win[seen], axis=1) - np.nanmin(win[seen], axis=1)
     with np.errstate(invalid="ignore"):
         flat = step <= step_tolerance(z, cfg, noise_coef)
     valid = np.isfinite(z) & flat & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
@@ -320,18 +359,17 @@ def observation_points(
 # ------------------------------------------------------------------------------------ the stage
 
 
-def frame_scale(
+def frame_observations(
     name: str,
     depth_m: NDArray[np.floating],
     sfm: SfmResult,
     calib: Calibration,
     cfg: ScaleConfig,
-    rng: np.random.Generator,
     radial_k: float = 0.0,
-) -> FrameScale | None:
-    """eq 3.16 for one registered frame: its SfM points against their depth points (the depth without the
-    radial error `radial_k`, see `depth_in_rgb`); None when the frame has too few usable correspondences
-    or its similarity explains too few of them."""
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float] | None:
+    """One registered frame's SfM points and the metric points its depth gives at their observations
+    (the depth without the radial error `radial_k`, see `depth_in_rgb`): ((M, 3) SfM, (M, 3) metric in
+    the RGB frame, the depth's noise coefficient); None when the frame has too few usable ones."""
     if name not in sfm.observations or sfm.camera is None:
         return None
     rows, uv = sfm.observations[name]
@@ -342,8 +380,17 @@ def frame_scale(
     obj, valid = observation_points(uv, zbuf, sfm.camera, cfg, noise_coef)
     if valid.sum() < cfg.min_points_per_frame:
         return None
-    local = sfm.points[rows[valid]]
-    obj = obj[valid]
+    return sfm.points[rows[valid]], obj[valid], noise_coef
+
+
+def _fit_frame(
+    name: str,
+    observed: tuple[NDArray[np.float64], NDArray[np.float64], float],
+    sfm: SfmResult,
+    cfg: ScaleConfig,
+    rng: np.random.Generator,
+) -> FrameScale | None:
+    local, obj, noise_coef = observed
     fit = ransac_similarity(local, obj, cfg, rng)
     if fit is None:
         return None
@@ -414,10 +461,14 @@ def estimate_scale(
     yields a scale."""
     rng = np.random.default_rng(cfg.random_seed)
     frames = []
-    for name, depth in depth_frames:
-        if name not in sfm.cam_from_world:
-            continue
-        fs = frame_scale(name, depth, sfm, calib, cfg, rng, radial_k)
+    registered = ((name, depth) for name, depth in depth_frames if name in sfm.cam_from_world)
+
+    def observe(frame: tuple[str, NDArray[np.floating]]) -> tuple[str, tuple | None]:
+        return frame[0], frame_observations(frame[0], frame[1], sfm, calib, cfg, radial_k)
+
+    # the depth work on the threads; the RANSAC fits in frame order (they share the seeded generator)
+    for name, observed in imap_ordered(observe, registered):
+        fs = None if observed is None else _fit_frame(name, observed, sfm, cfg, rng)
         if fs is not None:
             frames.append(fs)
     report = combine_scales(frames, cfg)
