@@ -252,11 +252,15 @@ class SfmConfig:
     (extraction 25.7 -> 8.1 s, matching 23.6 -> 8.5, mapping 24.1 -> 14.2) at ATE 4.23 -> 4.29 cm, all
     registered; every synthetic survey (320x240, f 261 px) is still doubled, so maps the same bytes. The
     choice is in the metrics (`sfm.sift_first_octave`)."""
-    feature_threads: int = 1
-    """Threads for SIFT extraction and matching (the frames enter the database in capture order first, so
-    the image ids do not depend on it). One by default: with two, a 300-frame register stage gave a
-    different cloud from run to run (308,748 and 309,307 points), which a cache key cannot allow. The
-    mapper's are `num_threads`."""
+    extraction_threads: int = 2
+    """Threads for SIFT extraction. Each frame's features are its own whatever the thread count, and the
+    frames enter the database in capture order first, so the image ids do not depend on it either (60
+    rendered frames, one thread and three runs with two: the same keypoints and descriptors)."""
+    matching_threads: int = 1
+    """Threads for matching and verification. One: with two, a 300-frame register stage once gave a
+    different cloud from run to run (308,748 and 309,307 points), which a cache key cannot allow (COLMAP's
+    CPU matcher searches an approximate nearest-neighbour index whose result may depend on how its work
+    is split). The mapper's are `num_threads`."""
     ba_global_frames_ratio: float = 1.1
     """Incremental mapping: a global bundle adjustment is run when the registered frames have grown by
     this factor since the last one (COLMAP's default 1.1; more means fewer global adjustments). 1.4 with
@@ -285,7 +289,7 @@ class SfmConfig:
     uncalibrated_camera_model: str = "SIMPLE_RADIAL"
     """COLMAP camera model estimated when no calibrated camera is given."""
     num_threads: int = 1
-    """Threads of the mapper (extraction and matching: `feature_threads`). 1 makes runs repeatable (a
+    """Threads of the mapper (extraction and matching: `extraction_threads`, `matching_threads`). 1 makes runs repeatable (a
     cache key must mean one result; with 2 threads one CI run in a few mapped a room wrongly); the
     building flow already runs rooms in parallel."""
     random_seed: int = 0

@@ -119,22 +119,12 @@ def _undistort(image: NDArray[np.uint8], camera: CameraModel) -> NDArray[np.uint
     return cv2.undistort(image, camera.K, camera.dist, None, camera.K)
 
 
-def _check_images(images: Sequence[tuple[str, NDArray]], cfg: SfmConfig) -> None:
+def _check_names(images: Sequence[tuple[str, NDArray]], cfg: SfmConfig) -> None:
     if len(images) < cfg.min_frames:
         raise DegenerateInputError(f"SfM needs at least {cfg.min_frames} frames, got {len(images)}")
     names = [n for n, _ in images]
     if len(set(names)) != len(names):
         raise DegenerateInputError("SfM frame names are not unique")
-    usable = 0
-    for _, img in images:
-        arr = np.asarray(img)
-        if arr.ndim not in (2, 3):
-            raise DegenerateInputError(f"SfM frames must be (H, W) or (H, W, 3), got shape {arr.shape}")
-        usable += float(arr.std()) > 2.0
-    if usable < cfg.min_frames:
-        raise DegenerateInputError(
-            f"only {usable} of {len(images)} frames have any image content (blank or all-black frames)"
-        )
 
 
 def _loop_pairs(names: list[str], cfg: SfmConfig, near: int | None = None) -> list[tuple[str, str]]:
@@ -200,7 +190,7 @@ def run_sfm(
     result with no registered frame (check `ok`)."""
     import pycolmap
 
-    _check_images(images, cfg)
+    _check_names(images, cfg)
     pycolmap.logging.minloglevel = 2
     workdir = Path(workdir)
     img_dir = workdir / "images"
@@ -208,7 +198,7 @@ def run_sfm(
     names = [str(n) for n, _ in images]
     timings: dict[str, float] = {}
     started, cpu_started = time.perf_counter(), time.process_time()
-    _write_images(images, camera, img_dir)
+    _write_images(images, camera, img_dir, cfg)
     timings["write_s"] = time.perf_counter() - started
 
     db = workdir / "database.db"
@@ -277,13 +267,19 @@ def run_sfm(
 
 
 def _write_images(
-    images: Sequence[tuple[str, NDArray[np.uint8]]], camera: CameraModel | None, img_dir: Path
+    images: Sequence[tuple[str, NDArray[np.uint8]]], camera: CameraModel | None, img_dir: Path, cfg: SfmConfig
 ) -> None:
-    """Each frame as img_dir/<name> (PNG), undistorted with the calibrated camera when there is one."""
+    """Each frame as img_dir/<name> (PNG), undistorted with the calibrated camera when there is one; each
+    frame is read once (frames may be encoded images decoded on reading). Raises DegenerateInputError
+    when fewer than `cfg.min_frames` frames have any image content."""
     import cv2
 
+    usable = 0
     for name, img in images:
         arr = np.asarray(img)
+        if arr.ndim not in (2, 3):
+            raise DegenerateInputError(f"SfM frames must be (H, W) or (H, W, 3), got shape {arr.shape}")
+        usable += float(arr.std()) > 2.0
         if arr.ndim == 2:
             arr = np.repeat(arr[:, :, None], 3, axis=2)
         if camera is not None:
@@ -295,6 +291,10 @@ def _write_images(
             arr = _undistort(arr, camera)
         # PNG keeps the (already lossy) colour as it is; the file name is the frame's name
         cv2.imwrite(str(img_dir / name), cv2.cvtColor(arr[:, :, :3], cv2.COLOR_RGB2BGR))
+    if usable < cfg.min_frames:
+        raise DegenerateInputError(
+            f"only {usable} of {len(images)} frames have any image content (blank or all-black frames)"
+        )
 
 
 def _extract_features(
@@ -312,7 +312,7 @@ def _extract_features(
     else:
         reader = pycolmap.ImageReaderOptions(camera_model=cfg.uncalibrated_camera_model)
     extraction = pycolmap.FeatureExtractionOptions(
-        num_threads=cfg.feature_threads, max_image_size=cfg.max_image_size_px
+        num_threads=cfg.extraction_threads, max_image_size=cfg.max_image_size_px
     )
     bucketed = min(cfg.feature_grid) > 0
     extraction.sift.max_num_features = cfg.max_num_features * (4 if bucketed else 1)
@@ -407,7 +407,7 @@ def _match_features(db: Path, workdir: Path, names: list[str], cfg: SfmConfig) -
     # pairs are matched and verified one by one (each RANSAC seeded), so the thread count does not change
     # the verified matches once the image ids are fixed (checked on 30 real frames: same matches with
     # one thread and with two)
-    matching = pycolmap.FeatureMatchingOptions(num_threads=cfg.feature_threads)
+    matching = pycolmap.FeatureMatchingOptions(num_threads=cfg.matching_threads)
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = cfg.random_seed
     mode = cfg.matching
@@ -422,7 +422,7 @@ def _match_features(db: Path, workdir: Path, names: list[str], cfg: SfmConfig) -
             db,
             matching_options=matching,
             pairing_options=pycolmap.SequentialPairingOptions(
-                overlap=cfg.sequential_overlap, quadratic_overlap=False, num_threads=cfg.feature_threads
+                overlap=cfg.sequential_overlap, quadratic_overlap=False, num_threads=cfg.matching_threads
             ),
             verification_options=verification,
             device=pycolmap.Device.cpu,
@@ -501,7 +501,7 @@ def _match_keyframes(db: Path, workdir: Path, names: list[str], keys: list[int],
     verification.ransac.random_seed = cfg.random_seed
     pycolmap.match_image_pairs(
         db,
-        matching_options=pycolmap.FeatureMatchingOptions(num_threads=cfg.feature_threads),
+        matching_options=pycolmap.FeatureMatchingOptions(num_threads=cfg.matching_threads),
         pairing_options=pycolmap.ImportedPairingOptions(match_list_path=pairs_file),
         verification_options=verification,
         device=pycolmap.Device.cpu,
