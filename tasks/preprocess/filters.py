@@ -56,8 +56,9 @@ def _cell_centroids(
     """Weighted centroid (K, 3), total weight (K,) (the point count by default) and mean colour (K, 3) of
     every occupied cell of an origin-anchored grid of edge `cell_m`, cells in (x, y, z) index order."""
     ijk = np.floor(points / cell_m).astype(np.int64)
-    ijk -= ijk.min(axis=0)
-    dims = ijk.max(axis=0) + 1
+    # per column: a min or max over axis 0 of the (N, 3) array costs five times as much (the same numbers)
+    ijk -= np.array([ijk[:, i].min() for i in range(3)])
+    dims = np.array([ijk[:, i].max() for i in range(3)]) + 1
     if float(dims[0]) * float(dims[1]) * float(dims[2]) >= 2.0**62:
         extent = (dims * cell_m).max()
         raise DegenerateInputError(f"cloud extent {extent:.3g} m is too large for a {cell_m} m grid")
