@@ -74,19 +74,23 @@ def projection_image(points: NDArray, cfg: WallsConfig, ceiling_z_m: float = mat
     lev = np.floor((z - z_lo) / g).astype(np.int64)
     n_levels = int(lev.max()) + 1
     cell = row * shape[1] + col
-    keys = np.sort(cell * n_levels + lev)  # a sort and a diff: much faster than np.unique's hashing here
+    keys = cell * n_levels + lev
+    if shape[0] * shape[1] * n_levels < 2**31:
+        keys = keys.astype(np.int32)  # the same keys, sorted and divided in half the time
+    keys.sort()  # a sort and a diff: much faster than np.unique's hashing here
     voxels = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
-    vcell, vlev = voxels // n_levels, voxels % n_levels
+    vcell, vlev = np.divmod(voxels, n_levels)
     counts = np.bincount(vcell, minlength=shape[0] * shape[1]).reshape(shape).astype(np.float64)
     # voxels are sorted by cell, then level: each cell's lowest and highest voxel are its run's ends
     first = np.concatenate([[True], vcell[1:] != vcell[:-1]])
     last = np.concatenate([vcell[1:] != vcell[:-1], [True]])
+    first_cell, first_lev = vcell[first], vlev[first]
     tall = np.zeros(shape[0] * shape[1], dtype=bool)
-    extent = (vlev[last] - vlev[first]) * g
-    tall[vcell[first][extent >= cfg.min_column_height_m]] = True
+    extent = (vlev[last] - first_lev) * g
+    tall[first_cell[extent >= cfg.min_column_height_m]] = True
     reach = cfg.top_reach_m if cfg.top_reach_m is not None else 0.25
     low = np.zeros_like(tall)
-    low[vcell[first][vlev[first] <= math.floor(reach / g)]] = True
+    low[first_cell[first_lev <= math.floor(reach / g)]] = True
     top = np.ones_like(tall)
     open_top = False
     if cfg.top_reach_m is not None:
