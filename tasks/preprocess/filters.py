@@ -238,8 +238,11 @@ def statistical_outliers(
     entry = np.flatnonzero((~anchor)[:, None] | (~anchor)[idx])  # flat (n, K) positions
     rows = entry // neighbours
     cols = idx.ravel()[entry].astype(np.intp)
-    short = link.ravel()[entry] <= _LINK_RATIO * np.minimum(mean_dist[rows], mean_dist[cols])
-    ok = short & regular[rows] & regular[cols]
+    # the links between two regular points, then the short ones among them (the same links, in the same
+    # order, as testing length first: the distances are gathered for fewer links)
+    ok = regular[rows] & regular[cols]
+    entry, rows, cols = entry[ok], rows[ok], cols[ok]
+    ok = link.ravel()[entry] <= _LINK_RATIO * np.minimum(mean_dist[rows], mean_dist[cols])
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
