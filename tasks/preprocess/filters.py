@@ -235,13 +235,16 @@ def statistical_outliers(
     # a chain from another point reaches its first anchor through links that all touch a non-anchor, and
     # the graph shrinks to the sparse parts of the cloud (a few per cent of the links on a room).
     anchor = dense & regular
-    entry = np.flatnonzero((~anchor)[:, None] | (~anchor)[idx])  # flat (n, K) positions
+    # the links touching a non-anchor between two regular points, as flat (n, K) positions; then the short
+    # ones among them (the same links, in the same order, as testing length first: the row and column
+    # indices and the distances are gathered for fewer links)
+    candidate = (~anchor)[idx]
+    candidate |= ~anchor[:, None]
+    candidate &= regular[idx]
+    candidate &= regular[:, None]
+    entry = np.flatnonzero(candidate)
     rows = entry // neighbours
     cols = idx.ravel()[entry].astype(np.intp)
-    # the links between two regular points, then the short ones among them (the same links, in the same
-    # order, as testing length first: the distances are gathered for fewer links)
-    ok = regular[rows] & regular[cols]
-    entry, rows, cols = entry[ok], rows[ok], cols[ok]
     ok = link.ravel()[entry] <= _LINK_RATIO * np.minimum(mean_dist[rows], mean_dist[cols])
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
