@@ -214,10 +214,16 @@ def point_spacing(points: NDArray, k: int = 6, max_points: int = 20000) -> float
     from scipy.spatial import cKDTree
 
     step = max(1, len(points) // max_points)
-    sample = points[::step]
-    # an unbalanced tree without node compaction builds in half the time for the few queries made of it;
-    # the neighbours and their distances are the same
-    d, _ = cKDTree(points, balanced_tree=False, compact_nodes=False).query(sample, k=k + 1)
+    # an unbalanced tree without node compaction, of leaves of 64 points, builds in half the time (for the few
+    # queries made of it, a fifth less build and query than leaves of 16); the neighbours and their
+    # distances are the same
+    tree = cKDTree(points, leafsize=64, balanced_tree=False, compact_nodes=False)
+    # the sample (every step-th point) queried in the tree's leaf order, so that consecutive queries walk
+    # the same nodes: only the median of the distances is kept, whatever their order
+    taken = np.zeros(len(points), dtype=bool)
+    taken[::step] = True
+    sample = points[tree.indices[taken[tree.indices]]]
+    d, _ = tree.query(sample, k=k + 1)
     return float(np.median(d[:, k]) * math.sqrt(math.pi / k))
 
 
