@@ -390,6 +390,8 @@ def _fit_frame(
     cfg: ScaleConfig,
     rng: np.random.Generator,
 ) -> FrameScale | None:
+    """eq 3.16 for one registered frame: its SfM points against their depth points (`frame_observations`);
+    None when its similarity explains too few of them."""
     local, obj, noise_coef = observed
     fit = ransac_similarity(local, obj, cfg, rng)
     if fit is None:
