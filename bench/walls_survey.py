@@ -124,6 +124,9 @@ class RoomResult:
     """The labelled accuracy the truth walls themselves score: the labelled points' noise floor."""
     compl_seen: float = math.nan
     """Completeness against the seen pieces of the truth walls only (degraded rooms)."""
+    corners_closed: str | None = None
+    """What closed an open room's corners (the walls metrics' `corners_closed`): "pinned" (a wall's data
+    reach the corner), "across unseen spans", or None (closed without them, or left open)."""
 
     def meets(self) -> bool:
         if self.error is not None:
@@ -300,6 +303,7 @@ def run_room(
         angle_deg=ev["angle_error_deg"],
         walls=len(walls),
         closed=model.closed,
+        corners_closed=model.metrics.get("corners_closed"),
         seen=seen,
         seen_surface=seen_surface,
         unseen_walls=unseen,
@@ -357,6 +361,12 @@ def summary(results: list[RoomResult]) -> list[str]:
                 f"{mean('p_compl'):.3f}, labelled correctness {mean('p_corr'):.3f}, labelled accuracy "
                 f"{mean('p_acc_mm'):.1f} mm (the truth walls: {mean('p_acc_truth_mm'):.1f} mm), refused "
                 f"{len(sel) - len(ok)}, closed {sum(r.closed for r in ok)}/{len(sel)}"
+            )
+        across = [r for r in ok if r.corners_closed == "across unseen spans"]
+        if across:
+            out.append(
+                f"  closed across unseen spans: {len(across)} (correctness {mean('correctness', across):.3f}, "
+                f"min {min(r.correctness for r in across):.3f})"
             )
         for shape in sorted({r.shape for r in ok}):
             rows = [r for r in ok if r.shape == shape]

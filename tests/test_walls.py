@@ -676,7 +676,10 @@ def test_a_degraded_handheld_room_is_modelled_with_parameters_from_the_data(kind
     ev = evaluate_walls_on_points(walls, pts[:, :2], labels)
     assert ev["completeness"] >= 0.85, ev
     assert ev["accuracy_mean_m"] <= 0.020, ev
-    assert ev["correctness"] >= 0.75, ev
+    # the walls found in the data are walls; the pieces closing the room across the unseen spans have no
+    # labelled points by construction (the truth walls there score none either), so they are not judged here
+    seen = evaluate_walls_on_points(walls[model.origin == "observed"], pts[:, :2], labels)
+    assert seen["correctness"] >= 0.75, seen
 
 
 def test_a_corridor_wall_with_a_4_cm_jog_is_two_walls_and_a_step(rng):
@@ -870,8 +873,12 @@ def test_a_stretch_of_wall_seen_sparsely_is_found_on_the_coarser_grid(rng):
     ev = evaluate_walls(model.walls, truth)
     assert model.closed and ev["completeness"] >= 0.99 and ev["correctness"] == 1.0, (ev, model.walls)
     assert ev["accuracy_mean_m"] < 0.01 and model.metrics["sparse_px"] > 0
-    off = model_walls(pts, 0.0, 2.7, replace(CFG, sparse_grid_ratio=0))
+    off = model_walls(pts, 0.0, 2.7, replace(CFG, sparse_grid_ratio=0, close_unseen_spans=False))
     assert not off.closed  # the fine grid alone does not see it
+    # (taking the stretch for unseen, the room closes along the north wall's line all the same)
+    unseen = model_walls(pts, 0.0, 2.7, replace(CFG, sparse_grid_ratio=0))
+    assert unseen.closed and unseen.metrics["corners_closed"] == "across unseen spans"
+    assert evaluate_walls(unseen.walls, truth)["correctness"] == 1.0
 
 
 def test_the_coarser_grid_is_not_used_when_the_fine_one_closes_the_room(rng):

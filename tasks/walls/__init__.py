@@ -50,6 +50,15 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    and half the gap's 10 cm bins holding `bridge_seen_ratio` of the median bin along the room's observed
    walls; a door holds none), and when no candidate α closes the room, those bridges and the corners one
    wall's data pin (`topology.pinned_corners`) are added to every candidate, kept when that closes it.
+   When nothing pins them either (a handheld scan's spans seen at no height, 0.5 m and more short of each
+   corner), the unseen spans are closed along the walls' lines (`close_unseen_spans`, `pinned_corners`
+   with `across_unseen`): a corner both walls point at, each running on unseen for no more than twice its
+   line is seen over, with no other wall in the corner's parallelogram (an L-room's seen notch) nor behind
+   an added piece (a partition stub's face run across the room has the room's far walls behind it; a
+   furniture front has the wall's points just behind it); a collinear gap whose pieces lie on each
+   other's lines with no wall behind it (an alcove's back wall); a free end run along its line to a wall
+   as far as its line is seen over; kept when the room then closes and holds `UNSEEN_HELD_MIN_SHARE` of
+   the slice points (`corners_closed` in the metrics says which closed it).
    Walls are turned to have the room on their left;
 8. extrusion (5.2.6, `model`) to a triangle mesh, and a preview picture.
 

@@ -170,6 +170,11 @@ class WallsConfig:
     joined across a longer gap all the same where the slice points back it (`evidence.backed_bridges`): at
     least `lines.min_overlap` of its 10 cm bins hold this share of the median bin along the room's own
     observed walls (a stretch the camera passed quickly holds a few points a bin; a door, none)."""
+    close_unseen_spans: bool = True
+    """When no corner is pinned by data either, the spans nothing was seen on are closed where the walls'
+    lines say how (`topology.pinned_corners` with `across_unseen`): a corner both walls point at, each
+    running on unseen for no more than twice its line is seen over, with no other wall in the corner's
+    parallelogram nor behind the added pieces; or a collinear gap with no other wall behind it."""
     stable_tol_m: float = 0.05
     """Two candidate models (automatic α) are equal when their walls lie within this of each other."""
     min_wall_length_m: float = 0.2

@@ -73,22 +73,35 @@ def with_corners(cand: Candidate, xy: NDArray, cfg: WallsConfig) -> Candidate:
     closed = close_at_corners(cand.walls, cand.origin, xy, cfg, cand.grid_m)
     if closed is None:
         return cand
-    walls, origin, polygon, corner_m = closed
-    counts = {**cand.counts, "bridged_gap_m": round(corner_m, 3), "walls": len(walls)}
+    walls, origin, polygon, corner_m, how = closed
+    counts = {**cand.counts, "bridged_gap_m": round(corner_m, 3), "corners_closed": how, "walls": len(walls)}
     return replace(cand, walls=walls, origin=origin, polygon=polygon, counts=counts)
 
 
 def close_at_corners(
     walls: NDArray, origin: NDArray, xy: NDArray, cfg: WallsConfig, grid_m: float
-) -> tuple[NDArray, NDArray, Any, float] | None:
+) -> tuple[NDArray, NDArray, Any, float, str] | None:
     """An open room's walls (M, 4) with the collinear gaps the slice points `xy` (N, 2) back
-    (`evidence.backed_bridges`) and the corners one wall's data pin (`pinned_corners`): (walls, origin,
-    room, longest extension) when that closes the room, else None."""
+    (`evidence.backed_bridges`) and the corners one wall's data pin (`pinned_corners`), or, when that does
+    not close it and `close_unseen_spans` is on, the unseen spans closed as well (`pinned_corners` with
+    `across_unseen`): (walls, origin, room, longest extension, what closed it: "pinned" or "across unseen
+    spans") when that closes the room, else None."""
     backed = backed_bridges(walls, origin, xy, cfg) if len(walls) else np.zeros((0, 4))
     if len(backed):
         walls = np.concatenate([walls, backed])
         origin = np.concatenate([origin, np.full(len(backed), EXTENDED, dtype=origin.dtype)])
-    return pinned_corners(walls, origin, cfg.lines.extend_m, grid_m, cfg.lines.offset_tol_m)
+    closed = pinned_corners(walls, origin, cfg.lines.extend_m, grid_m, cfg.lines.offset_tol_m)
+    if closed is not None:
+        return (*closed, "pinned")
+    if cfg.close_unseen_spans:
+        # nothing pins the corners: an unseen span (a corner both walls point at, a collinear gap) is closed
+        # where nothing the capture saw stands against it (`pinned_corners` with `across_unseen`)
+        closed = pinned_corners(
+            walls, origin, cfg.lines.extend_m, grid_m, cfg.lines.offset_tol_m, True, points=xy
+        )
+        if closed is not None and _points_held(closed[2], xy, UNSEEN_HELD_BUFFER_M) >= UNSEEN_HELD_MIN_SHARE:
+            return (*closed, "across unseen spans")
+    return None
 
 
 def model_for(
@@ -125,7 +138,7 @@ def model_for(
             hough = hough_segments(skel, grid, cfg)
             top = TopCells(binary & proj.top, grid, binary)
             found = _topology(hough, cfg.lines, cfg, grid, binary, top, proj, low_share, xy)
-    bridged = None
+    bridged = corners_closed = None
     held_refused: list[float] = []
     # the usual reach's walls, for the corners: the wider reaches' joins across the room were refused
     last = found if found.polygon is None else None
@@ -153,7 +166,7 @@ def model_for(
         # was unseen (`pinned_corners`)
         closed = close_at_corners(last.walls, last.origin, corners, cfg, grid.size)
         if closed is not None:
-            walls, origin, polygon, corner_m = closed
+            walls, origin, polygon, corner_m, corners_closed = closed
             found = replace(last, walls=walls, origin=origin, polygon=polygon)
             bridged = round(corner_m, 3)
     stats = {
@@ -174,6 +187,7 @@ def model_for(
         "walls_stray": found.stray,
         "bridged_gap_m": bridged,
         "bridged_refused_outside_m": held_refused,
+        "corners_closed": corners_closed,
         "sparse_px": sparse_px,
         "walls": len(found.walls),
     }
@@ -356,8 +370,34 @@ def _topology(
     )
 
 
+UNSEEN_RUN_RATIO = 2.0
+"""`pinned_corners` with `across_unseen`: a wall runs on to an unseen corner for at most this many times the
+length its line is seen over (a wall seen over 1.5 m for 3 m, not a 0.5 m furniture face across the room)."""
+UNSEEN_HELD_MIN_SHARE = 0.85
+"""`close_at_corners`: a room closed across unseen spans must hold at least this share of the slice points
+(within `UNSEEN_HELD_BUFFER_M` of it): the points outside it are what doors show of the next rooms, not a wing
+of the room its walls were dropped from (seen through a gap) and a piece across the room cut off."""
+UNSEEN_HELD_BUFFER_M = 0.1
+
+
+def _points_held(polygon: Any, xy: NDArray, buffer_m: float) -> float:
+    """Share of the points `xy` (N, 2) within `buffer_m` of the room `polygon` (1 without points)."""
+    if len(xy) == 0:
+        return 1.0
+    import shapely
+
+    grown = polygon.buffer(buffer_m, join_style="mitre")
+    return float(shapely.contains_xy(grown, xy[:, 0], xy[:, 1]).mean())
+
+
 def pinned_corners(
-    walls: NDArray, origin: NDArray, reach_m: float, tol_m: float, offset_m: float = 0.05
+    walls: NDArray,
+    origin: NDArray,
+    reach_m: float,
+    tol_m: float,
+    offset_m: float = 0.05,
+    across_unseen: bool = False,
+    points: NDArray | None = None,
 ) -> tuple[NDArray, NDArray, Any, float] | None:
     """An open room's unseen corners closed where the data pin them (None when that does not close it).
 
@@ -371,7 +411,19 @@ def pinned_corners(
     is not invented. Two pieces of one wall (parallel, lines within `offset_m`) whose free ends face each
     other within `reach_m` are joined (a step where their lines are apart). Pairs are taken shortest first, each end once, and no extension may cross another
     wall. Returns (walls with the extensions, origin, room polygon, longest extension) when the room then
-    closes."""
+    closes.
+
+    `across_unseen` (a handheld scan's spans seen at no height, 0.5 m and more short of each corner) also
+    closes a corner that neither end is within `reach_m` of, when each wall runs on unseen for no more than
+    `UNSEEN_RUN_RATIO` times the length its line is seen over, no other wall lies inside the parallelogram
+    the corner and the two free ends span (an L-room's notch, the room's own walls across it) and nothing
+    lies behind either added piece (`_nothing_behind`: a partition stub's face run across the room has the
+    room's far walls behind it); joins two pieces of one wall across a gap of any length when each lies on
+    the other's line (within `offset_m`) and nothing lies behind the join (an alcove's back wall behind
+    its mouth); and runs a free end along its line to a wall (its end within `tol_m`) as far as the line
+    is seen over when nothing lies behind the piece. With the slice `points` (N, 2), "nothing" includes
+    them, close behind (a furniture front run on, the wall seen just behind it). What was seen stays: the
+    added pieces still may not cross a wall."""
     n = len(walls)
     if n < 3:
         return None
@@ -408,8 +460,13 @@ def pinned_corners(
             gap = float((q - p) @ u)
             off = float((q - p) @ np.array([-u[1], u[0]]))
             v = (q - ends[(y + n) % (2 * n)]) / max(L[j], 1e-12)
-            if 0 < gap <= reach_m and abs(off) <= offset_m and float((p - q) @ v) > 0:
-                cands.append((gap, gap, x, y, p + off * np.array([-u[1], u[0]]), j))
+            if 0 < gap and abs(off) <= offset_m and float((p - q) @ v) > 0:
+                if gap <= reach_m or (
+                    across_unseen
+                    and abs(float((p - q) @ np.array([-v[1], v[0]]))) <= offset_m
+                    and _nothing_behind(walls, p, q, _centre(walls), (i, j), tol_m, points)
+                ):
+                    cands.append((gap, gap, x, y, p + off * np.array([-u[1], u[0]]), j))
             continue
         hit = line_intersection(walls[i], walls[j])
         if hit is None:
@@ -421,10 +478,16 @@ def pinned_corners(
             if float((corner - p) @ (p - q)) < -tol_m * max(L[w], 1e-12):
                 break  # the corner lies back along the wall, not beyond its free end
             ext.append(float(np.hypot(*(corner - p))))
-        if len(ext) < 2 or min(ext) > reach_m:
+        if len(ext) < 2:
             continue
         far = int(np.argmax(ext))
-        if ext[far] > span((i, j)[far]):
+        pinned = min(ext) <= reach_m and ext[far] <= span((i, j)[far])
+        if not pinned and not (
+            across_unseen
+            and ext[0] <= UNSEEN_RUN_RATIO * span(i)
+            and ext[1] <= UNSEEN_RUN_RATIO * span(j)
+            and _open_corner(walls, ends[x], ends[y], corner, (i, j), tol_m, points)
+        ):
             continue
         cands.append((sum(ext), max(ext), x, y, corner, j))
     for x in free:
@@ -434,15 +497,25 @@ def pinned_corners(
         p = ends[x]
         u = (p - ends[(x + n) % (2 * n)]) / max(L[i], 1e-12)
         best = None
+        # across unseen spans, as far as the wall's line is seen over, when no wall lies behind the piece
+        limit = max(reach_m, span(i)) if across_unseen else reach_m
         for j in range(n):
             if j == i or abs(math.sin(th[i] - th[j])) < math.sin(math.radians(45.0)):
                 continue
             hit = line_intersection(np.array([*p, *(p + u)]), walls[j])
-            if hit is None or not (tol_m < hit[1] <= reach_m) or not (-1e-9 <= hit[2] <= 1 + 1e-9):
+            # (across unseen spans the line may meet the wall's end within the tolerance, a cell off it)
+            m = tol_m / max(L[j], 1e-12) if across_unseen else 1e-9
+            if hit is None or not (tol_m < hit[1] <= limit) or not (-m <= hit[2] <= 1 + m):
                 continue
             if best is None or hit[1] < best[0]:
-                best = (hit[1], hit[0], j)
-        if best is not None:
+                # the corner on the wall (its end when the line passes a cell beyond it)
+                k = 2 * int(hit[2] > 1.0)
+                at = hit[0] if not across_unseen or 0.0 <= hit[2] <= 1.0 else walls[j, k : k + 2]
+                best = (hit[1], at, j)
+        if best is not None and (
+            best[0] <= reach_m
+            or _nothing_behind(walls, p, best[1], _centre(walls), (i, best[2]), tol_m, points)
+        ):
             cands.append((best[0], best[0], x, x, best[1], best[2]))
     if not cands:
         return None
@@ -468,6 +541,92 @@ def pinned_corners(
     if polygon is None:
         return None
     return out, out_origin, polygon, longest
+
+
+def _samples(walls: NDArray, skip: tuple[int, ...], step_m: float = 0.05) -> NDArray:
+    """(S, 2) points every `step_m` along the walls (M, 4) other than those indexed by `skip`."""
+    out = [np.zeros((0, 2))]
+    for k, w in enumerate(walls):
+        if k in skip:
+            continue
+        n = max(2, math.ceil(float(np.hypot(*(w[2:] - w[:2]))) / step_m) + 1)
+        out.append(w[:2] + np.linspace(0.0, 1.0, n)[:, None] * (w[2:] - w[:2]))
+    return np.concatenate(out)
+
+
+BEHIND_DEPTH_M = 0.75
+"""`_nothing_behind`: the slice points up to this far behind a piece added across an unseen span (the
+deepest furniture, `furniture_max_depth_m`) count against it: the piece runs on a furniture front, with the
+wall behind it. Deeper points may be the next room seen through a door."""
+BEHIND_BAND_M = 0.1
+"""...beyond this band about the piece's line (its own wall's noise)..."""
+BEHIND_MAX_SHARE = 0.3
+"""...when they stand behind at least this share of its 10 cm bins (a few stray points do not)."""
+
+
+def _nothing_behind(
+    walls: NDArray,
+    p: NDArray,
+    q: NDArray,
+    inside: NDArray | None,
+    skip: tuple[int, ...],
+    tol_m: float,
+    points: NDArray | None = None,
+) -> bool:
+    """Does nothing stand behind the piece p -> q (on its side away from `inside`, a point of the room,
+    within its span)? No wall other than `skip`, more than `tol_m` off its line at any depth, and, with
+    the slice `points` (N, 2), none of them up to `BEHIND_DEPTH_M` behind it beyond `BEHIND_BAND_M` over
+    `BEHIND_MAX_SHARE` or more of its 10 cm bins. A wall piece across an unseen span is the room's
+    boundary: what the capture saw of the room lies on one side of it only."""
+    if inside is None:
+        return False
+    d = q - p
+    L = float(np.hypot(*d))
+    if L <= 2 * tol_m:
+        return True
+    u = d / L
+    nrm = np.array([-u[1], u[0]])
+    if float((inside - p) @ nrm) < 0:
+        nrm = -nrm
+    rel = _samples(walls, skip) - p
+    t, o = rel @ u, rel @ nrm
+    if ((t > tol_m) & (t < L - tol_m) & (o < -tol_m)).any():
+        return False
+    if points is None or len(points) == 0 or L <= 2 * BEHIND_BAND_M:
+        return True
+    rel = points - p
+    t, o = rel @ u, rel @ nrm
+    sel = (t > BEHIND_BAND_M) & (t < L - BEHIND_BAND_M) & (o < -BEHIND_BAND_M) & (o > -BEHIND_DEPTH_M)
+    bins = np.unique(np.floor(t[sel] / 0.1).astype(np.int64))
+    return len(bins) < BEHIND_MAX_SHARE * math.ceil(L / 0.1)
+
+
+def _open_corner(
+    walls: NDArray,
+    a: NDArray,
+    b: NDArray,
+    corner: NDArray,
+    pair: tuple[int, int],
+    tol_m: float,
+    points: NDArray | None = None,
+) -> bool:
+    """May the free ends `a` and `b` of the walls `pair` be run on to the `corner` their lines meet at,
+    across a span nothing was seen on? No other wall lies inside the parallelogram the corner and the two
+    ends span (more than `tol_m` inside it), and nothing behind either added piece (`_nothing_behind`, the
+    room's side being towards the other wall's end)."""
+    ea, eb = a - corner, b - corner
+    m = np.column_stack([ea, eb])
+    if abs(float(np.linalg.det(m))) <= 1e-12:
+        return False
+    rel = _samples(walls, pair) - corner
+    st = np.linalg.solve(m, rel.T).T  # each sample as corner + s ea + t eb
+    margin = tol_m / np.maximum(np.hypot(*np.stack([ea, eb]).T), 1e-12)
+    inside = (st > margin).all(axis=1) & (st < 1 - margin).all(axis=1)
+    if inside.any():
+        return False
+    return _nothing_behind(walls, a, corner, b, pair, tol_m, points) and _nothing_behind(
+        walls, b, corner, a, pair, tol_m, points
+    )
 
 
 def _crosses(pieces: NDArray, walls: NDArray, tol_m: float) -> bool:
