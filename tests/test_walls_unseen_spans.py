@@ -142,6 +142,7 @@ def test_a_handheld_room_with_an_unseen_corner_and_gap_closes_on_its_true_walls(
     model = model_walls(pts, 0.0, 2.7, CFG)
     assert model.closed, model.walls
     assert model.metrics["corners_closed"] == "across unseen spans"
+    assert "unseen spans closed" in model.metrics["alpha_reason"]
     ev = evaluate_walls(model.walls, RECT)
     assert ev["completeness"] >= 0.99 and ev["correctness"] >= 0.99, ev
 

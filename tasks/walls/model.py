@@ -291,7 +291,12 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
                 cands, corners = pinned, xy
         chosen, reason = choose_alpha(cands, cfg.stable_tol_m, cfg.thin_wall_max_m)
         if corners is not None:
-            reason += "; a corner pinned by one wall's data closed along the other's line"
+            how = cands[chosen].counts.get("corners_closed")
+            reason += (
+                "; unseen spans closed along the seen walls' lines"
+                if how == "across unseen spans"
+                else "; a corner pinned by one wall's data closed along the other's line"
+            )
         best = model_for(proj, cfg, alphas[chosen], xy, coarse, corners)
         if cands[chosen].closed and not best.closed:
             # the refinement moved a borderline corner out of reach: keep the pixel-accurate model
