@@ -140,6 +140,7 @@ def model_for(
             found = _topology(hough, cfg.lines, cfg, grid, binary, top, proj, low_share, xy)
     bridged = corners_closed = None
     held_refused: list[float] = []
+    unheld_refused: list[float] = []
     # the usual reach's walls, for the corners: the wider reaches' joins across the room were refused
     last = found if found.polygon is None else None
     for gap in cfg.bridge_gaps_m if found.polygon is None else ():
@@ -157,6 +158,14 @@ def model_for(
             # ...and the room it closes must hold most of the walls seen (not a box in a corner)
             if _held_share(found.walls, found.origin, wider.polygon, cfg.lines.offset_tol_m) < HELD_MIN_SHARE:
                 held_refused.append(gap)
+                continue
+            # without a ceiling (a handheld scan) it must also hold the data seen, as a room closed across
+            # unseen spans must: most of the slice's occupied cells lie in the room (a closet the wider
+            # joins made in a corner leaves the room's other walls' data outside)
+            if proj.open_top and _points_held(wider.polygon, _occupied(proj), UNSEEN_HELD_BUFFER_M) < (
+                UNSEEN_HELD_MIN_SHARE
+            ):
+                unheld_refused.append(gap)
                 continue
             found, bridged = wider, gap
             break
@@ -187,6 +196,7 @@ def model_for(
         "walls_stray": found.stray,
         "bridged_gap_m": bridged,
         "bridged_refused_outside_m": held_refused,
+        "bridged_refused_data_outside_m": unheld_refused,
         "corners_closed": corners_closed,
         "sparse_px": sparse_px,
         "walls": len(found.walls),
@@ -378,6 +388,12 @@ UNSEEN_HELD_MIN_SHARE = 0.85
 (within `UNSEEN_HELD_BUFFER_M` of it): the points outside it are what doors show of the next rooms, not a wing
 of the room its walls were dropped from (seen through a gap) and a piece across the room cut off."""
 UNSEEN_HELD_BUFFER_M = 0.1
+
+
+def _occupied(proj: Projection) -> NDArray:
+    """(K, 2) the centres (m) of the projection's cells holding slice data."""
+    rows, cols = np.nonzero(proj.counts > 0)
+    return proj.grid.to_metres(np.column_stack([cols, rows]))
 
 
 def _points_held(polygon: Any, xy: NDArray, buffer_m: float) -> float:
