@@ -158,17 +158,14 @@ def walk_poses(n: int) -> dict[int, np.ndarray]:
 def walk_ate_mm(poses: dict[str, np.ndarray], n: int) -> float:
     """RMS distance (mm) of the placed depth-camera centres to the walk's true ones after the best
     similarity (the map's bend, not its frame or scale); NaN with fewer than 3 placed frames."""
-    from tasks.register.scale import horn_similarity
+    from tasks.benchmark import similarity_rmse
 
     truth = walk_poses(n)
     ok = np.isfinite(poses["tx"])
     ids = np.asarray(poses["frame_id"])[ok]
-    if len(ids) < 3:
-        return float("nan")
     A = np.column_stack([poses[c][ok] for c in ("tx", "ty", "tz")])
-    B = np.array([truth[int(i)][:3, 3] for i in ids])
-    lam, R, T = horn_similarity(A, B)
-    return float(1000 * np.sqrt(np.mean(np.sum((lam * A @ R.T + T - B) ** 2, axis=1))))
+    B = np.array([truth[int(i)][:3, 3] for i in ids]).reshape(-1, 3)
+    return 1000 * similarity_rmse(A, B)
 
 
 def fusion_only(folder: Path, n: int, profile: int, save: str) -> None:

@@ -37,9 +37,10 @@ from typing import Any
 
 import numpy as np
 
+from tasks.benchmark import similarity_rmse
 from tasks.camera import Calibration, CameraModel, RigidPose
 from tasks.register.config import ScaleConfig, SfmConfig
-from tasks.register.scale import estimate_scale, horn_similarity
+from tasks.register.scale import estimate_scale
 from tasks.register.sfm import run_sfm
 from tasks.synth.box_views import look_pose, render, write_rendered_frames
 
@@ -65,8 +66,7 @@ def ate_m(centres: dict[str, np.ndarray], files: list[Path]) -> float:
         return float("nan")
     A = np.array([centres[n] for n, _ in names])
     B = np.array([np.loadtxt(str(f).replace("color.jpg", "pose.txt"))[:3, 3] for _, f in names])
-    lam, R, T = horn_similarity(A, B)
-    return float(np.sqrt(np.mean(np.sum((lam * A @ R.T + T - B) ** 2, axis=1))))
+    return similarity_rmse(A, B)
 
 
 def _sfm_of(sets: list[str]) -> SfmConfig:

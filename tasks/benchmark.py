@@ -61,6 +61,15 @@ def similarity_scale(est: NDArray[np.float64], true: NDArray[np.float64]) -> flo
         return float("nan")
 
 
+def similarity_rmse(est: NDArray[np.float64], true: NDArray[np.float64]) -> float:
+    """RMS distance of est (N, 3) to true (N, 3) after the least-squares similarity taking est onto true
+    (Horn, eq 3.16): a trajectory's ATE without its frame or scale; NaN for fewer than 3 points."""
+    if len(est) < 3:
+        return float("nan")
+    lam, R, T = horn_similarity(est, true)
+    return float(np.sqrt(np.mean(np.sum((lam * est @ R.T + T - true) ** 2, axis=1))))
+
+
 def move_segments(
     segments: NDArray[np.float64], rot: NDArray[np.float64], shift: NDArray[np.float64]
 ) -> NDArray[np.float64]:

@@ -4,9 +4,7 @@ filter (5.1.1, eq 5.1) and moving-least-squares smoothing (5.1.3, eq 5.2)."""
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Callable, Iterable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
 
@@ -15,6 +13,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from tasks.cloud import Cloud, DegenerateInputError
+from tasks.threads import THREADS, imap_ordered
 
 # Support cells per MLS radius: with cells of r/3 a plane has ~28 support points within r.
 _MLS_CELLS_PER_RADIUS = 3
@@ -39,7 +38,7 @@ _DENSE_CELLS = 1 << 24
 _CHUNK_ENTRIES = 1_000_000
 # Threads the MLS fits share their chunks among: this machine's cores, at most two (one room's stage; rooms
 # run in parallel besides). The chunks are fixed, so the result does not depend on it.
-_THREADS = min(2, os.cpu_count() or 1)
+_THREADS = THREADS
 
 _T = TypeVar("_T")
 
@@ -351,14 +350,10 @@ def mls_smooth(
 
 
 def _map_chunks(work: Callable[[int], _T], starts: Iterable[int]) -> list[_T]:
-    """`work` on every chunk start (or item), results in order, on up to `_THREADS` threads (numpy and the
-    KD-tree release the GIL); each call must touch only its own rows."""
-    starts = list(starts)
-    threads = min(_THREADS, len(starts))
-    if threads <= 1:
-        return [work(lo) for lo in starts]
-    with ThreadPoolExecutor(threads) as pool:
-        return list(pool.map(work, starts))
+    """`work` on every chunk start (or item), results in order, on up to `_THREADS` threads
+    (`tasks.threads.imap_ordered`: numpy and the KD-tree release the GIL); each call must touch only its
+    own rows."""
+    return list(imap_ordered(work, starts, _THREADS))
 
 
 def _mls_chunk(
