@@ -1,5 +1,5 @@
 """Walls of the next rooms that run across one of the room's walls, seen through its doors in a slice with
-nothing seen above it (a handheld scan): `evidence.across_beyond_the_room`."""
+nothing seen above it (a handheld scan): `beyond.across_beyond_the_room`."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from tasks.walls.beyond import across_beyond_the_room
 from tasks.walls.config import WallsConfig
-from tasks.walls.evidence import across_beyond_the_room
 
 CFG = WallsConfig()
 INTERIOR = np.array([6.0, 1.0])
@@ -76,7 +76,7 @@ def test_switched_off():
 
 
 def test_a_wall_seen_through_a_door_goes_when_the_corner_s_last_centimetres_are_unseen():
-    from tasks.walls.evidence import beyond_the_room
+    from tasks.walls.beyond import beyond_the_room
 
     room = np.array(
         [

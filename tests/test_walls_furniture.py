@@ -76,7 +76,7 @@ def test_a_room_without_a_ceiling_keeps_its_walls_and_drops_a_wardrobe(rng):
 
 
 def test_a_wall_seen_through_a_door_beyond_a_barely_seen_wall_goes_and_an_l_room_s_wing_stays():
-    from tasks.walls.evidence import beyond_the_room
+    from tasks.walls.beyond import beyond_the_room
 
     room = np.array(
         [
@@ -229,7 +229,7 @@ def test_a_long_wall_beyond_a_short_wall_at_a_corner_and_an_oblique_one_go_and_a
     the next room's wall 2 m beyond is longer than that piece, and a sparse one is drawn 12 degrees off.
     Both lie wholly beyond the room's line with nothing of the room between: gone. A 1.5 m counter in the
     middle of the room (free ends, no corner) with the room's wall 1.5 m behind it keeps that wall."""
-    from tasks.walls.evidence import beyond_the_room
+    from tasks.walls.beyond import beyond_the_room
 
     room = np.array(
         [
@@ -326,7 +326,7 @@ def test_the_next_room_s_corner_seen_through_a_door_does_not_join_its_far_wall_t
     wall's line and the far wall, but it joins nothing of this room to it: the far wall goes all the same
     (it stayed when any line there counted). An L-room's wing, whose west wall runs from the room's line
     to the far wall, keeps its wall."""
-    from tasks.walls.evidence import beyond_the_room
+    from tasks.walls.beyond import beyond_the_room
 
     room = np.array(
         [
@@ -354,7 +354,7 @@ def test_a_corridor_s_far_wall_is_not_behind_a_short_piece_by_the_lines_centre()
     a door's 0.3 m jamb face runs (at the corridor's west end, the west wall beside it barely seen). Judged
     by that centre, the jamb's back is the corridor and its north wall lies 1.6 m behind it: that line has no
     side to tell (the centre is nearer it than the depth asked for), and the north wall stays."""
-    from tasks.walls.evidence import beyond_the_room
+    from tasks.walls.beyond import beyond_the_room
 
     lines = np.array(
         [

@@ -101,7 +101,7 @@ class WallsConfig:
     """In a slice with nothing seen above it, a line wholly this far behind the line of a wall of the room that
     bounds it, running along that wall, along which the room's lines run and between which and that wall
     nothing of the room lies, was seen through a door whose own wall the capture barely saw
-    (`evidence.beyond_the_room`): a wall of the next room; 0 switches that off."""
+    (`beyond.beyond_the_room`): a wall of the next room; 0 switches that off."""
     below_slice_min_share: float = 0.5
     """A partition stub (a wall with a free end standing on another at a T) whose second face the slice does
     not hold takes it from the levelled cloud under the slice (`evidence.faces_below_slice`: a face seen only

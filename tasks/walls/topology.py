@@ -26,12 +26,11 @@ from tasks.lines import (
     room_polygons,
     rotate_segments,
 )
+from tasks.walls.beyond import across_beyond_the_room, beyond_the_room
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import (
     TopCells,
-    across_beyond_the_room,
     backed_bridges,
-    beyond_the_room,
     extend_to_data,
     furniture_in_front,
     lone_directions,

@@ -1,0 +1,252 @@
+"""Walls of the next rooms seen through the room's doors, for a slice with nothing seen above it (a handheld
+scan): the lines behind a wall of the room that run along it (`beyond_the_room`) or across it
+(`across_beyond_the_room`)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from tasks.lines import angles, lengths, line_intersection, point_segment_distances, sample_segments
+from tasks.walls.config import WallsConfig
+from tasks.walls.evidence import collinear_with
+
+
+def _line_frames(lines: NDArray, interior: NDArray) -> tuple[NDArray, ...]:
+    """Per line (M, 4): length, whether it has any, unit direction, unit normal, the normal pointing away
+    from `interior` (the line's back) and its angle."""
+    L = lengths(lines)
+    ok = L > 0
+    u = np.zeros((len(lines), 2))
+    u[ok] = (lines[ok, 2:] - lines[ok, :2]) / L[ok, None]
+    normal = np.column_stack([-u[:, 1], u[:, 0]])
+    back = normal.copy()
+    back[((np.asarray(interior) - lines[:, :2]) * back).sum(axis=1) > 0] *= -1
+    return L, ok, u, normal, back, angles(lines)
+
+
+def beyond_the_room(
+    lines: NDArray, interior: NDArray | None, cfg: WallsConfig, angle_tol_deg: float
+) -> NDArray[np.bool_]:
+    """(M,) lines seen beyond the room, for a slice with nothing seen above it (a handheld scan): a wall of
+    the next room seen through a door whose own wall the capture barely saw (`seen_through_gaps` needs that
+    wall's data in front of it). A line L is such a wall when it lies wholly more than
+    `beyond_room_min_depth_m` behind the line of a line W of the room (on its side away from the room's
+    `interior`: deeper than furniture stands before a wall) and runs along W (within 45°: a wall drawn from
+    the few points seen through a door may lie some degrees off), the room's other lines run along the
+    whole of L (to within `lines.max_gap_m`: the next room's wall goes on past this room's by the partition's
+    thickness and as far as the door's view reaches; a wing further out has side walls), and no line of the room lies between W's line and L's (more than `thin_wall_max_m` from
+    either) within `lines.max_gap_m` of L's span: an L-shaped room's far wing or an alcove is joined to the
+    rest by its side walls, which lie there. W must bound the room: no line of the room runs on from W's
+    line to behind it (the room goes on there: an L-room's wing, the far side of a partition), and L is
+    shorter than W or W's collinear pieces together (a wall with a door in it), or W ends at a corner (a
+    line across it at one of its ends, running into the room only: a free-standing counter has none).
+    `beyond_room_min_depth_m` 0 switches the test off."""
+    lines = np.asarray(lines, dtype=np.float64)
+    m = len(lines)
+    out = np.zeros(m, dtype=bool)
+    if cfg.beyond_room_min_depth_m <= 0 or interior is None or m < 3:
+        return out
+    L, ok, u, normal, back, ang = _line_frames(lines, interior)
+    cos_tol = math.cos(math.radians(angle_tol_deg))
+    sin_loose = math.sin(math.radians(2 * angle_tol_deg))
+    pts, owner = sample_segments(lines, 0.05)
+    thin = cfg.thin_wall_max_m
+    end_tol = cfg.thin_wall_end_tol_m
+    # the room's side of a line is judged by the interior: a line passing nearer it than the depth asked
+    # for (a short piece in a corridor, whose lines' centre lies by its long wall) has no side to tell
+    clear = (
+        np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= cfg.beyond_room_min_depth_m
+    )
+    for w in np.argsort(-L):
+        if not ok[w] or out[w] or not clear[w]:
+            continue
+        rel = pts - lines[w, :2]
+        depth, t = rel @ back[w], rel @ u[w]
+        deepest = np.full(m, -np.inf)
+        np.maximum.at(deepest, owner, depth)
+        nearest = np.full(m, np.inf)
+        np.minimum.at(nearest, owner, depth)
+        crossing = (nearest <= end_tol) & (deepest > thin)
+        crossing[w] = False
+        if crossing.any():
+            continue  # a line of the room runs on from W's line behind it: the room goes on there
+        shallow = np.bincount(owner, depth <= cfg.beyond_room_min_depth_m, m) > 0
+        # W is the room's boundary, not a free-standing thing in it, when it is longer than L, its collinear
+        # pieces (a wall with a door in it) together are, or it ends at a corner: a line across it at one of
+        # its ends that runs into the room only
+        same = collinear_with(lines, ang, normal, w, cos_tol, cfg.lines.offset_tol_m)
+        span = np.concatenate(
+            [(lines[same, :2] - lines[w, :2]) @ u[w], (lines[same, 2:] - lines[w, :2]) @ u[w]]
+        )
+        across = (np.abs(np.cos(ang - ang[w])) <= sin_loose) & (deepest <= end_tol)
+        across[w] = False
+        corner = bool(across.any()) and _meets_at_end(lines[w], lines[across], end_tol)
+        # L runs along W (closer to its direction than to its normal; a wall drawn from the few points seen
+        # through a door may lie some degrees off), not across it: a line across W's line is a wall joining it
+        along = np.abs(np.cos(ang - ang[w])) >= math.sqrt(0.5)
+        cand = ~shallow & ~out & along & ((L < max(L[w], float(np.ptp(span)))) | corner)
+        cand[w] = False
+        joins = nearest <= cfg.beyond_room_min_depth_m + cfg.lines.max_gap_m
+        for c in np.flatnonzero(cand):
+            others = ~collinear_with(lines, ang, normal, c, cos_tol, cfg.lines.offset_tol_m) & ~out
+            others[w] = True
+            mine = owner == c
+            lo, hi = float(t[mine].min()), float(t[mine].max())
+            rest = others[owner]
+            reach = cfg.lines.max_gap_m
+            if not rest.any() or t[rest].min() > lo + reach or t[rest].max() < hi - reach:
+                continue  # beyond the end of the room's lines: an L-room's wing
+            far = float(depth[mine].min())
+            # a line joining L to the room (a wing's side wall) starts within furniture's depth and the
+            # largest occlusion (`lines.max_gap_m`) of W's line: one that stays deeper behind it (the next
+            # room's wall across, seen through the same door) joins nothing of this room to L
+            between = (
+                rest
+                & joins[owner]
+                & (owner != w)
+                & (depth > thin)
+                & (depth < far - thin)
+                & (t >= lo - cfg.lines.max_gap_m)
+                & (t <= hi + cfg.lines.max_gap_m)
+            )
+            if not between.any():
+                out[c] = True
+    return out
+
+
+def _meets_at_end(w: NDArray, others: NDArray, tol_m: float) -> bool:
+    """Whether one of `others` (K, 4) meets segment `w` at one of w's ends: an end of w within `tol_m` of
+    the other segment, or the two lines crossing within `tol_m` of an end of each (a corner whose last
+    centimetres neither wall's data reached)."""
+    if (point_segment_distances(w.reshape(2, 2), others) <= tol_m).any():
+        return True
+    for o in others:
+        hit = line_intersection(w, o)
+        if hit is None:
+            continue
+        x = hit[0]
+        if (
+            min(np.hypot(*(x - w[:2])), np.hypot(*(x - w[2:]))) <= tol_m
+            and min(np.hypot(*(x - o[:2])), np.hypot(*(x - o[2:]))) <= tol_m
+        ):
+            return True
+    return False
+
+
+def across_beyond_the_room(
+    lines: NDArray, interior: NDArray | None, cfg: WallsConfig, angle_tol_deg: float
+) -> tuple[NDArray, NDArray[np.bool_]]:
+    """For a slice with nothing seen above it (a handheld scan): the walls of the next rooms that run
+    *across* a wall W of this room behind W's line (away from the room's `interior`), seen through a door
+    in W (`beyond_the_room` takes those that run along W). Returns (the lines, with those running on past
+    a corner of the room cut there; (M,) lines beyond the room).
+
+    W is a line of the room more than `lines.offset_tol_m` from the interior (a line through it has no
+    side to tell; a corridor seen mostly along one wall has its lines' centre a few decimetres from that
+    wall, on the room's side) that bounds the room: no line across it runs from the room through its line
+    and on behind it other than at its ends (the room goes on there: a partition's face, an L-room's inner
+    wall). Its collinear pieces are the lines parallel to it within `thin_wall_end_tol_m` of its line.
+    Only lines shorter than their span are judged (the room's wall is seen along more than a wall seen
+    through its door, and a short line across a wall, a door's jamb or a box's side, is no wall to judge
+    by). A line L across W (nearer its normal than its direction) whose foot (where its line meets W's)
+    lies within that span is beyond the room when
+    - it lies wholly more than `thin_wall_end_tol_m` behind W's line and its foot lies on W's data, that
+      far inside one of the pieces: nothing of the room lies behind the room's seen wall (the next room's
+      partition standing on W's back face);
+    - or it lies wholly more than `thin_wall_max_m` behind, in a gap of the pieces (a door), and no other
+      line comes within `lines.max_gap_m` of it (an alcove's back wall or a wing's far wall would hold it;
+      the partition's other face, parallel within `thin_wall_max_m` and behind W too, does not) nor leaves
+      W's line outward within that of the foot (an alcove's or a wing's side);
+    - or it stands on W's line (within `thin_wall_end_tol_m`) and reaches more than `thin_wall_max_m`
+      behind, away from the span's ends, held by nothing but W's pieces and with no other line leaving W's
+      line near it (no back wall or other side, as an alcove or a wing has): a partition at a door's jamb;
+    - or it lies wholly behind in line with a wall of the room that ends on W's line at an end of the span
+      (the room's corner) and reaches more than `beyond_room_min_depth_m` behind (deeper than furniture
+      stands before a wall): the building's wall going on past the room's corner.
+    A line that runs from the room (more than `thin_wall_end_tol_m` in front of W's line) through W's line
+    at an end of the span and on more than `beyond_room_min_depth_m` behind it is that corner's wall and the
+    building's wall beyond it seen as one: it is cut at W's line. `beyond_room_min_depth_m` 0 switches the
+    test off."""
+    lines = np.asarray(lines, dtype=np.float64).copy()
+    m = len(lines)
+    out = np.zeros(m, dtype=bool)
+    if cfg.beyond_room_min_depth_m <= 0 or interior is None or m < 3:
+        return lines, out
+    L, ok, u, normal, back, ang = _line_frames(lines, interior)
+    cos_tol = math.cos(math.radians(angle_tol_deg))
+    thin, end_tol, gap = cfg.thin_wall_max_m, cfg.thin_wall_end_tol_m, cfg.lines.max_gap_m
+    deep = cfg.beyond_room_min_depth_m
+    clear = np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= cfg.lines.offset_tol_m
+    apart = point_segment_distances(lines.reshape(-1, 2), lines).reshape(m, 2, m).min(axis=1)
+    apart = np.minimum(apart, apart.T)  # the segments' distance: an end of either to the other
+    for w in np.argsort(-L):
+        if not ok[w] or out[w] or not clear[w]:
+            continue
+        # its pieces: a wall at a few tenths of a degree off the next piece's angle misses it by centimetres
+        same = collinear_with(lines, ang, normal, w, cos_tol, end_tol)
+        t0 = (lines[same, :2] - lines[w, :2]) @ u[w]
+        t1 = (lines[same, 2:] - lines[w, :2]) @ u[w]
+        pieces = np.column_stack([np.minimum(t0, t1), np.maximum(t0, t1)])
+        lo, hi = float(pieces[:, 0].min()), float(pieces[:, 1].max())
+        rel = lines.reshape(-1, 2) - lines[w, :2]
+        depth = (rel @ back[w]).reshape(m, 2)
+        along = (rel @ u[w]).reshape(m, 2)
+        across = ok & ~out & (np.abs(np.cos(ang - ang[w])) < math.sqrt(0.5))
+        # where each line across meets W's line
+        dd = depth[:, 1] - depth[:, 0]
+        safe = np.where(np.abs(dd) > 1e-12, dd, 1.0)
+        foot = np.where(
+            np.abs(dd) > 1e-12, along[:, 0] - depth[:, 0] * (along[:, 1] - along[:, 0]) / safe, along[:, 0]
+        )
+        at_corner = np.minimum(np.abs(foot - lo), np.abs(foot - hi)) <= end_tol
+        # the room's walls ending on W's line from the room's side, and those leaving it outward
+        inside = across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) <= end_tol)
+        outward = across & (np.abs(depth.min(axis=1)) <= end_tol) & (depth.max(axis=1) > thin)
+        if (across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) > thin) & ~at_corner).any():
+            continue  # a wall of the room runs on from the room through W's line: the room goes on behind it
+        for c in np.flatnonzero(across & (L < hi - lo)):
+            if depth[c].min() < -end_tol and depth[c].max() > deep:
+                if at_corner[c]:
+                    k = int(np.argmax(depth[c]))
+                    a, b = lines[c, 2 * (1 - k) : 4 - 2 * k], lines[c, 2 * k : 2 * k + 2]
+                    lines[c, 2 * k : 2 * k + 2] = a + (b - a) * (
+                        -depth[c, 1 - k] / (depth[c, k] - depth[c, 1 - k])
+                    )
+                continue
+            if not lo - end_tol <= foot[c] <= hi + end_tol:
+                continue
+            # the partition's other face (parallel, within a thin wall's thickness, behind W too) holds nothing
+            face = (
+                (np.abs(np.cos(ang - ang[c])) >= cos_tol)
+                & (np.abs((0.5 * (lines[:, :2] + lines[:, 2:]) - lines[c, :2]) @ normal[c]) <= thin)
+                & (depth.min(axis=1) > end_tol)
+            )
+            near = (apart[c] <= gap) & ~face
+            near[c] = False
+            wing = outward & (np.abs(foot - foot[c]) <= gap)
+            wing[c] = False
+            if outward[c]:
+                # standing on W's line at a door's jamb, away from the room's corners, and held by nothing but
+                # W's own pieces: no back wall or other side as an alcove or a wing has
+                if lo + end_tol < foot[c] < hi - end_tol and not (near & ~same).any() and not wing.any():
+                    out[c] = True
+                continue
+            if depth[c].min() <= end_tol:
+                continue
+            on_data = bool(((pieces[:, 0] + end_tol <= foot[c]) & (foot[c] <= pieces[:, 1] - end_tol)).any())
+            lined = (
+                inside
+                & at_corner
+                & (np.abs(np.cos(ang - ang[c])) >= cos_tol)
+                & (np.abs((lines[:, :2] - lines[c, :2]) @ normal[c]) <= cfg.lines.offset_tol_m)
+            )
+            if (
+                on_data
+                or (depth[c].min() > thin and not near.any() and not wing.any())
+                or (lined.any() and depth[c].max() > deep)
+            ):
+                out[c] = True
+    return lines, out
