@@ -6,6 +6,8 @@
   `tol_m` of a truth wall; **accuracy** the median (the ISPRS figure), mean and RMS distance of the truth
   samples lying within `tol_m`;
 - **corners** are the points where two or more non-collinear walls meet (free wall ends are not corners);
+  corners closer together than `step_m` (1 cm) count as one (a jog that short, such as where the inner
+  faces of walls of different thickness meet at a slanted corner, is below any capture's resolution);
   predicted and true corners are matched one-to-one within `corner_tol_m` (0.10 m) for precision, recall
   and F1;
 - **angle error**: every truth wall at least `tol_m` long is matched to the predicted wall nearest to most
@@ -61,6 +63,15 @@ def wall_corners(segments: NDArray, min_angle_deg: float = 10.0, snap_m: float =
     return np.array(out, dtype=np.float64).reshape(-1, 2)
 
 
+def merge_close(points: NDArray, tol_m: float) -> NDArray[np.float64]:
+    """(C', 2) `points` with each one closer than `tol_m` to an earlier kept point dropped (in order)."""
+    kept: list[NDArray] = []
+    for p in np.asarray(points, dtype=np.float64).reshape(-1, 2):
+        if all(np.hypot(*(p - q)) >= tol_m for q in kept):
+            kept.append(p)
+    return np.array(kept, dtype=np.float64).reshape(-1, 2)
+
+
 def rooms(segments: NDArray) -> list:
     """The faces enclosed by the walls that are rooms (not the inside of a free-standing column)."""
     from shapely.geometry import Polygon
@@ -108,7 +119,7 @@ def evaluate_walls(
         "accuracy_rms_m": float(np.sqrt((acc**2).mean())) if len(acc) else float("nan"),
     }
 
-    cp, ct = wall_corners(pred), wall_corners(truth)
+    cp, ct = merge_close(wall_corners(pred), step_m), merge_close(wall_corners(truth), step_m)
     matched = 0
     if len(cp) and len(ct):
         dist = np.hypot(*(cp[:, None, :] - ct[None, :, :]).transpose(2, 0, 1))

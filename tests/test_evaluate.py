@@ -73,6 +73,21 @@ def test_a_jog_shorter_than_the_tolerance_has_no_angle_error():
     assert ev["walls_matched"] == 5
 
 
+def test_corners_closer_than_a_centimetre_count_as_one():
+    # a slanted room whose inner wall faces meet with a 4 mm jog (walls of different thickness): the
+    # model's single corner there matches both, and a jog of 2 cm still has two corners
+    def room(jog: float) -> np.ndarray:
+        return np.array(
+            [[0, 0, 5, 0], [5, 0, 5, jog], [5, jog, 6, 4], [6, 4, 0, 4], [0, 4, 0, 0.0]], dtype=np.float64
+        )
+
+    model = np.array([[0, 0, 5, 0], [5, 0, 6, 4], [6, 4, 0, 4], [0, 4, 0, 0.0]])
+    ev = evaluate_walls(model, room(0.004))
+    assert ev["corners_truth"] == 4 and ev["corner_f1"] == 1.0
+    two = evaluate_walls(model, room(0.02))
+    assert two["corners_truth"] == 5 and two["corner_recall"] == pytest.approx(0.8)
+
+
 def test_corners_are_junctions_not_free_ends():
     assert len(wall_corners(np.array([[0, 0, 1, 0.0]]))) == 0
     assert len(wall_corners(np.array([[0, 0, 1, 0], [1, 0, 2, 0.0]]))) == 0  # collinear join
