@@ -400,7 +400,8 @@ def _step_cut(
 ) -> int | None:
     """Where a chain of parallel pieces is two walls with a step between them: the cut (members sorted by
     start `t0` along the line, the first `cut` on one side) such that the two sides do not overlap along
-    the line (beyond the step itself: a skeleton rounds a step's corners) and two parallel lines, one per
+    the line (beyond the step itself and `STEP_MIN_CELLS` cells: a skeleton rounds a step's corners, and a
+    Hough segment's end runs on a cell or two past it) and two parallel lines, one per
     side (common direction, own offsets, fitted by total least squares), lie further apart than
     SPLIT_SEPARATION standard deviations of the data about them, each side's own direction within the
     parallel tolerance (sine `sin_tol`) of the common one; the deviation is at least the rounding
@@ -427,7 +428,7 @@ def _step_cut(
         evals, evecs = np.linalg.eigh(sa + sb)
         ssw, nrm = float(evals[0]), evecs[:, 0]  # the common normal: least scatter about two parallels
         step = abs(float((cb - ca) @ nrm))
-        if reach[k - 1] - t0[k] > step:
+        if reach[k - 1] - t0[k] > step + STEP_MIN_CELLS * quantum:
             continue  # the sides overlap along the line: parallel pieces of one wall
         if max(abs(float(_main_axis(sa) @ nrm)), abs(float(_main_axis(sb) @ nrm))) > sin_tol:
             continue  # a side is not parallel to the other (clutter of the cluster): no step to speak of

@@ -161,6 +161,14 @@ def test_noisy_collinear_pieces_without_a_step_stay_one_wall(rng):
         assert len(merged.segments) == 1
 
 
+def test_a_jog_whose_pieces_overshoot_its_corner_by_a_few_cm_is_still_two_walls():
+    # a corridor's wall with a 4 cm jog (719's hallway): the skeleton's pieces on either side each run a few
+    # cm past the jog (6 cm of overlap, more than the step itself), as a Hough segment's end does
+    hough = np.array([[1.96, 0.0, 10.52, 0.0], [10.46, -0.04, 15.89, -0.04], [15.9, -0.05, 17.49, -0.05]])
+    merged = merge_segments(hough, CFG, quantum=0.01)
+    assert len(merged.segments) == 2 and merged.chain[0] == merged.chain[1]
+
+
 def test_overlapping_parallel_pieces_a_few_cm_apart_stay_one_wall():
     # two skeleton branches of one thick wall, 3 cm apart, overlapping along the line
     hough = np.array([[0.0, 0.0, 6.0, 0.0], [4.0, 0.03, 10.0, 0.03]])
