@@ -15,9 +15,12 @@ from numpy.typing import NDArray
 
 from tasks.connect import EXTENDED, OBSERVED, Connected, connect_detailed
 from tasks.lines import (
+    STEP_MIN_CELLS,
     LinesConfig,
+    MergedLines,
     angle_difference,
     angles,
+    fit_line,
     lengths,
     line_intersection,
     merge_segments,
@@ -260,6 +263,108 @@ def _wall_data(binary: NDArray, top: NDArray, lines: NDArray, grid: Grid, tol_m:
     return binary & (top | near.astype(bool))
 
 
+LOW_REACH_MAX_SHARE = 0.2
+"""`split_below_top`: the pieces of a line's one side reach the top over at most this share of their length
+(a piece of a cabinet's front may graze the wall's top-reaching data at its end)."""
+
+
+def _askew(line: NDArray, u: NDArray) -> float:
+    """|sin| of the angle between segment `line` (4,) and the unit direction `u`."""
+    d = line[2:] - line[:2]
+    return abs(float(d[0] * u[1] - d[1] * u[0])) / max(float(np.hypot(*d)), 1e-12)
+
+
+def split_below_top(
+    hough: NDArray, merged: MergedLines, top: TopCells, cfg: WallsConfig, angle_tol_deg: float, quantum: float
+) -> MergedLines:
+    """`merged` with each line whose pieces at one end stop below the slice top, a step in front of the
+    rest, cut there into two lines of one chain (a step `tasks.connect` may join).
+
+    The merge takes parallel pieces within `offset_tol_m` of each other as one wall unless the data show
+    a step between them (`tasks.lines._step_cut`); a cabinet standing in an alcove, its front a few cm in
+    front of the alcove's mouth and seen askew, passes as clutter of the wall beside it and carries the
+    wall across the mouth, which then hides the alcove's back wall as a wall seen through a gap. The
+    Hough pieces themselves tell them apart: the wall's reach the slice top, the cabinet's stop below it.
+    A line is cut between its pieces (in order along it) where those on one side (at least
+    `lines.min_length_m` of line) lie more than `STEP_MIN_CELLS` grid cells (their weighted mean offset)
+    from the others, the two sides overlap along the line by less than that step, and one side's pieces
+    reach the top (`min_top_share` of a piece on top-reaching data) over at least half their length, the
+    other's over at most `LOW_REACH_MAX_SHARE`, and no piece below the top lies between the cut and the
+    reaching side's first piece that reaches it (a wall's end seen askew below the top, its mean on the
+    wall's line, is not cut where its first half leaves the line); of several such cuts, the one that leaves the most length
+    on its own side (reaching the top or not). The line fitted to the reaching side must lie no more askew
+    of the pieces' orientation cluster than the line through all of them. The top-reach test then judges
+    each line on its own."""
+    if cfg.top_reach_m is None or len(merged.segments) == 0:
+        return merged
+    hough = np.asarray(hough, dtype=np.float64)
+    labels = merged.labels.copy()
+    reach = top_reach_shares(hough, top, cfg.top_share_tol_m, angle_tol_deg) >= cfg.min_top_share
+    hl = lengths(hough)
+    segments, chain = list(merged.segments), list(merged.chain)
+    for j in range(len(merged.segments)):
+        members = np.flatnonzero(labels == j)
+        if len(members) < 2 or reach[members].all() or not reach[members].any():
+            continue
+        # along the pieces' orientation cluster: the line fitted through a wall and a front askew is askew
+        phi = math.radians(
+            float(merged.orientation_deg[np.bincount(merged.orientation_labels[members]).argmax()])
+        )
+        u = np.array([math.cos(phi), math.sin(phi)])
+        ta, tb = hough[members, :2] @ u, hough[members, 2:] @ u
+        t0, t1 = np.minimum(ta, tb), np.maximum(ta, tb)
+        order = np.argsort(t0, kind="stable")
+        members, t0, t1 = members[order], t0[order], t1[order]
+        off = 0.5 * (hough[members, :2] + hough[members, 2:]) @ np.array([-u[1], u[0]])
+        w, up = hl[members], hl[members] * reach[members]
+        # the cut that best parts the pieces reaching the top from those that do not (the most length on
+        # its own side), where the two sides step apart and do not overlap along the line
+        best, best_score = None, -np.inf
+        for k in range(1, len(members)):
+            a, b = slice(0, k), slice(k, None)
+            step = abs(float(np.average(off[a], weights=w[a]) - np.average(off[b], weights=w[b])))
+            if (
+                step <= STEP_MIN_CELLS * quantum
+                or float(t1[a].max() - t0[k]) > step + STEP_MIN_CELLS * quantum
+            ):
+                continue  # no step, or the two sides overlap along the line: pieces of one wall
+            ra, rb = up[a].sum() / w[a].sum(), up[b].sum() / w[b].sum()
+            if min(ra, rb) > LOW_REACH_MAX_SHARE or max(ra, rb) < 0.5:
+                continue
+            hit = reach[members]
+            if ra < rb:
+                ragged = (t0[b][~hit[b]] < t0[b][hit[b]].min()).any()
+            else:
+                ragged = (t1[a][~hit[a]] > t1[a][hit[a]].max()).any()
+            if ragged:
+                continue  # pieces below the top run on past the cut: the cut is not where the top changes
+            score = (w[a] - up[a]).sum() + up[b].sum() if ra < rb else up[a].sum() + (w[b] - up[b]).sum()
+            if score > best_score:
+                best, best_score = k, score
+        if best is None:
+            continue
+        low, high = (
+            (members[:best], members[best:])
+            if up[:best].sum() < up[best:].sum()
+            else (members[best:], members[:best])
+        )
+        front = fit_line(hough[low], np.ones(len(low)))[0]
+        wall = fit_line(hough[high], np.ones(len(high)))[0]
+        if float(lengths(front[None])[0]) < cfg.lines.min_length_m:
+            continue
+        # the wall left must lie straighter along its cluster than the line through both (a front seen askew
+        # tilts that line); a cut that leaves it more askew is of pieces of one wall's ragged data
+        if _askew(wall, u) > _askew(merged.segments[j], u):
+            continue
+        segments[j] = wall
+        labels[low] = len(segments)
+        segments.append(front)
+        chain.append(chain[j])
+    if len(segments) == len(merged.segments):
+        return merged
+    return replace(merged, segments=np.array(segments), labels=labels, chain=np.array(chain, dtype=np.intp))
+
+
 def _topology(
     hough: NDArray,
     lcfg: LinesConfig,
@@ -274,6 +379,7 @@ def _topology(
     """Steps 5-7 on the Hough segments: merge, the top-reach test, regularize, refine (when `xy` is
     given), connect, then keep the room's walls."""
     merged = merge_segments(hough, lcfg, quantum=grid.size)
+    merged = split_below_top(hough, merged, top, cfg, lcfg.angle_tol_deg, grid.size)
     lines, chain = merged.segments, merged.chain
     noise = line_noise(hough, merged.labels, lines, grid.size)
     below_top = furniture_lines = beyond_lines = 0
