@@ -438,7 +438,13 @@ def _capped_stubs(walls: NDArray, cap_max_m: float, tol_m: float = 0.01) -> list
 
 
 def faces_below_slice(
-    walls: NDArray, points: NDArray, slice_points: NDArray, floor_z_m: float, cfg: WallsConfig, grid_m: float
+    walls: NDArray,
+    points: NDArray,
+    slice_points: NDArray,
+    floor_z_m: float,
+    cfg: WallsConfig,
+    grid_m: float,
+    capped_only: bool = False,
 ) -> tuple[list[NDArray], list[dict[str, Any]]]:
     """The second faces of partition stubs, looked for in the levelled cloud under the slice.
 
@@ -457,7 +463,7 @@ def faces_below_slice(
     free end's own face (`_end_cap`, "end") when `end_cap_min_height_m` is on. A stub whose second face
     the model holds in part (`_capped_stubs`: the face stops short of the host wall) gets the first face's
     points at that face's offset along the stretch the model lacks, where the slice holds it sparsely
-    ("capped").
+    ("capped"; only those with `capped_only`: the second look, at the model the first one's faces made).
 
     Returns each face's points (K, 3): for a face below the slice its points (K, 2) under the slice (stood
     up as full columns by `lifted`); for a sparse, end or capped face, the stub's first face's slice points moved
@@ -475,7 +481,10 @@ def faces_below_slice(
     if len(below) == 0:
         return faces, found
     bin_m = 0.1
-    for i, k in _stubs(walls):
+    # a second face lies at least a partition's thickness from the first: nearer lie the first face's noise
+    # and a Kinect's mixed pixels (711 r1: the points 4 cm off the first face covered more of the stub)
+    nearest = max(2 * grid_m, cfg.thin_wall_min_m)
+    for i, k in () if capped_only else _stubs(walls):
         a = walls[i, 2 * k : 2 * k + 2]
         b = walls[i, 2 * (1 - k) : 2 * (1 - k) + 2]
         L = float(np.hypot(*(b - a)))
@@ -483,7 +492,7 @@ def faces_below_slice(
         n = np.array([-u[1], u[0]])
         rel = below[:, :2] - a
         t, d = rel @ u, rel @ n
-        near = (t >= 0) & (t <= L) & (np.abs(d) > 2 * grid_m) & (np.abs(d) <= cfg.thin_wall_max_m)
+        near = (t >= 0) & (t <= L) & (np.abs(d) >= nearest) & (np.abs(d) <= cfg.thin_wall_max_m)
         srel = slice_points[:, :2] - a
         st, sd = srel @ u, srel @ n
         s_near = (st >= 0.1 * L) & (st <= 0.9 * L)  # clear of the host wall and the stub's end
@@ -502,7 +511,7 @@ def faces_below_slice(
             sel = near & (side * d > 0)
             if sel.sum() < 10:
                 continue
-            edges = np.arange(2 * grid_m, cfg.thin_wall_max_m + 0.01, 0.01)
+            edges = np.arange(nearest, cfg.thin_wall_max_m + 0.01, 0.01)
             n_off = len(edges) - 1
             if n_off < 1:
                 continue

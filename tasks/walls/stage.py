@@ -76,6 +76,11 @@ def wall_noise(slice_points: NDArray[np.float64], walls: NDArray[np.float64], ba
     return float(1.4826 * np.median(d)) if len(d) else 0.0
 
 
+FACE_ROUNDS = 2
+"""Rounds of `faces_below_slice`: the first finds a stub's second face under the slice, the second runs it on
+to the host wall where the first found it over part of the stub only."""
+
+
 def room_model(
     slice_points: NDArray[np.float64],
     levelled: NDArray[np.float64],
@@ -105,13 +110,20 @@ def room_model(
     choices["faces_below_slice"] = []
     if cfg.below_slice_min_share <= 0 or len(model.walls) < 2:
         return model, choices
-    faces, found = faces_below_slice(model.walls, levelled, slice_points, floor_z_m, cfg, grid)
-    if not faces:
-        return model, choices
     z = slice_points[:, 2]
-    extra = lifted(faces, float(z.min()), float(z.max()), grid)
-    choices["faces_below_slice"] = found
-    return model_walls(np.concatenate([slice_points, extra]), floor_z_m, ceiling_z_m, cfg), choices
+    points = slice_points
+    # a face found under the slice over part of its stub makes a model whose second face stops short of the
+    # host wall: the second round gives it the rest (`faces_below_slice`'s capped stubs only)
+    for k in range(FACE_ROUNDS):
+        faces, found = faces_below_slice(
+            model.walls, levelled, points, floor_z_m, cfg, grid, capped_only=k > 0
+        )
+        if not faces:
+            break
+        points = np.concatenate([points, lifted(faces, float(z.min()), float(z.max()), grid)])
+        choices["faces_below_slice"] += found
+        model = model_walls(points, floor_z_m, ceiling_z_m, cfg)
+    return model, choices
 
 
 def run(ctx: StageContext, cfg: WallsConfig, out: Path) -> dict[str, Any]:
