@@ -891,9 +891,11 @@ def furniture_in_front(
       along at least half of it, or with both its ends joined to the wall's line by sides (a box standing
       on the wall just past where the capture saw it: the wall behind and beyond it unseen), or with one
       end where the wall's seen part ends and the other free (`at_seen_end`: the wall seen up to the box
-      and not past it, or the box's side at its far end);
+      and not past it, or the box's side at its far end), or standing alone in front of the wall's unseen
+      stretch between the room's corners (`isolated`);
     - a side: a line perpendicular to such a wall, `furniture_min_depth_m` to `furniture_max_depth_m` long,
-      from the wall's line (not at its ends: a corner, unless a front ends it) into the room, in line with
+      from the wall's line (at a front, it may reach across that line by `thin_wall_end_tol_m`; not at the
+      wall's ends: a corner, unless a front ends it) into the room, in line with
       no other line, whose
       inner end is free (within `thin_wall_end_tol_m` of no line but the wall and the fronts): a partition
       stub is longer than furniture is deep, and one shorter meets a wall.
