@@ -869,31 +869,54 @@ def collinear_with(
     return par & (np.abs((mid - lines[j, :2]) @ normal[j]) <= offset_tol_m)
 
 
+FURNITURE_RULES = (
+    "front_along_wall",
+    "front_boxed",
+    "front_at_seen_end",
+    "front_alone",
+    "front_band",
+    "side",
+)
+"""`furniture_in_front`'s rules, in the order they are tried: a front with the wall's line along it, on the
+wall's line between two sides (or a side and a corner), at the wall's seen end, standing alone in front of
+the wall's unseen stretch; a line of a front's band of data; a side."""
+
+
 def furniture_in_front(
-    lines: NDArray, interior: NDArray | None, cfg: WallsConfig, angle_tol_deg: float
+    lines: NDArray,
+    interior: NDArray | None,
+    cfg: WallsConfig,
+    angle_tol_deg: float,
+    why: dict[str, int] | None = None,
 ) -> NDArray[np.bool_]:
     """(M,) lines that are the faces of furniture standing against a wall, for a slice with nothing seen
     above it (a handheld scan cut at 1.3-2 m, no ceiling), where a cabinet, a shelf or a plant reaches the
     slice top like the walls and the top-reach test cannot tell them apart:
-    - a front: a line at most `furniture_max_length_m` long, parallel to a line ("the wall") and
+    - a front: a line at most `furniture_max_length_m` long, parallel to a line ("the wall": within twice
+      the angle tolerance, or what 2 `support_tol_m` over the line's length allow a short one) and
       `furniture_min_depth_m` to `furniture_max_depth_m` in front of it on the room's side (towards
       `interior`), with the wall's line (its collinear pieces together, longer than the front: the wall
       behind the furniture is hidden in the slice, so its pieces either side may each be shorter) running
       along at least half of it, or with both its ends joined to the wall's line by sides (a box standing
       on the wall just past where the capture saw it: the wall behind and beyond it unseen), or with one
       end where the wall's seen part ends and the other free (`at_seen_end`: the wall seen up to the box
-      and not past it);
+      and not past it, or the box's side at its far end), or standing alone in front of the wall's unseen
+      stretch between the room's corners (`isolated`);
     - a side: a line perpendicular to such a wall, `furniture_min_depth_m` to `furniture_max_depth_m` long,
-      from the wall's line (not at its ends: a corner, unless a front ends it) into the room, in line with
+      from the wall's line (at a front, it may reach across that line by `thin_wall_end_tol_m`; not at the
+      wall's ends: a corner, unless a front ends it) into the room, in line with
       no other line, whose
       inner end is free (within `thin_wall_end_tol_m` of no line but the wall and the fronts): a partition
       stub is longer than furniture is deep, and one shorter meets a wall.
     A pilaster of a furniture's size in front of a wall is dropped as well: without a ceiling nothing
-    tells them apart (with one, the top-reach test keeps it)."""
+    tells them apart (with one, the top-reach test keeps it). A line lying wholly within
+    `thin_wall_end_tol_m` of a front is of its band of data and goes with it. `why`, when given, gets the
+    number of lines each rule took (`FURNITURE_RULES`), for the metrics."""
     m = len(lines)
     out = np.zeros(m, dtype=bool)
     if m < 2 or interior is None:
         return out
+    decided = dict.fromkeys(FURNITURE_RULES, 0)
     d_lo, d_hi = cfg.furniture_min_depth_m, cfg.furniture_max_depth_m
     tol = cfg.support_tol_m
     L = lengths(lines)
@@ -963,6 +986,13 @@ def furniture_in_front(
         return sides >= 1
 
     across_j = np.abs(np.cos(ang[:, None] - ang[None, :])) <= sin_loose  # (M, M) k crosses j
+    samples, sample_owner = sample_segments(lines, 0.5 * tol)
+
+    def band_of(i: int) -> NDArray[np.bool_]:
+        """(M,) the lines lying wholly within `thin_wall_end_tol_m` of line i (itself among them): pieces
+        of its own band of data (a face seen from afar is a decimetre deep), not lines meeting its ends."""
+        near = point_segment_distances(samples, lines[i : i + 1])[:, 0] <= end_tol
+        return np.bincount(sample_owner, ~near, m) == 0
 
     def runs_on(k: int, j: int, tk: float) -> bool:
         """Does line k, across j's line at tk along it, have another piece in line with it (another line
@@ -980,7 +1010,7 @@ def furniture_in_front(
         box standing where j's seen part ends: one end at j's end (joined to j's line by a side, or its foot
         on j's line within twice `thin_wall_end_tol_m` of where j's data stop: the skeleton rounds both
         corners), the whole of i beyond that end, its other end free (within `thin_wall_end_tol_m` of no other
-        line), in line with no other line and at least as long as it stands deep? The capture saw the wall up
+        line) or joined back to j's line by the box's far side, in line with no other line and at least as long as it stands deep? The capture saw the wall up
         to the box, which hid it behind, and not past the box's free end (a handheld capture misses a fifth of
         the walls). A step of the room's outline runs on to a corner (a wall of the room meeting i's line at
         its free end: not taken); the back of an alcove (j) beside a short stretch of the room's wall (i) has
@@ -992,14 +1022,16 @@ def furniture_in_front(
         inline[i] = False
         if inline.any():
             return False
-        others = np.ones(m, dtype=bool)
+        others = ~band_of(i)
         others[i] = False
         gaps = point_segment_distances(lines[i].reshape(2, 2), lines[others]).min(axis=1)  # (2,) per end
         reach = 2 * end_tol  # each of the two ends may stop short of the box's corner by end_tol
         for e in range(2):
             o = 1 - e
-            if gaps[o] <= end_tol:
-                continue  # the other end meets a line
+            if gaps[o] <= end_tol and not any(
+                is_side(k, i, j, o, dd) for k in np.flatnonzero(across_j[:, j]) if k not in (i, j)
+            ):
+                continue  # the other end meets a line (other than a side back to j's line: a box)
             # the whole of i beyond j's start (its other end before it) or beyond j's end
             before = t[o] < t[e] and t[o] <= t0 + tol
             after = t[o] > t[e] and t[o] >= t1 - tol
@@ -1062,14 +1094,46 @@ def furniture_in_front(
         line with no other line, and its span on j's line within the room's corners either side of j's seen
         extent (where the nearest lines across j's line meet it), which lie further apart than it is long? The wall runs on unseen behind it (a
         handheld capture misses a fifth of the walls); a wall of the room so short, standing alone, would
-        meet the room's other walls or run on in line with one of them. A line no longer than furniture is
-        deep may be a side seen alone as well as a front: the side rule judges it."""
-        if L[i] <= d_hi:
+        meet the room's other walls or run on in line with one of them.
+
+        A front seen shorter than furniture is deep (a cabinet's front seen in part; longer than
+        `furniture_min_depth_m`: the side rule judges shorter lines) is judged against a wall parallel
+        within twice the angle tolerance only, and not when it may be the room's wall beside an alcove whose
+        back is j: its span on j's line begins within `thin_wall_end_tol_m` of j's seen end (the alcove's
+        side, unseen, joins them), or a line across j's line ends on i's line and runs into the room (the
+        room's corner stands on i's line), or, at one of j's ends, a line in line with no other runs from
+        j's line as deep as i stands and stops there (the alcove's side)."""
+        if L[i] <= d_lo:
             return False
         others = np.ones(m, dtype=bool)
         others[i] = False
         if point_segment_distances(lines[i].reshape(2, 2), lines[others]).min() <= end_tol:
             return False
+        if L[i] <= d_hi:
+            # a front seen shorter than furniture is deep, unless it may be the room's wall beside an alcove
+            if abs(math.cos(ang[i] - ang[j])) < cos_loose:
+                return False  # judged against a wall parallel within the usual tolerance only
+            if min(abs(float(t.min()) - t1), abs(float(t.max()) - t0)) <= end_tol:
+                return False  # beginning at j's seen end: the alcove's side, unseen, would join them
+            dd = depth(i, j)
+            for k in np.flatnonzero(np.abs(np.cos(ang - ang[j])) <= sin_loose):
+                dk = depth(k, j)
+                if abs(dk.min() - dd.mean()) <= end_tol and dk.max() > dk.min() + end_tol:
+                    return False  # a wall of the room ends on i's line and runs into the room: a corner
+                # j the back of a recess: at one of its ends a line runs from j's line into the room as
+                # deep as i stands, and stops there (a wall of the room seen only by a corner runs on)
+                foot = (lines[k, :2] if dk[0] <= dk[1] else lines[k, 2:]) - lines[j, :2]
+                if (
+                    dk.min() <= end_tol
+                    and abs(dk.max() - dd.mean()) <= end_tol
+                    and min(abs(float(foot @ u[j]) - t0), abs(float(foot @ u[j]) - t1)) <= 2 * end_tol
+                    and not any(
+                        collinear_with(lines, ang, n, q, cos_tol, cfg.lines.offset_tol_m)[k]
+                        for q in np.flatnonzero(across_j[:, j])
+                        if q != k
+                    )
+                ):
+                    return False
         inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
         inline[i] = False
         if inline.any():
@@ -1089,8 +1153,11 @@ def furniture_in_front(
         return c0 - tol <= lo and hi <= c1 + tol and c1 - c0 > L[i] + tol
 
     for i in np.flatnonzero(L <= cfg.furniture_max_length_m):
+        # a short front's direction is good to about 2 support_tol_m / its length, as a side's is (a line
+        # shorter than furniture is deep, as likely a corner's frayed data as a face, is not loosened so)
+        cos_front = min(cos_loose, math.cos(math.atan2(2 * tol, L[i]))) if L[i] >= d_lo else cos_loose
         for j in np.argsort(-L):
-            if j == i or abs(math.cos(ang[i] - ang[j])) < cos_loose:
+            if j == i or abs(math.cos(ang[i] - ang[j])) < cos_front:
                 continue
             dd = depth(i, j)
             if not ((dd >= d_lo) & (dd <= d_hi)).all():
@@ -1100,12 +1167,27 @@ def furniture_in_front(
             # the wall's line runs along at least half the front (a wardrobe in a corner hides the wall
             # behind it up to the corner; an alcove's mouth beside the alcove's back wall runs along none)
             overlap = min(t.max(), t1) - max(t.min(), t0)
-            if (
-                t1 - t0 > L[i] + tol
-                and (overlap >= 0.5 * L[i] or boxed(i, j, dd) or at_seen_end(i, j, dd, t, t0, t1))
-            ) or isolated(i, j, t, t0, t1):
+            rule = None
+            if t1 - t0 > L[i] + tol:
+                if overlap >= 0.5 * L[i]:
+                    rule = "front_along_wall"
+                elif boxed(i, j, dd):
+                    rule = "front_boxed"
+                elif at_seen_end(i, j, dd, t, t0, t1):
+                    rule = "front_at_seen_end"
+            if rule is None and isolated(i, j, t, t0, t1):
+                rule = "front_alone"
+            if rule is not None:
                 out[i] = True
+                decided[rule] += 1
                 break
+    if out.any():
+        # the rest of a front's face: a line lying wholly within `thin_wall_end_tol_m` of a front (a cabinet's
+        # front seen from afar is a band of data a decimetre deep, and gives short lines across it too)
+        near = point_segment_distances(samples, lines[out]).min(axis=1) <= end_tol
+        band = (np.bincount(sample_owner, ~near, m) == 0) & ~out
+        decided["front_band"] += int(band.sum())
+        out |= band
     front = out.copy()
     corner_tol = math.sqrt(2.0) * end_tol
     for k in np.flatnonzero((L >= d_lo) & (L <= d_hi + tol) & ~front):
@@ -1126,7 +1208,9 @@ def furniture_in_front(
             # a side that joins a front to the wall may stop short of both by as much as their ends may lie apart
             # (each end short of the box's corner by up to end_tol along its own line)
             at_front = front.any() and point_segment_distances(inner[None], lines[front]).min() <= corner_tol
-            if not ((dd >= -tol) & (dd <= d_hi + tol)).all() or dd.min() > (end_tol if at_front else tol):
+            # ...and, drawn some degrees off from its few points, reach across the wall's line by as much
+            reach = end_tol if at_front else tol
+            if not ((dd >= -reach) & (dd <= d_hi + tol)).all() or dd.min() > reach:
                 continue
             t0, t1 = wall_extent(j)
             if t1 - t0 <= L[k]:
@@ -1143,7 +1227,10 @@ def furniture_in_front(
                 if near:
                     continue
             out[k] = True
+            decided["side"] += 1
             break
+    if why is not None:
+        why.update(decided)
     return out
 
 

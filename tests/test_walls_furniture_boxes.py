@@ -1,0 +1,116 @@
+"""Furniture faces in a slice without a ceiling that the first rules let through (issue 14's degraded rooms):
+a plant's short facet drawn some degrees off its wall's direction, a cabinet's front seen shorter than the
+cabinet is deep and standing alone, and a cabinet beside a wall's seen end with its side at the far end
+(`evidence.furniture_in_front`)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from tasks.walls.config import WallsConfig
+from tasks.walls.evidence import FURNITURE_RULES, furniture_in_front
+
+CFG = WallsConfig()
+ROOM = [[0, 0, 6, 0], [6, 0, 6, 4], [6, 4, 0, 4], [0, 4, 0, 0]]
+CENTRE = np.array([3.0, 2.0])
+
+
+def test_a_plant_s_short_facet_drawn_some_degrees_off_its_wall_is_a_front():
+    """A plant's facet, 0.25 m long and 0.5 m in front of the south wall, drawn 8° off the wall's direction
+    (a short line's ends are good to a few cm each): a front, as a side drawn so is a side. A facet 30° off
+    is not judged a front (`lone_directions` judges it), nor one 8° off shorter than furniture is deep."""
+
+    def facet(deg: float, length: float = 0.25) -> list[float]:
+        d = length * np.array([math.cos(math.radians(deg)), math.sin(math.radians(deg))])
+        return [2.0, 0.5, 2.0 + d[0], 0.5 + d[1]]
+
+    lines = np.array([*ROOM, facet(8.0)], dtype=float)
+    assert np.flatnonzero(furniture_in_front(lines, CENTRE, CFG, 3.0)).tolist() == [4]
+    steep = np.array([*ROOM, facet(30.0)], dtype=float)
+    assert not furniture_in_front(steep, CENTRE, CFG, 3.0).any()
+    # a line shorter than furniture is deep (a corner's frayed data as likely as a face) is not loosened so
+    frayed = np.array([*ROOM, facet(8.0, 0.15)], dtype=float)
+    assert not furniture_in_front(frayed, CENTRE, CFG, 3.0).any()
+
+
+def test_a_cabinet_front_seen_shorter_than_furniture_is_deep_standing_alone_is_furniture():
+    """The west wall seen only from y = 2.2 up (the rest unseen); a cabinet's front, 0.6 m of it seen, stands
+    0.5 m in front of the wall's line below that, both ends free, in line with nothing, between the room's
+    corners: the wall runs on behind it. The same line past the room's corner (beyond the south wall's line)
+    stays, and so does one in line with a piece of wall (a jog)."""
+    room = [[0, 4, 0, 2.2], [0, 4, 6, 4], [6, 4, 6, 0], [1.0, 0, 6, 0]]
+    front = np.array([*room, [0.5, 1.8, 0.5, 1.2]], dtype=float)
+    assert np.flatnonzero(furniture_in_front(front, CENTRE, CFG, 3.0)).tolist() == [4]
+    past = np.array([*room, [0.5, -0.2, 0.5, -0.8]], dtype=float)
+    assert not furniture_in_front(past, CENTRE, CFG, 3.0).any()
+    jog = np.array([*room, [0.5, 1.8, 0.5, 1.2], [0.5, 0.9, 0.5, 0.4]], dtype=float)
+    assert not furniture_in_front(jog, CENTRE, CFG, 3.0)[4:].any()
+
+
+def test_a_short_piece_of_the_room_s_wall_beside_an_alcove_is_no_front_standing_alone():
+    """An alcove 0.6 m deep in the south wall, its back seen from x = 3.2 to 4.4 and its sides unseen, and
+    0.4 m of the room's south wall seen west of it: that piece stands 0.6 m in front of the back's line,
+    both ends free, between the room's corners, like a cabinet's front seen in part. It begins where the
+    back's data begin (the alcove's side, unseen, joins them); begun 0.2 m off (the back's data frayed by
+    its corner), the alcove's other side running from the back's end as deep as the piece stands, and
+    stopping there, tells it; so does the room's east wall ending on the piece's line."""
+    room = [[0, 4, 6, 4], [6, 4, 6, 1.0], [0, 4, 0, 1.0]]
+    back = [3.2, -0.6, 4.4, -0.6]
+    at_end = np.array([*room, back, [2.8, 0, 3.2, 0]], dtype=float)
+    assert not furniture_in_front(at_end, CENTRE, CFG, 3.0).any()
+    side = [4.45, -0.6, 4.45, 0.0]  # the alcove's east side, seen; the room's wall east of it unseen
+    frayed = np.array([*room, back, [2.6, 0, 3.0, 0], side], dtype=float)
+    assert not furniture_in_front(frayed, CENTRE, CFG, 3.0).any()
+    corner = np.array([[0, 4, 6, 4], [6, 4, 6, 0.0], [0, 4, 0, 1.0], back, [2.6, 0, 3.0, 0]], dtype=float)
+    assert not furniture_in_front(corner, CENTRE, CFG, 3.0).any()
+
+
+def test_a_cabinet_past_a_wall_s_seen_end_with_its_side_at_the_far_end_is_furniture():
+    """The west wall seen from the north corner down to y = 2.5, where a cabinet (0.85 m wide, 0.46 m deep)
+    begins: its near side hidden (the skeleton rounds the corner 0.2 m short), its front and its far side
+    seen, the wall past it unseen. The front stands at the wall's seen end and its far end is joined back to
+    the wall's line by the side: a box on the wall, both dropped. A step of the outline whose far end runs
+    into the room's wall (the outline jogs in there and goes on) stays."""
+    room = [[0, 4, 0, 2.5], [0, 4, 6, 4], [6, 4, 6, 0], [6, 0, 1.0, 0]]
+    box = [[0.46, 2.3, 0.46, 1.45], [0.08, 1.42, 0.47, 1.42]]
+    lines = np.array([*room, *box], dtype=float)
+    why: dict[str, int] = {}
+    assert np.flatnonzero(furniture_in_front(lines, CENTRE, CFG, 3.0, why)).tolist() == [4, 5]
+    assert why == {**dict.fromkeys(FURNITURE_RULES, 0), "front_at_seen_end": 1, "side": 1}
+    # the outline steps in at y = 2.3, runs down to the south wall, which meets it at its end
+    step = np.array([*room[:3], [6, 0, 0.46, 0], [0.46, 2.3, 0.46, 0.1]], dtype=float)
+    assert not furniture_in_front(step, CENTRE, CFG, 3.0).any()
+
+
+def test_the_rest_of_a_front_s_band_and_a_side_drawn_across_the_wall_s_line_go_with_the_front():
+    """A cabinet's front seen from afar is a band of data a decimetre deep: besides its front (1 m, 0.5 m in
+    front of the south wall) the lines give a short piece across that band (23° off); it lies wholly within
+    `thin_wall_end_tol_m` of the front and goes with it. The cabinet's side, drawn 8° off from its few
+    points, reaches 9 cm past the wall's line into the wall's own noisy band: still the side. A wall's
+    piece 0.3 m from the front stays."""
+    s, c = math.sin(math.radians(8.0)), math.cos(math.radians(8.0))
+    lines = np.array(
+        [
+            *ROOM,
+            [2.0, 0.5, 3.0, 0.5],  # the front
+            [2.3, 0.45, 2.6, 0.58],  # a piece across its band
+            [3.0, 0.5, 3.0 + 0.6 * s, 0.5 - 0.6 * c],  # its east side, 8° off, past the wall's line
+        ],
+        dtype=float,
+    )
+    assert np.flatnonzero(furniture_in_front(lines, CENTRE, CFG, 3.0)).tolist() == [4, 5, 6]
+    apart = np.array([*ROOM, [2.0, 0.5, 3.0, 0.5], [3.3, 0.8, 3.3, 1.6]], dtype=float)
+    assert np.flatnonzero(furniture_in_front(apart, CENTRE, CFG, 3.0)).tolist() == [4]
+
+
+def test_a_cabinet_at_a_wall_s_seen_end_whose_free_end_holds_pieces_of_its_own_band_is_furniture():
+    """The west wall seen from the north corner down to y = 2.5, where a cabinet's near side joins it; the
+    cabinet's front (0.85 m, 0.5 m deep) ends free, but the front's data, a decimetre deep, gave a short line
+    across its band by that end. That line is the front's own data, not a line meeting its end: the front
+    stands at the wall's seen end with its other end free, and goes with its side and that piece."""
+    room = [[0, 4, 0, 2.5], [0, 4, 6, 4], [6, 4, 6, 0], [6, 0, 1.0, 0]]
+    box = [[0.5, 2.45, 0.5, 1.6], [0.0, 2.47, 0.5, 2.47], [0.45, 1.75, 0.55, 1.6]]
+    lines = np.array([*room, *box], dtype=float)
+    assert np.flatnonzero(furniture_in_front(lines, CENTRE, CFG, 3.0)).tolist() == [4, 5, 6]
