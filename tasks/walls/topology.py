@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -191,6 +191,7 @@ def model_for(
         "lines_below_top": found.below_top,
         "lines_furniture_no_ceiling": found.furniture,
         "walls_beyond_room_no_ceiling": found.beyond,
+        "furniture_rules_no_ceiling": found.furniture_rules,
         "removed_extensions": len(found.conn.removed),
         "walls_outside_room": found.outside,
         "walls_seen_through_gaps": found.through,
@@ -231,6 +232,8 @@ class _Topology:
     """Lines dropped as furniture in front of a wall in a slice without a ceiling (`furniture_in_front`)."""
     beyond: int = 0
     """Lines dropped as seen beyond the room in a slice without a ceiling (`beyond_the_room`)."""
+    furniture_rules: dict[str, int] = field(default_factory=dict)
+    """How many lines each of `furniture_in_front`'s rules took (before the top-reach test's own drops)."""
 
 
 def _along_lines(walls: NDArray, grid: Grid, shape: tuple[int, ...], tol_m: float) -> NDArray:
@@ -383,6 +386,7 @@ def _topology(
     lines, chain = merged.segments, merged.chain
     noise = line_noise(hough, merged.labels, lines, grid.size)
     below_top = furniture_lines = beyond_lines = 0
+    why: dict[str, int] = {}
     if cfg.top_reach_m is not None and len(lines):
         reach = top_reach_shares(lines, top, cfg.top_share_tol_m, lcfg.angle_tol_deg)
         keep = reach >= cfg.min_top_share
@@ -390,7 +394,7 @@ def _topology(
         keep |= unshadowed_lines(lines, keep, top, cfg)
         if proj.open_top and cfg.furniture_max_length_m > 0:
             # nothing seen above the slice: furniture reached its top too
-            furniture = furniture_in_front(lines, _centre(lines[keep]), cfg, lcfg.angle_tol_deg)
+            furniture = furniture_in_front(lines, _centre(lines[keep]), cfg, lcfg.angle_tol_deg, why=why)
             # and a direction the slice shows over only a few decimetres is a rounded or faceted furniture face
             furniture |= lone_directions(lines, cfg.furniture_lone_direction_m, lcfg.angle_tol_deg, grid.size)
             furniture[~keep] = False
@@ -482,6 +486,7 @@ def _topology(
         int(stray.sum()),
         furniture_lines,
         beyond_lines,
+        why,
     )
 
 
