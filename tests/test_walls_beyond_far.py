@@ -1,0 +1,71 @@
+"""Lines seen beyond the room that `beyond.beyond_the_room` and `beyond.across_beyond_the_room` let through
+(issue 14, the degraded rooms and hallways): the next room's wall held only by the building's wall going on
+past the room's corner, a wall of the room judged from a short line far out, and the lines seen beyond the
+end of a wall's seen span."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tasks.walls.beyond import across_beyond_the_room, beyond_the_room
+from tasks.walls.config import WallsConfig
+
+CFG = WallsConfig()
+TOL = 3.0
+
+
+def test_the_building_wall_past_the_corner_joins_nothing_to_the_next_room_s_wall():
+    # a room 4 m x 5 m; its north wall (y = 5) has a door at x = 2.4-3.3
+    room = [[0, 0, 4, 0], [4, 0, 4, 4.9], [0, 5, 2.4, 5], [3.3, 5, 4, 5], [0, 0.2, 0, 4.8]]
+    beyond = [
+        [4, 5.7, 4, 6.4],  # the east wall going on past the room's corner, seen through the door
+        [2.9, 6.8, 3.7, 6.8],  # the next room's wall seen through the door, 1.8 m behind the north wall
+    ]
+    lines = np.array(room + beyond, dtype=float)
+    interior = np.array([2.0, 2.5])
+    _, gone = across_beyond_the_room(lines, interior, CFG, TOL)
+    assert gone.tolist() == [False] * 5 + [True, False]
+    # the piece of the east wall looks like a wing's side wall joining the far line to the room...
+    assert not beyond_the_room(lines, interior, CFG, TOL).any()
+    # ...but it was found beyond the room: it joins nothing, and the far line goes
+    assert beyond_the_room(lines, interior, CFG, TOL, gone).tolist() == [False] * 6 + [True]
+
+
+def test_a_short_line_far_out_does_not_judge_the_room_s_walls():
+    # a corridor 12 m x 3 m with its west end barely seen: the end wall's piece at x = 0
+    room = [[0, 0, 2, 0], [3.5, 0, 12, 0], [4, 3, 12, 3], [12, 0, 12, 3], [0, 2.0, 0, 2.5]]
+    # a short piece of the next room's wall 3 m north of the corridor, seen through a door: the corridor's
+    # end wall lies 3 m behind its line, runs along it and is shorter; but the corridor's south wall lies
+    # behind it too (2 m of it), more than its own length: it bounds nothing
+    far = [[3, 6, 3, 6.8]]
+    lines = np.array(room + far, dtype=float)
+    out = beyond_the_room(lines, np.array([6.0, 1.5]), CFG, TOL)
+    assert not out[4]
+
+
+def _corridor(extra: list[list[float]]) -> tuple[np.ndarray, np.ndarray]:
+    # a corridor 12 m x 2 m whose west end went unseen: its south wall seen from x = 1, its north from 2.5
+    room = [[1, 0, 3, 0], [4, 0, 12, 0], [2.5, 2, 12, 2], [12, 0, 12, 2]]
+    return across_beyond_the_room(np.array(room + extra, dtype=float), np.array([7.0, 1.0]), CFG, TOL)
+
+
+def test_lines_beyond_the_end_of_a_wall_s_seen_span_go():
+    _, out = _corridor(
+        [
+            [0, -0.8, 0, -2.0],  # the building's wall past the unseen west end, 0.8 m behind the south wall
+            [1.0, 3.5, 1.0, 5.0],  # a wall of the room north-west, seen through a door in the unseen stretch
+        ]
+    )
+    assert out.tolist() == [False] * 4 + [True, True]
+
+
+def test_a_wing_beyond_the_end_of_a_wall_s_seen_span_stays():
+    # the west wall seen, and in line with it a piece behind the north wall's line: the wall goes on (a wing)
+    _, out = _corridor([[0, 0.1, 0, 1.6], [0, 2.9, 0, 4.0]])
+    assert not out.any()
+    # a wing's side held by its back wall
+    _, out = _corridor([[1.0, 2.8, 1.0, 4.0], [1.0, 4.0, 2.4, 4.0]])
+    assert not out.any()
+    # too shallow to tell from furniture before the wall
+    _, out = _corridor([[1.0, 2.5, 1.0, 3.5]])
+    assert not out.any()
