@@ -69,3 +69,24 @@ def test_a_wing_beyond_the_end_of_a_wall_s_seen_span_stays():
     # too shallow to tell from furniture before the wall
     _, out = _corridor([[1.0, 2.5, 1.0, 3.5]])
     assert not out.any()
+
+
+def _end_door(extra: list[list[float]]) -> np.ndarray:
+    # a corridor 12 m x 2 m whose west end wall (x = 0) has a door at y = 0.6-1.5
+    room = [[0, 0, 12, 0], [0, 2, 12, 2], [12, 0, 12, 2], [0, 0, 0, 0.6], [0, 1.5, 0, 2.0]]
+    return across_beyond_the_room(np.array(room + extra, dtype=float), np.array([6.0, 1.0]), CFG, TOL)[1]
+
+
+def test_a_door_s_reveals_go():
+    # the wall's end faces at the door's jambs, 0.2 m deep: the wall's thickness, no wall of the room
+    out = _end_door([[0, 0.6, -0.2, 0.6], [0, 1.5, -0.2, 1.5]])
+    assert out.tolist() == [False] * 5 + [True, True]
+
+
+def test_a_niche_and_a_partition_s_end_stay():
+    # a niche 0.2 m deep behind the door's place: its back holds its sides
+    out = _end_door([[0, 0.6, -0.2, 0.6], [-0.2, 0.6, -0.2, 1.5], [0, 1.5, -0.2, 1.5]])
+    assert not out.any()
+    # a short line behind the wall away from any gap (on the wall's data on both sides): not a reveal
+    out = _end_door([[0, 0.3, -0.2, 0.3]])
+    assert not out.any()

@@ -220,6 +220,7 @@ def across_beyond_the_room(
         # the room's walls ending on W's line from the room's side, and those leaving it outward
         inside = across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) <= end_tol)
         outward = across & (np.abs(depth.min(axis=1)) <= end_tol) & (depth.max(axis=1) > thin)
+        reveals = across & (np.abs(depth.min(axis=1)) <= end_tol) & (depth.max(axis=1) <= thin)
         if (across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) > thin) & ~at_corner).any():
             continue  # a wall of the room runs on from the room through W's line: the room goes on behind it
         for c in np.flatnonzero(across & (L < hi - lo)):
@@ -261,6 +262,24 @@ def across_beyond_the_room(
                     out[c] = True
                 continue
             if depth[c].min() <= end_tol:
+                # a door's reveal: standing on W's line at a jamb (a gap of the pieces beside it, away from
+                # the span's ends), reaching behind it no more than a wall's thickness, and held by nothing
+                # behind W's line but W's pieces and the other reveals (the room's walls meeting W's line
+                # from the room's side hold nothing behind it): the wall's own end face, no wall of the room
+                beside = foot[c] + np.array([-2 * end_tol, 2 * end_tol])
+                open_side = ~((pieces[:, :1] <= beside) & (beside <= pieces[:, 1:])).any(axis=0)
+                jamb = (open_side[0] and bool((np.abs(pieces[:, 0] - foot[c]) <= end_tol).any())) or (
+                    open_side[1] and bool((np.abs(pieces[:, 1] - foot[c]) <= end_tol).any())
+                )
+                if (
+                    jamb
+                    and abs(depth[c].min()) <= end_tol
+                    and end_tol < depth[c].max() <= thin
+                    and lo + end_tol < foot[c] < hi - end_tol
+                    and not (near & ~same & ~reveals & (depth.max(axis=1) > end_tol)).any()
+                    and not wing.any()
+                ):
+                    out[c] = True
                 continue
             on_data = bool(((pieces[:, 0] + end_tol <= foot[c]) & (foot[c] <= pieces[:, 1] - end_tol)).any())
             lined = (
