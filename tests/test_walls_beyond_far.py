@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tasks.walls.beyond import across_beyond_the_room, beyond_the_room
+from tasks.walls.beyond import across_beyond_the_room, beyond_the_room, past_a_corner
 from tasks.walls.config import WallsConfig
 
 CFG = WallsConfig()
@@ -90,3 +90,28 @@ def test_a_niche_and_a_partition_s_end_stay():
     # a short line behind the wall away from any gap (on the wall's data on both sides): not a reveal
     out = _end_door([[0, 0.3, -0.2, 0.3]])
     assert not out.any()
+
+
+def test_a_line_past_a_corner_goes():
+    # a room 5 m x 4 m whose south-east corner went unseen (the south wall seen to x = 3, the east from y = 1.2)
+    room = [[0, 0, 3, 0], [5, 1.2, 5, 4], [0, 4, 5, 4], [0, 0, 0, 4]]
+    past = [[5.2, -1.5, 6.5, -1.5]]  # the next room's wall, 1.5 m behind the south wall, 0.2 m past the east
+    lines = np.array(room + past, dtype=float)
+    assert beyond_the_room(lines, np.array([2.5, 2.0]), CFG, TOL).tolist() == [False] * 4 + [True]
+    assert past_a_corner(lines, np.array([2.5, 2.0]), CFG).tolist() == [False] * 4 + [True]
+    # beyond one wall's line only (the room may go on there: a wing), it stays
+    lines[-1] = [3.5, -1.5, 4.8, -1.5]
+    assert not past_a_corner(lines, np.array([2.5, 2.0]), CFG).any()
+
+
+def test_an_l_room_s_wing_is_not_past_a_corner():
+    # an L-room: 6 m x 3 m with a wing 2 m x 3 m north of its west end; the walls' centre lies east of the
+    # wing's inner wall (x = 2), so that wall's back is the wing's side: the wing lies behind both inner walls
+    room = [[0, 0, 6, 0], [6, 0, 6, 3], [2, 3, 6, 3], [2, 3, 2, 6], [0, 6, 2, 6], [0, 0, 0, 6]]
+    lines = np.array(room, dtype=float)
+    assert not past_a_corner(lines, np.array([2.6, 1.9]), CFG).any()
+    # the wing's far wall seen alone, its side walls unseen (and the west wall seen only in the main part)
+    lines = np.array(
+        [[0, 0, 6, 0], [6, 0, 6, 3], [2.4, 3, 6, 3], [0, 0, 0, 2.6], [0.3, 6, 1.7, 6]], dtype=float
+    )
+    assert not past_a_corner(lines, np.array([2.6, 1.9]), CFG).any()

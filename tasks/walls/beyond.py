@@ -129,6 +129,42 @@ def beyond_the_room(
             )
             if not between.any():
                 out[c] = True
+    return out | past_a_corner(lines, interior, cfg, out | gone)
+
+
+def past_a_corner(
+    lines: NDArray, interior: NDArray, cfg: WallsConfig, gone: NDArray | None = None
+) -> NDArray[np.bool_]:
+    """(M,) lines seen past a corner of the room, for a slice with nothing seen above it: wholly behind the
+    lines of two walls of the room across each other (more than `thin_wall_end_tol_m` behind both, more
+    than `beyond_room_min_depth_m` behind one of them; behind: away from the room's `interior`), each of which
+    lies wholly in front of the other's line (to within `thin_wall_end_tol_m`): a corner of the room,
+    however much of it went unseen, with nothing of the room past it. An L-room's inner walls do not make
+    one (the wing's inner wall runs from their crossing to behind the other), nor do the pieces of a wall
+    crossing the other's line. Lines in `gone` are no walls of the room. The walls judged by lie more than
+    `beyond_room_min_depth_m` from the interior (a line through it has no side to tell)."""
+    lines = np.asarray(lines, dtype=np.float64)
+    m = len(lines)
+    out = np.zeros(m, dtype=bool)
+    if cfg.beyond_room_min_depth_m <= 0 or interior is None or m < 3:
+        return out
+    gone = np.zeros(m, dtype=bool) if gone is None else np.asarray(gone, dtype=bool)
+    _, ok, _, normal, back, ang = _line_frames(lines, interior)
+    end_tol, deep = cfg.thin_wall_end_tol_m, cfg.beyond_room_min_depth_m
+    clear = np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= deep
+    walls = np.flatnonzero(ok & clear & ~gone)
+    ends = lines.reshape(-1, 2)
+    # depth[i, j, k]: how far end k of line j lies behind line i
+    depth = ((ends[None, :, :] - lines[:, None, :2]) * back[:, None, :]).sum(axis=2).reshape(m, m, 2)
+    lo, hi = depth.min(axis=2), depth.max(axis=2)
+    for i, a in enumerate(walls):
+        for b in walls[i + 1 :]:
+            if abs(math.cos(ang[a] - ang[b])) >= math.sqrt(0.5) or hi[a, b] > end_tol or hi[b, a] > end_tol:
+                continue
+            past = (
+                ok & ~gone & ~out & (lo[a] > end_tol) & (lo[b] > end_tol) & (np.maximum(lo[a], lo[b]) > deep)
+            )
+            out |= past
     return out
 
 
