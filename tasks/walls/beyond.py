@@ -28,7 +28,11 @@ def _line_frames(lines: NDArray, interior: NDArray) -> tuple[NDArray, ...]:
 
 
 def beyond_the_room(
-    lines: NDArray, interior: NDArray | None, cfg: WallsConfig, angle_tol_deg: float
+    lines: NDArray,
+    interior: NDArray | None,
+    cfg: WallsConfig,
+    angle_tol_deg: float,
+    gone: NDArray | None = None,
 ) -> NDArray[np.bool_]:
     """(M,) lines seen beyond the room, for a slice with nothing seen above it (a handheld scan): a wall of
     the next room seen through a door whose own wall the capture barely saw (`seen_through_gaps` needs that
@@ -43,12 +47,18 @@ def beyond_the_room(
     line to behind it (the room goes on there: an L-room's wing, the far side of a partition), and L is
     shorter than W or W's collinear pieces together (a wall with a door in it), or W ends at a corner (a
     line across it at one of its ends, running into the room only: a free-standing counter has none).
-    `beyond_room_min_depth_m` 0 switches the test off."""
+    W bounds the room only when the lines across it reach behind its line (more than `thin_wall_max_m`)
+    over less in all than W's collinear pieces span: a short line far out (a piece of the next room seen
+    through a door) has the room's own walls behind it, and an L-room's inner wall has the wing's sides.
+    `gone` (M,) are lines already found beyond the room (`across_beyond_the_room`): they are no line of the
+    room, so they neither stop W nor join L to it (the building's wall going on past the room's corner is
+    no wing's side wall). `beyond_room_min_depth_m` 0 switches the test off."""
     lines = np.asarray(lines, dtype=np.float64)
     m = len(lines)
     out = np.zeros(m, dtype=bool)
     if cfg.beyond_room_min_depth_m <= 0 or interior is None or m < 3:
         return out
+    gone = np.zeros(m, dtype=bool) if gone is None else np.asarray(gone, dtype=bool)
     L, ok, u, normal, back, ang = _line_frames(lines, interior)
     cos_tol = math.cos(math.radians(angle_tol_deg))
     sin_loose = math.sin(math.radians(2 * angle_tol_deg))
@@ -60,8 +70,10 @@ def beyond_the_room(
     clear = (
         np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= cfg.beyond_room_min_depth_m
     )
+    step = np.bincount(owner, minlength=m)
+    step = np.where(step > 1, L / np.maximum(step - 1, 1), 0.0)  # each sample's share of its line's length
     for w in np.argsort(-L):
-        if not ok[w] or out[w] or not clear[w]:
+        if not ok[w] or out[w] or gone[w] or not clear[w]:
             continue
         rel = pts - lines[w, :2]
         depth, t = rel @ back[w], rel @ u[w]
@@ -69,7 +81,7 @@ def beyond_the_room(
         np.maximum.at(deepest, owner, depth)
         nearest = np.full(m, np.inf)
         np.minimum.at(nearest, owner, depth)
-        crossing = (nearest <= end_tol) & (deepest > thin)
+        crossing = (nearest <= end_tol) & (deepest > thin) & ~gone
         crossing[w] = False
         if crossing.any():
             continue  # a line of the room runs on from W's line behind it: the room goes on there
@@ -81,17 +93,20 @@ def beyond_the_room(
         span = np.concatenate(
             [(lines[same, :2] - lines[w, :2]) @ u[w], (lines[same, 2:] - lines[w, :2]) @ u[w]]
         )
+        sides = (np.abs(np.cos(ang - ang[w])) < math.sqrt(0.5)) & ~gone & ~out
+        if float(step[owner][(depth > thin) & sides[owner]].sum()) >= max(L[w], float(np.ptp(span))):
+            continue  # the room's walls across W reach behind it as far as W runs: W does not bound the room
         across = (np.abs(np.cos(ang - ang[w])) <= sin_loose) & (deepest <= end_tol)
         across[w] = False
         corner = bool(across.any()) and _meets_at_end(lines[w], lines[across], end_tol)
         # L runs along W (closer to its direction than to its normal; a wall drawn from the few points seen
         # through a door may lie some degrees off), not across it: a line across W's line is a wall joining it
         along = np.abs(np.cos(ang - ang[w])) >= math.sqrt(0.5)
-        cand = ~shallow & ~out & along & ((L < max(L[w], float(np.ptp(span)))) | corner)
+        cand = ~shallow & ~out & ~gone & along & ((L < max(L[w], float(np.ptp(span)))) | corner)
         cand[w] = False
         joins = nearest <= cfg.beyond_room_min_depth_m + cfg.lines.max_gap_m
         for c in np.flatnonzero(cand):
-            others = ~collinear_with(lines, ang, normal, c, cos_tol, cfg.lines.offset_tol_m) & ~out
+            others = ~collinear_with(lines, ang, normal, c, cos_tol, cfg.lines.offset_tol_m) & ~out & ~gone
             others[w] = True
             mine = owner == c
             lo, hi = float(t[mine].min()), float(t[mine].max())
@@ -114,6 +129,42 @@ def beyond_the_room(
             )
             if not between.any():
                 out[c] = True
+    return out | past_a_corner(lines, interior, cfg, out | gone)
+
+
+def past_a_corner(
+    lines: NDArray, interior: NDArray, cfg: WallsConfig, gone: NDArray | None = None
+) -> NDArray[np.bool_]:
+    """(M,) lines seen past a corner of the room, for a slice with nothing seen above it: wholly behind the
+    lines of two walls of the room across each other (more than `thin_wall_end_tol_m` behind both, more
+    than `beyond_room_min_depth_m` behind one of them; behind: away from the room's `interior`), each of which
+    lies wholly in front of the other's line (to within `thin_wall_end_tol_m`): a corner of the room,
+    however much of it went unseen, with nothing of the room past it. An L-room's inner walls do not make
+    one (the wing's inner wall runs from their crossing to behind the other), nor do the pieces of a wall
+    crossing the other's line. Lines in `gone` are no walls of the room. The walls judged by lie more than
+    `beyond_room_min_depth_m` from the interior (a line through it has no side to tell)."""
+    lines = np.asarray(lines, dtype=np.float64)
+    m = len(lines)
+    out = np.zeros(m, dtype=bool)
+    if cfg.beyond_room_min_depth_m <= 0 or interior is None or m < 3:
+        return out
+    gone = np.zeros(m, dtype=bool) if gone is None else np.asarray(gone, dtype=bool)
+    _, ok, _, normal, back, ang = _line_frames(lines, interior)
+    end_tol, deep = cfg.thin_wall_end_tol_m, cfg.beyond_room_min_depth_m
+    clear = np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= deep
+    walls = np.flatnonzero(ok & clear & ~gone)
+    ends = lines.reshape(-1, 2)
+    # depth[i, j, k]: how far end k of line j lies behind line i
+    depth = ((ends[None, :, :] - lines[:, None, :2]) * back[:, None, :]).sum(axis=2).reshape(m, m, 2)
+    lo, hi = depth.min(axis=2), depth.max(axis=2)
+    for i, a in enumerate(walls):
+        for b in walls[i + 1 :]:
+            if abs(math.cos(ang[a] - ang[b])) >= math.sqrt(0.5) or hi[a, b] > end_tol or hi[b, a] > end_tol:
+                continue
+            past = (
+                ok & ~gone & ~out & (lo[a] > end_tol) & (lo[b] > end_tol) & (np.maximum(lo[a], lo[b]) > deep)
+            )
+            out |= past
     return out
 
 
@@ -205,6 +256,7 @@ def across_beyond_the_room(
         # the room's walls ending on W's line from the room's side, and those leaving it outward
         inside = across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) <= end_tol)
         outward = across & (np.abs(depth.min(axis=1)) <= end_tol) & (depth.max(axis=1) > thin)
+        reveals = across & (np.abs(depth.min(axis=1)) <= end_tol) & (depth.max(axis=1) <= thin)
         if (across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) > thin) & ~at_corner).any():
             continue  # a wall of the room runs on from the room through W's line: the room goes on behind it
         for c in np.flatnonzero(across & (L < hi - lo)):
@@ -216,8 +268,6 @@ def across_beyond_the_room(
                         -depth[c, 1 - k] / (depth[c, k] - depth[c, 1 - k])
                     )
                 continue
-            if not lo - end_tol <= foot[c] <= hi + end_tol:
-                continue
             # the partition's other face (parallel, within a thin wall's thickness, behind W too) holds nothing
             face = (
                 (np.abs(np.cos(ang - ang[c])) >= cos_tol)
@@ -228,6 +278,19 @@ def across_beyond_the_room(
             near[c] = False
             wing = outward & (np.abs(foot - foot[c]) <= gap)
             wing[c] = False
+            if not lo - end_tol <= foot[c] <= hi + end_tol:
+                # beyond the span's end (where W's wall went unseen): deeper than furniture, held by nothing
+                # and in line with no line of the room (the wall of a wing, whose other walls went unseen,
+                # goes on from one of the room's)
+                in_line = (
+                    ~out
+                    & (np.abs(np.cos(ang - ang[c])) >= cos_tol)
+                    & (np.abs((0.5 * (lines[:, :2] + lines[:, 2:]) - lines[c, :2]) @ normal[c]) <= end_tol)
+                )
+                in_line[c] = False
+                if depth[c].min() > deep and not near.any() and not wing.any() and not in_line.any():
+                    out[c] = True
+                continue
             if outward[c]:
                 # standing on W's line at a door's jamb, away from the room's corners, and held by nothing but
                 # W's own pieces: no back wall or other side as an alcove or a wing has
@@ -235,6 +298,24 @@ def across_beyond_the_room(
                     out[c] = True
                 continue
             if depth[c].min() <= end_tol:
+                # a door's reveal: standing on W's line at a jamb (a gap of the pieces beside it, away from
+                # the span's ends), reaching behind it no more than a wall's thickness, and held by nothing
+                # behind W's line but W's pieces and the other reveals (the room's walls meeting W's line
+                # from the room's side hold nothing behind it): the wall's own end face, no wall of the room
+                beside = foot[c] + np.array([-2 * end_tol, 2 * end_tol])
+                open_side = ~((pieces[:, :1] <= beside) & (beside <= pieces[:, 1:])).any(axis=0)
+                jamb = (open_side[0] and bool((np.abs(pieces[:, 0] - foot[c]) <= end_tol).any())) or (
+                    open_side[1] and bool((np.abs(pieces[:, 1] - foot[c]) <= end_tol).any())
+                )
+                if (
+                    jamb
+                    and abs(depth[c].min()) <= end_tol
+                    and end_tol < depth[c].max() <= thin
+                    and lo + end_tol < foot[c] < hi - end_tol
+                    and not (near & ~same & ~reveals & (depth.max(axis=1) > end_tol)).any()
+                    and not wing.any()
+                ):
+                    out[c] = True
                 continue
             on_data = bool(((pieces[:, 0] + end_tol <= foot[c]) & (foot[c] <= pieces[:, 1] - end_tol)).any())
             lined = (

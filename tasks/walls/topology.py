@@ -425,8 +425,9 @@ def _topology(
     )
     if proj.open_top:
         # nothing seen above the slice (a handheld scan): the wall in front of a door may be barely seen
-        beyond = beyond_the_room(refined, _centre(refined), cfg, lcfg.angle_tol_deg)
-        refined, across = across_beyond_the_room(refined, _centre(refined), cfg, lcfg.angle_tol_deg)
+        cut, across = across_beyond_the_room(refined, _centre(refined), cfg, lcfg.angle_tol_deg)
+        beyond = beyond_the_room(refined, _centre(refined), cfg, lcfg.angle_tol_deg, across)
+        refined = cut
         beyond |= across & ~through
         through |= beyond
         beyond_lines = int(beyond.sum())

@@ -1,0 +1,117 @@
+"""Lines seen beyond the room that `beyond.beyond_the_room` and `beyond.across_beyond_the_room` let through
+(issue 14, the degraded rooms and hallways): the next room's wall held only by the building's wall going on
+past the room's corner, a wall of the room judged from a short line far out, and the lines seen beyond the
+end of a wall's seen span."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tasks.walls.beyond import across_beyond_the_room, beyond_the_room, past_a_corner
+from tasks.walls.config import WallsConfig
+
+CFG = WallsConfig()
+TOL = 3.0
+
+
+def test_the_building_wall_past_the_corner_joins_nothing_to_the_next_room_s_wall():
+    # a room 4 m x 5 m; its north wall (y = 5) has a door at x = 2.4-3.3
+    room = [[0, 0, 4, 0], [4, 0, 4, 4.9], [0, 5, 2.4, 5], [3.3, 5, 4, 5], [0, 0.2, 0, 4.8]]
+    beyond = [
+        [4, 5.7, 4, 6.4],  # the east wall going on past the room's corner, seen through the door
+        [2.9, 6.8, 3.7, 6.8],  # the next room's wall seen through the door, 1.8 m behind the north wall
+    ]
+    lines = np.array(room + beyond, dtype=float)
+    interior = np.array([2.0, 2.5])
+    _, gone = across_beyond_the_room(lines, interior, CFG, TOL)
+    assert gone.tolist() == [False] * 5 + [True, False]
+    # the piece of the east wall looks like a wing's side wall joining the far line to the room...
+    assert not beyond_the_room(lines, interior, CFG, TOL).any()
+    # ...but it was found beyond the room: it joins nothing, and the far line goes
+    assert beyond_the_room(lines, interior, CFG, TOL, gone).tolist() == [False] * 6 + [True]
+
+
+def test_a_short_line_far_out_does_not_judge_the_room_s_walls():
+    # a corridor 12 m x 3 m with its west end barely seen: the end wall's piece at x = 0
+    room = [[0, 0, 2, 0], [3.5, 0, 12, 0], [4, 3, 12, 3], [12, 0, 12, 3], [0, 2.0, 0, 2.5]]
+    # a short piece of the next room's wall 3 m north of the corridor, seen through a door: the corridor's
+    # end wall lies 3 m behind its line, runs along it and is shorter; but the corridor's south wall lies
+    # behind it too (2 m of it), more than its own length: it bounds nothing
+    far = [[3, 6, 3, 6.8]]
+    lines = np.array(room + far, dtype=float)
+    out = beyond_the_room(lines, np.array([6.0, 1.5]), CFG, TOL)
+    assert not out[4]
+
+
+def _corridor(extra: list[list[float]]) -> tuple[np.ndarray, np.ndarray]:
+    # a corridor 12 m x 2 m whose west end went unseen: its south wall seen from x = 1, its north from 2.5
+    room = [[1, 0, 3, 0], [4, 0, 12, 0], [2.5, 2, 12, 2], [12, 0, 12, 2]]
+    return across_beyond_the_room(np.array(room + extra, dtype=float), np.array([7.0, 1.0]), CFG, TOL)
+
+
+def test_lines_beyond_the_end_of_a_wall_s_seen_span_go():
+    _, out = _corridor(
+        [
+            [0, -0.8, 0, -2.0],  # the building's wall past the unseen west end, 0.8 m behind the south wall
+            [1.0, 3.5, 1.0, 5.0],  # a wall of the room north-west, seen through a door in the unseen stretch
+        ]
+    )
+    assert out.tolist() == [False] * 4 + [True, True]
+
+
+def test_a_wing_beyond_the_end_of_a_wall_s_seen_span_stays():
+    # the west wall seen, and in line with it a piece behind the north wall's line: the wall goes on (a wing)
+    _, out = _corridor([[0, 0.1, 0, 1.6], [0, 2.9, 0, 4.0]])
+    assert not out.any()
+    # a wing's side held by its back wall
+    _, out = _corridor([[1.0, 2.8, 1.0, 4.0], [1.0, 4.0, 2.4, 4.0]])
+    assert not out.any()
+    # too shallow to tell from furniture before the wall
+    _, out = _corridor([[1.0, 2.5, 1.0, 3.5]])
+    assert not out.any()
+
+
+def _end_door(extra: list[list[float]]) -> np.ndarray:
+    # a corridor 12 m x 2 m whose west end wall (x = 0) has a door at y = 0.6-1.5
+    room = [[0, 0, 12, 0], [0, 2, 12, 2], [12, 0, 12, 2], [0, 0, 0, 0.6], [0, 1.5, 0, 2.0]]
+    return across_beyond_the_room(np.array(room + extra, dtype=float), np.array([6.0, 1.0]), CFG, TOL)[1]
+
+
+def test_a_door_s_reveals_go():
+    # the wall's end faces at the door's jambs, 0.2 m deep: the wall's thickness, no wall of the room
+    out = _end_door([[0, 0.6, -0.2, 0.6], [0, 1.5, -0.2, 1.5]])
+    assert out.tolist() == [False] * 5 + [True, True]
+
+
+def test_a_niche_and_a_partition_s_end_stay():
+    # a niche 0.2 m deep behind the door's place: its back holds its sides
+    out = _end_door([[0, 0.6, -0.2, 0.6], [-0.2, 0.6, -0.2, 1.5], [0, 1.5, -0.2, 1.5]])
+    assert not out.any()
+    # a short line behind the wall away from any gap (on the wall's data on both sides): not a reveal
+    out = _end_door([[0, 0.3, -0.2, 0.3]])
+    assert not out.any()
+
+
+def test_a_line_past_a_corner_goes():
+    # a room 5 m x 4 m whose south-east corner went unseen (the south wall seen to x = 3, the east from y = 1.2)
+    room = [[0, 0, 3, 0], [5, 1.2, 5, 4], [0, 4, 5, 4], [0, 0, 0, 4]]
+    past = [[5.2, -1.5, 6.5, -1.5]]  # the next room's wall, 1.5 m behind the south wall, 0.2 m past the east
+    lines = np.array(room + past, dtype=float)
+    assert beyond_the_room(lines, np.array([2.5, 2.0]), CFG, TOL).tolist() == [False] * 4 + [True]
+    assert past_a_corner(lines, np.array([2.5, 2.0]), CFG).tolist() == [False] * 4 + [True]
+    # beyond one wall's line only (the room may go on there: a wing), it stays
+    lines[-1] = [3.5, -1.5, 4.8, -1.5]
+    assert not past_a_corner(lines, np.array([2.5, 2.0]), CFG).any()
+
+
+def test_an_l_room_s_wing_is_not_past_a_corner():
+    # an L-room: 6 m x 3 m with a wing 2 m x 3 m north of its west end; the walls' centre lies east of the
+    # wing's inner wall (x = 2), so that wall's back is the wing's side: the wing lies behind both inner walls
+    room = [[0, 0, 6, 0], [6, 0, 6, 3], [2, 3, 6, 3], [2, 3, 2, 6], [0, 6, 2, 6], [0, 0, 0, 6]]
+    lines = np.array(room, dtype=float)
+    assert not past_a_corner(lines, np.array([2.6, 1.9]), CFG).any()
+    # the wing's far wall seen alone, its side walls unseen (and the west wall seen only in the main part)
+    lines = np.array(
+        [[0, 0, 6, 0], [6, 0, 6, 3], [2.4, 3, 6, 3], [0, 0, 0, 2.6], [0.3, 6, 1.7, 6]], dtype=float
+    )
+    assert not past_a_corner(lines, np.array([2.6, 1.9]), CFG).any()
