@@ -14,6 +14,13 @@ from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import collinear_with
 
 
+def _judged(lines: NDArray, gone: NDArray | None) -> tuple[NDArray, NDArray[np.bool_], NDArray[np.bool_]]:
+    """The lines (M, 4) as floats, the (M,) result with none found yet, and `gone` as an (M,) mask."""
+    lines = np.asarray(lines, dtype=np.float64)
+    none = np.zeros(len(lines), dtype=bool)
+    return lines, none, none.copy() if gone is None else np.asarray(gone, dtype=bool)
+
+
 def _line_frames(lines: NDArray, interior: NDArray) -> tuple[NDArray, ...]:
     """Per line (M, 4): length, whether it has any, unit direction, unit normal, the normal pointing away
     from `interior` (the line's back) and its angle."""
@@ -53,12 +60,10 @@ def beyond_the_room(
     `gone` (M,) are lines already found beyond the room (`across_beyond_the_room`): they are no line of the
     room, so they neither stop W nor join L to it (the building's wall going on past the room's corner is
     no wing's side wall). `beyond_room_min_depth_m` 0 switches the test off."""
-    lines = np.asarray(lines, dtype=np.float64)
+    lines, out, gone = _judged(lines, gone)
     m = len(lines)
-    out = np.zeros(m, dtype=bool)
     if cfg.beyond_room_min_depth_m <= 0 or interior is None or m < 3:
         return out
-    gone = np.zeros(m, dtype=bool) if gone is None else np.asarray(gone, dtype=bool)
     L, ok, u, normal, back, ang = _line_frames(lines, interior)
     cos_tol = math.cos(math.radians(angle_tol_deg))
     sin_loose = math.sin(math.radians(2 * angle_tol_deg))
@@ -143,12 +148,10 @@ def past_a_corner(
     one (the wing's inner wall runs from their crossing to behind the other), nor do the pieces of a wall
     crossing the other's line. Lines in `gone` are no walls of the room. The walls judged by lie more than
     `beyond_room_min_depth_m` from the interior (a line through it has no side to tell)."""
-    lines = np.asarray(lines, dtype=np.float64)
+    lines, out, gone = _judged(lines, gone)
     m = len(lines)
-    out = np.zeros(m, dtype=bool)
     if cfg.beyond_room_min_depth_m <= 0 or interior is None or m < 3:
         return out
-    gone = np.zeros(m, dtype=bool) if gone is None else np.asarray(gone, dtype=bool)
     _, ok, _, normal, back, ang = _line_frames(lines, interior)
     end_tol, deep = cfg.thin_wall_end_tol_m, cfg.beyond_room_min_depth_m
     clear = np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= deep
