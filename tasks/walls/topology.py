@@ -290,14 +290,14 @@ def split_below_top(
     Hough pieces themselves tell them apart: the wall's reach the slice top, the cabinet's stop below it.
     A line is cut between its pieces (in order along it) where those on one side (at least
     `lines.min_length_m` of line) lie more than `STEP_MIN_CELLS` grid cells (their weighted mean offset)
-    from the others, the two sides overlap along the line by less than that step, and one side's pieces
-    reach the top (`min_top_share` of a piece on top-reaching data) over at least half their length, the
-    other's over at most `LOW_REACH_MAX_SHARE`, and no piece below the top lies between the cut and the
-    reaching side's first piece that reaches it (a wall's end seen askew below the top, its mean on the
-    wall's line, is not cut where its first half leaves the line); of several such cuts, the one that leaves the most length
-    on its own side (reaching the top or not). The line fitted to the reaching side must lie no more askew
-    of the pieces' orientation cluster than the line through all of them. The top-reach test then judges
-    each line on its own."""
+    from the others, the two sides overlap along the line by no more than that step and `STEP_MIN_CELLS`
+    cells, one side's pieces reach the top (`min_top_share` of a piece on top-reaching data) over at least
+    half their length, the other's over at most `LOW_REACH_MAX_SHARE`, and no piece below the top lies
+    between the cut and the reaching side's first piece that reaches it (a wall's end seen askew below the
+    top, its mean on the wall's line, is not cut where its first half leaves the line). Of several such
+    cuts, the one that leaves the most length on its own side (reaching the top or not). The line fitted to
+    the reaching side must lie no more askew of the pieces' orientation cluster than the line through all
+    of them. The top-reach test then judges each line on its own."""
     if cfg.top_reach_m is None or len(merged.segments) == 0:
         return merged
     hough = np.asarray(hough, dtype=np.float64)
@@ -319,10 +319,11 @@ def split_below_top(
         order = np.argsort(t0, kind="stable")
         members, t0, t1 = members[order], t0[order], t1[order]
         off = 0.5 * (hough[members, :2] + hough[members, 2:]) @ np.array([-u[1], u[0]])
-        w, up = hl[members], hl[members] * reach[members]
+        w, hit = hl[members], reach[members]
+        up = w * hit
         # the cut that best parts the pieces reaching the top from those that do not (the most length on
         # its own side), where the two sides step apart and do not overlap along the line
-        best, best_score = None, -np.inf
+        best, best_score, low_first = None, -np.inf, True
         for k in range(1, len(members)):
             a, b = slice(0, k), slice(k, None)
             step = abs(float(np.average(off[a], weights=w[a]) - np.average(off[b], weights=w[b])))
@@ -334,7 +335,6 @@ def split_below_top(
             ra, rb = up[a].sum() / w[a].sum(), up[b].sum() / w[b].sum()
             if min(ra, rb) > LOW_REACH_MAX_SHARE or max(ra, rb) < 0.5:
                 continue
-            hit = reach[members]
             if ra < rb:
                 ragged = (t0[b][~hit[b]] < t0[b][hit[b]].min()).any()
             else:
@@ -343,14 +343,10 @@ def split_below_top(
                 continue  # pieces below the top run on past the cut: the cut is not where the top changes
             score = (w[a] - up[a]).sum() + up[b].sum() if ra < rb else up[a].sum() + (w[b] - up[b]).sum()
             if score > best_score:
-                best, best_score = k, score
+                best, best_score, low_first = k, score, ra < rb
         if best is None:
             continue
-        low, high = (
-            (members[:best], members[best:])
-            if up[:best].sum() < up[best:].sum()
-            else (members[best:], members[:best])
-        )
+        low, high = (members[:best], members[best:]) if low_first else (members[best:], members[:best])
         front = fit_line(hough[low], np.ones(len(low)))[0]
         wall = fit_line(hough[high], np.ones(len(high)))[0]
         if float(lengths(front[None])[0]) < cfg.lines.min_length_m:
