@@ -182,3 +182,24 @@ def test_a_stub_face_modelled_only_near_the_end_is_run_on_to_the_host_wall(rng):
     assert found[0]["offset_m"] == pytest.approx(0.1, abs=0.01) and found[0]["filled_m"] == pytest.approx(0.7)
     ev = evaluate_walls(model.walls, truth)
     assert ev["completeness"] >= 0.97 and ev["correctness"] >= 0.99 and ev["corner_f1"] == 1.0, ev
+
+
+def test_a_stub_face_seen_under_part_of_it_beside_mixed_pixels_is_found_beyond_them(rng):
+    """The north face seen only under the slice and only over the stub's outer half (x 0.7-1.5 m), and a
+    Kinect's mixed pixels 4 cm off the south face along the whole stub: those cover more of the stub but lie
+    nearer than a partition is thick (`thin_wall_min_m`); the face 10 cm off is found and the stub gets both
+    faces to the west wall (711 r1's case: the old search took the mixed pixels, 4 cm off)."""
+    levelled, truth = stub_room(rng, north_top=2.5)
+    north = (np.abs(levelled[:, 1] - 1.55) < 0.01) & (levelled[:, 0] > 0.02) & (levelled[:, 0] < 1.49)
+    levelled = levelled[~north | ((levelled[:, 0] >= 0.7) & (levelled[:, 2] <= 1.3))]
+    mixed = face((0.02, 1.49), (1.48, 1.49), 0.3, 1.3, rng, step=0.03, noise=0.004)
+    levelled = np.concatenate([levelled, mixed])
+    model, choices = room_model(in_band(levelled), levelled, 0.0, 2.5, CFG)
+    found = choices["faces_below_slice"]
+    assert found and found[0]["offset_m"] == pytest.approx(0.1, abs=0.015), found
+    ev = evaluate_walls(model.walls, truth)
+    assert ev["corner_f1"] == 1.0 and ev["completeness"] >= 0.97, (ev, model.walls)
+    face_n = model.walls[
+        (np.abs(model.walls[:, 1] - 1.55) < 0.02) & (np.abs(model.walls[:, 3] - 1.55) < 0.02)
+    ]
+    assert len(face_n) == 1 and min(face_n[0, 0], face_n[0, 2]) < 0.03, face_n
