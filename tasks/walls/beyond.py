@@ -272,11 +272,7 @@ def across_beyond_the_room(
                     )
                 continue
             # the partition's other face (parallel, within a thin wall's thickness, behind W too) holds nothing
-            face = (
-                (np.abs(np.cos(ang - ang[c])) >= cos_tol)
-                & (np.abs((0.5 * (lines[:, :2] + lines[:, 2:]) - lines[c, :2]) @ normal[c]) <= thin)
-                & (depth.min(axis=1) > end_tol)
-            )
+            face = collinear_with(lines, ang, normal, c, cos_tol, thin) & (depth.min(axis=1) > end_tol)
             near = (apart[c] <= gap) & ~face
             near[c] = False
             wing = outward & (np.abs(foot - foot[c]) <= gap)
@@ -285,11 +281,7 @@ def across_beyond_the_room(
                 # beyond the span's end (where W's wall went unseen): deeper than furniture, held by nothing
                 # and in line with no line of the room (the wall of a wing, whose other walls went unseen,
                 # goes on from one of the room's)
-                in_line = (
-                    ~out
-                    & (np.abs(np.cos(ang - ang[c])) >= cos_tol)
-                    & (np.abs((0.5 * (lines[:, :2] + lines[:, 2:]) - lines[c, :2]) @ normal[c]) <= end_tol)
-                )
+                in_line = collinear_with(lines, ang, normal, c, cos_tol, end_tol) & ~out
                 in_line[c] = False
                 if depth[c].min() > deep and not near.any() and not wing.any() and not in_line.any():
                     out[c] = True

@@ -988,10 +988,11 @@ def furniture_in_front(
     across_j = np.abs(np.cos(ang[:, None] - ang[None, :])) <= sin_loose  # (M, M) k crosses j
     samples, sample_owner = sample_segments(lines, 0.5 * tol)
 
-    def band_of(i: int) -> NDArray[np.bool_]:
-        """(M,) the lines lying wholly within `thin_wall_end_tol_m` of line i (itself among them): pieces
-        of its own band of data (a face seen from afar is a decimetre deep), not lines meeting its ends."""
-        near = point_segment_distances(samples, lines[i : i + 1])[:, 0] <= end_tol
+    def band_of(which: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """(M,) the lines lying wholly within `thin_wall_end_tol_m` of the lines `which` (M,) (those among
+        them): pieces of their own band of data (a face seen from afar is a decimetre deep), not lines
+        meeting their ends."""
+        near = point_segment_distances(samples, lines[which]).min(axis=1) <= end_tol
         return np.bincount(sample_owner, ~near, m) == 0
 
     def runs_on(k: int, j: int, tk: float) -> bool:
@@ -1022,7 +1023,7 @@ def furniture_in_front(
         inline[i] = False
         if inline.any():
             return False
-        others = ~band_of(i)
+        others = ~band_of(np.arange(m) == i)
         others[i] = False
         gaps = point_segment_distances(lines[i].reshape(2, 2), lines[others]).min(axis=1)  # (2,) per end
         reach = 2 * end_tol  # each of the two ends may stop short of the box's corner by end_tol
@@ -1184,8 +1185,7 @@ def furniture_in_front(
     if out.any():
         # the rest of a front's face: a line lying wholly within `thin_wall_end_tol_m` of a front (a cabinet's
         # front seen from afar is a band of data a decimetre deep, and gives short lines across it too)
-        near = point_segment_distances(samples, lines[out]).min(axis=1) <= end_tol
-        band = (np.bincount(sample_owner, ~near, m) == 0) & ~out
+        band = band_of(out) & ~out
         decided["front_band"] += int(band.sum())
         out |= band
     front = out.copy()

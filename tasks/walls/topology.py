@@ -271,12 +271,6 @@ LOW_REACH_MAX_SHARE = 0.2
 (a piece of a cabinet's front may graze the wall's top-reaching data at its end)."""
 
 
-def _askew(line: NDArray, u: NDArray) -> float:
-    """|sin| of the angle between segment `line` (4,) and the unit direction `u`."""
-    d = line[2:] - line[:2]
-    return abs(float(d[0] * u[1] - d[1] * u[0])) / max(float(np.hypot(*d)), 1e-12)
-
-
 def split_below_top(
     hough: NDArray, merged: MergedLines, top: TopCells, cfg: WallsConfig, angle_tol_deg: float, quantum: float
 ) -> MergedLines:
@@ -353,7 +347,8 @@ def split_below_top(
             continue
         # the wall left must lie straighter along its cluster than the line through both (a front seen askew
         # tilts that line); a cut that leaves it more askew is of pieces of one wall's ragged data
-        if _askew(wall, u) > _askew(merged.segments[j], u):
+        askew = np.abs(np.sin(angles(np.array([wall, merged.segments[j]])) - phi))
+        if askew[0] > askew[1]:
             continue
         segments[j] = wall
         labels[low] = len(segments)
