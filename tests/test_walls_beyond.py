@@ -90,7 +90,11 @@ def test_a_wall_seen_through_a_door_goes_when_the_corner_s_last_centimetres_are_
         dtype=float,
     )
     assert beyond_the_room(room, np.array([2.5, 2.0]), CFG, 3.0).tolist() == [False] * 4 + [True]
-    # a wing: the far wall runs on 1.5 m past the room's lines (its side walls unseen), so it stays
+    # a wing: the far wall runs on 1.5 m past the room's lines (its side walls unseen), so it stays; not
+    # past a corner of the room, though (the west wall ending on the north wall's line: a wing there would
+    # leave that wall's end inside it), only where the west wall stops 0.9 m short of that line
     wing = room.copy()
     wing[4] = [-1.5, 6.1, 1.9, 6.1]
+    assert beyond_the_room(wing, np.array([2.5, 2.0]), CFG, 3.0).tolist() == [False] * 4 + [True]
+    wing[1] = [0, 3.1, 0, 0]
     assert not beyond_the_room(wing, np.array([2.5, 2.0]), CFG, 3.0).any()

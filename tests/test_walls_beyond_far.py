@@ -115,3 +115,17 @@ def test_an_l_room_s_wing_is_not_past_a_corner():
         [[0, 0, 6, 0], [6, 0, 6, 3], [2.4, 3, 6, 3], [0, 0, 0, 2.6], [0.3, 6, 1.7, 6]], dtype=float
     )
     assert not past_a_corner(lines, np.array([2.6, 1.9]), CFG).any()
+
+
+def test_a_far_wall_running_on_past_the_room_s_corner_is_the_next_room_s():
+    # a room 3.6 m x 4 m whose south wall (y = 0) was seen only at its ends; 1.3 m behind it lies a wall of
+    # the next room, seen through the gap, that runs on 1.2 m past the room's east corner
+    room = [[0, 0, 0.7, 0], [3.0, 0, 3.6, 0], [3.6, 0, 3.6, 4], [0, 0, 0, 4], [2.5, 4, 3.6, 4]]
+    far = [[2.9, -1.3, 4.8, -1.3]]
+    lines = np.array(room + far, dtype=float)
+    interior = np.array([1.8, 2.0])
+    assert beyond_the_room(lines, interior, CFG, TOL).tolist() == [False] * 5 + [True]
+    # with no corner there (the east wall runs on behind the south wall's line: an L-room's wing), the
+    # far line may be the wing's wall and stays
+    lines[2] = [3.6, -2.0, 3.6, 4]
+    assert not beyond_the_room(lines, interior, CFG, TOL)[5]

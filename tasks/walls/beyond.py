@@ -104,6 +104,10 @@ def beyond_the_room(
         across = (np.abs(np.cos(ang - ang[w])) <= sin_loose) & (deepest <= end_tol)
         across[w] = False
         corner = bool(across.any()) and _meets_at_end(lines[w], lines[across], end_tol)
+        # where the lines across W that reach its line stand along it: the room's corners on W's line (the
+        # room goes on behind W past none of them: a wing there would leave that wall's end inside it)
+        ends_on_w = across & (deepest >= -end_tol)
+        corner_t = np.array([float(np.median(t[owner == a])) for a in np.flatnonzero(ends_on_w)])
         # L runs along W (closer to its direction than to its normal; a wall drawn from the few points seen
         # through a door may lie some degrees off), not across it: a line across W's line is a wall joining it
         along = np.abs(np.cos(ang - ang[w])) >= math.sqrt(0.5)
@@ -116,9 +120,14 @@ def beyond_the_room(
             mine = owner == c
             lo, hi = float(t[mine].min()), float(t[mine].max())
             rest = others[owner]
+            if not rest.any():
+                continue
             reach = cfg.lines.max_gap_m
-            if not rest.any() or t[rest].min() > lo + reach or t[rest].max() < hi - reach:
-                continue  # beyond the end of the room's lines: an L-room's wing
+            first, last = float(t[rest].min()), float(t[rest].max())
+            if (first > lo + reach and not (corner_t <= first + end_tol).any()) or (
+                last < hi - reach and not (corner_t >= last - end_tol).any()
+            ):
+                continue  # beyond the end of the room's lines, where no corner ends them: an L-room's wing
             far = float(depth[mine].min())
             # a line joining L to the room (a wing's side wall) starts within furniture's depth and the
             # largest occlusion (`lines.max_gap_m`) of W's line: one that stays deeper behind it (the next
