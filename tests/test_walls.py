@@ -483,6 +483,22 @@ def test_the_wider_reach_makes_no_long_wall_without_data(rng):
     assert model.support.min() > 0.5 or not model.closed
 
 
+@pytest.mark.slow
+def test_an_alcove_as_deep_as_the_usual_reach_with_its_side_unseen_closes_on_its_true_corner():
+    """Survey building 727's room r4 as Kinect v1 frames: the alcove is 0.8 m deep (`lines.extend_m`) and
+    its west side was not seen. The join the wider reach makes there (0.802 m between the two fitted lines)
+    was refused as a long wall without data, and the room closed instead where a cabinet's side in the
+    alcove gave a join data, 0.4 m off. A join is long only when longer than the reach by more than the
+    lines' own tolerance: the alcove closes on its true corner."""
+    from bench.walls_survey import run_room
+    from tasks.config import load_config
+    from tasks.synth.building import generate_building
+
+    r = run_room(generate_building(727), 727, "r4", "mini", load_config([], []), None)
+    assert r.error is None and r.closed, r
+    assert r.completeness >= 0.99 and r.correctness >= 0.99 and r.corner_f1 == 1.0, r
+
+
 # ------------------------------------------------------------------------------ near-parallel walls
 
 
@@ -756,6 +772,27 @@ def test_a_wall_no_orientation_cluster_supports_and_its_data_do_not_back_goes():
     assert not stray_walls(walls, np.array([0.0, 70.0, 90.0]), share, CFG.lines).any()
     step = np.array([[8, 0, 8, 0.03]])  # a step of a few cm carries no direction: never stray
     assert not stray_walls(step, np.array([0.0, 70.0]), share, CFG.lines).any()
+
+
+def test_a_dangling_wall_leaving_a_straight_wall_at_a_narrow_angle_goes():
+    from tasks.walls.topology import acute_stubs
+
+    # a room 6 m x 4 m; out of its west wall, where two of its pieces meet, a 0.38 m fan of a Kinect's
+    # streaks at 13.6 deg to the wall (the wall seen at a grazing angle)
+    room = [[0, 0, 6, 0], [6, 0, 6, 4], [6, 4, 0, 4], [0, 4, 0, 1.5], [0, 1.5, 0, 0]]
+    streak = [0.0, 1.5, 0.09, 1.5 - 0.37]
+    walls = np.array([*room, streak], float)
+    assert acute_stubs(walls, CFG.lines).tolist() == [False] * 5 + [True]
+    # a partition stub leaving it square stays, and so does one at 45 deg
+    for end in ([1.2, 1.5], [0.85, 2.35]):
+        assert not acute_stubs(np.array([*room, [0, 1.5, *end]], float), CFG.lines).any()
+    # a wall leaving a shorter line at that angle (a streak, 0.4 m, drawn across its end) stays
+    streak_across = [-0.05, 1.3, 0.05, 1.7]
+    wall = [0.0, 1.5, 0.0, 3.0]
+    assert not acute_stubs(np.array([streak_across, wall, [0, 0, 6, 0]], float), CFG.lines)[1]
+    # a wall 10 deg off its neighbour, meeting it at their ends (an open room's corner), stays
+    bent = np.array([[0, 0, 6, 0], [6, 0, 6 + 4 * math.sin(math.radians(10)), 4]], float)
+    assert not acute_stubs(bent, CFG.lines).any()
 
 
 def _door_cells(lines: np.ndarray, gaps: list[tuple[int, float, float]], grid_m: float = 0.01):

@@ -150,9 +150,11 @@ def model_for(
         lines = replace(cfg.lines, max_gap_m=gap, extend_m=max(cfg.lines.extend_m, gap))
         wider = _topology(hough, lines, cfg, grid, binary, top, proj, low_share, xy)
         # a wall made only by extension (a perpendicular join) longer than the usual reach needs data:
-        # without it the wider reach would cut off a poorly seen part of the room (behind a partition)
+        # without it the wider reach would cut off a poorly seen part of the room (behind a partition).
+        # Longer by more than the lines' own tolerance: the join's length is the distance between two
+        # fitted lines (an alcove as deep as the reach)
         made = wider.origin != OBSERVED
-        long_made = made & (lengths(wider.walls) > cfg.lines.extend_m)
+        long_made = made & (lengths(wider.walls) > cfg.lines.extend_m + cfg.lines.offset_tol_m)
         if (
             wider.polygon is not None
             and not (wider.share(wider.walls[long_made]) < cfg.lines.min_overlap).any()
@@ -227,7 +229,8 @@ class _Topology:
     refused: int = 0
     """Lines whose regularization was refused (it would move them beyond their data's noise)."""
     stray: int = 0
-    """Walls dropped because no orientation cluster and too little data supported them (`stray_walls`)."""
+    """Walls dropped because no orientation cluster and too little data supported them (`stray_walls`), or
+    as a streak leaving a wall at a narrow angle (`acute_stubs`)."""
     furniture: int = 0
     """Lines dropped as furniture in front of a wall in a slice without a ceiling (`furniture_in_front`)."""
     beyond: int = 0
@@ -458,7 +461,7 @@ def _topology(
     if hung.any():
         walls, origin = walls[~hung], origin[~hung]
         polygon, walls, origin, _ = _room_polygon(walls, origin, grid.size)
-    stray = stray_walls(walls, merged.orientation_deg, share, lcfg)
+    stray = stray_walls(walls, merged.orientation_deg, share, lcfg) | acute_stubs(walls, lcfg)
     if stray.any():
         walls, origin = walls[~stray], origin[~stray]
         polygon, walls, origin, _ = _room_polygon(walls, origin, grid.size)
@@ -774,6 +777,46 @@ def stray_walls(walls: NDArray, orientation_deg: NDArray, share, lcfg: LinesConf
     out = long & (off > math.radians(lcfg.angle_tol_deg))
     if out.any():
         out[out] = share(walls[out]) < lcfg.min_overlap
+    return out
+
+
+ACUTE_STUB_MAX_DEG = 30.0
+"""`acute_stubs`: a dangling wall leaving a straight wall at less than this angle is no wall."""
+
+
+def acute_stubs(walls: NDArray, lcfg: LinesConfig) -> NDArray[np.bool_]:
+    """(M,) dangling walls (one end free: no other wall within `offset_tol_m`) whose other end lies on a
+    straight wall longer than they are (within `offset_tol_m`; its pieces in line as close), which runs on
+    past it both ways as far, and which leave that wall at more than `angle_tol_deg` but less than
+    `ACUTE_STUB_MAX_DEG`. A partition meets a wall near square, and a wall a few degrees off its neighbour
+    meets it at a corner, the end of both; a narrow fan of points out of the middle of a wall is the
+    sensor's streak along its rays where it saw the wall at a grazing angle."""
+    n = len(walls)
+    out = np.zeros(n, dtype=bool)
+    if n < 2:
+        return out
+    L = lengths(walls)
+    th = angles(walls)
+    ends = np.concatenate([walls[:, :2], walls[:, 2:]])  # end k of wall i at row i + k n
+    d = point_segment_distances(ends, walls)
+    d[np.arange(2 * n), np.tile(np.arange(n), 2)] = np.inf
+    arm = lcfg.offset_tol_m
+    free = d.min(axis=1) > arm
+    lo, hi = math.sin(math.radians(lcfg.angle_tol_deg)), math.sin(math.radians(ACUTE_STUB_MAX_DEG))
+    for i in np.flatnonzero(free[:n] != free[n:]):
+        p = ends[i + n] if free[i] else ends[i]
+        for j in np.flatnonzero(d[i + (n if free[i] else 0)] <= arm):
+            if not lo < abs(math.sin(th[i] - th[j])) < hi:
+                continue
+            u = (walls[j, 2:] - walls[j, :2]) / max(L[j], 1e-12)
+            nrm = np.array([-u[1], u[0]])
+            inline = (np.abs(np.sin(th - th[j])) < lo) & (
+                np.abs(np.stack([(walls[:, :2] - p) @ nrm, (walls[:, 2:] - p) @ nrm])).max(axis=0) <= arm
+            )
+            t = np.stack([(walls[inline, :2] - p) @ u, (walls[inline, 2:] - p) @ u])
+            if t.min() < -arm and t.max() > arm and t.max() - t.min() > L[i]:
+                out[i] = True
+                break
     return out
 
 
