@@ -114,3 +114,53 @@ def test_a_cabinet_at_a_wall_s_seen_end_whose_free_end_holds_pieces_of_its_own_b
     box = [[0.5, 2.45, 0.5, 1.6], [0.0, 2.47, 0.5, 2.47], [0.45, 1.75, 0.55, 1.6]]
     lines = np.array([*room, *box], dtype=float)
     assert np.flatnonzero(furniture_in_front(lines, CENTRE, CFG, 3.0)).tolist() == [4, 5, 6]
+
+
+def test_a_box_at_a_wall_s_seen_end_in_line_with_an_alcove_s_side_past_the_corner_is_furniture():
+    """A room 4.6 m x 5.6 m whose east wall (x = 4.65) was seen only over its south 1.1 m; a cabinet
+    0.47 m deep stands just north of that, its front seen over 0.76 m with its side back to the wall at the
+    far end. The alcove's west side (x = 4.15), south of the room's south-east corner and 1.3 m past the
+    front's end, lies in line with the front to within centimetres: no piece of the same wall, which would
+    lie within a door's width of it. A line in line with the front within that stays (a jog)."""
+    room = [
+        [0, 5.6, 0, 3.0],  # west, its south part unseen
+        [0, 5.6, 2.1, 5.6],  # north, in pieces
+        [3.1, 5.6, 3.6, 5.6],
+        [4.65, 1.1, 4.65, 0],  # east, seen over its south 1.1 m
+        [4.16, 0, 4.62, 0],  # south, from the east corner to the alcove's west side
+        [2.3, 0, 2.75, 0],
+        [3.1, -0.67, 3.77, -0.67],  # the alcove's back
+        [4.15, 0, 4.15, -0.67],  # the alcove's west side
+    ]
+    front = [4.18, 1.34, 4.18, 2.1]
+    side = [4.2, 2.11, 4.6, 2.13]
+    lines = np.array([*room, front, side], dtype=float)
+    centre = np.array([2.35, 2.4])
+    assert np.flatnonzero(furniture_in_front(lines, centre, CFG, 3.0)).tolist() == [8, 9]  # front and side
+    jog = np.array([*room[:7], [4.18, 0.6, 4.18, 0], front, side], dtype=float)
+    assert not furniture_in_front(jog, centre, CFG, 3.0)[8]
+
+
+def test_a_shelf_lower_than_the_cut_with_the_wall_seen_over_it_is_furniture():
+    """A room 2 m x 4 m whose north wall was seen as a line only over 0.4 m at its west end and whose east
+    wall was seen up to y = 3.66; a shelf's front, 1.3 m long, 0.32 m in front of the north wall at x =
+    0.45-1.75, its side at the west end. As lines, the front may be the room's own wall where the room's
+    outline steps in (the east wall meets its line): it stays. The few points the capture got of the north
+    wall over the shelf (every 5 cm along its line) make no line, but show the wall runs on behind the
+    front: the front is furniture."""
+    room = [[0, 0, 2, 0], [2, 0, 2, 3.66], [0, 4, 0, 0], [0, 4, 0.4, 4]]
+    front = [0.45, 3.68, 1.75, 3.68]
+    side = [0.42, 3.7, 0.42, 3.95]
+    lines = np.array([*room, front, side], dtype=float)
+    centre = np.array([1.0, 2.0])
+    assert not furniture_in_front(lines, centre, CFG, 3.0)[4]
+    x = np.arange(0.4, 2.0, 0.05)
+    behind = np.column_stack([x, np.full(len(x), 4.01)])
+    assert furniture_in_front(lines, centre, CFG, 3.0, occupied=behind)[4]
+    # the wall's points behind a third of it only (the rest unseen) are not enough
+    assert not furniture_in_front(lines, centre, CFG, 3.0, occupied=behind[:10])[4]
+    # nor is the front judged so from a centre of the room that lies between it and the wall's line (an
+    # L-room's lines may put it there), nor when narrower than it stands deep (a corner's data behind it)
+    assert not furniture_in_front(lines, np.array([1.0, 3.8]), CFG, 3.0, occupied=behind)[4]
+    narrow = np.array([*room, [0.45, 3.68, 0.75, 3.68], side], dtype=float)
+    assert not furniture_in_front(narrow, centre, CFG, 3.0, occupied=behind)[4]

@@ -873,13 +873,14 @@ FURNITURE_RULES = (
     "front_along_wall",
     "front_boxed",
     "front_at_seen_end",
+    "front_before_data",
     "front_alone",
     "front_band",
     "side",
 )
 """`furniture_in_front`'s rules, in the order they are tried: a front with the wall's line along it, on the
-wall's line between two sides (or a side and a corner), at the wall's seen end, standing alone in front of
-the wall's unseen stretch; a line of a front's band of data; a side."""
+wall's line between two sides (or a side and a corner), at the wall's seen end, with the wall's data seen
+behind it, standing alone in front of the wall's unseen stretch; a line of a front's band of data; a side."""
 
 
 def furniture_in_front(
@@ -888,6 +889,7 @@ def furniture_in_front(
     cfg: WallsConfig,
     angle_tol_deg: float,
     why: dict[str, int] | None = None,
+    occupied: NDArray | None = None,
 ) -> NDArray[np.bool_]:
     """(M,) lines that are the faces of furniture standing against a wall, for a slice with nothing seen
     above it (a handheld scan cut at 1.3-2 m, no ceiling), where a cabinet, a shelf or a plant reaches the
@@ -897,7 +899,10 @@ def furniture_in_front(
       `furniture_min_depth_m` to `furniture_max_depth_m` in front of it on the room's side (towards
       `interior`), with the wall's line (its collinear pieces together, longer than the front: the wall
       behind the furniture is hidden in the slice, so its pieces either side may each be shorter) running
-      along at least half of it, or with both its ends joined to the wall's line by sides (a box standing
+      along at least half of it, or the wall's data there (`occupied` (K, 2), the centres of the cells
+      holding slice data, within `support_tol_m` of the wall's line) along at least half of its 10 cm bins
+      (seen past it: a wall hides what lies behind it, a shelf lower than the cut does not; the few points
+      make no line), or with both its ends joined to the wall's line by sides (a box standing
       on the wall just past where the capture saw it: the wall behind and beyond it unseen), or with one
       end where the wall's seen part ends and the other free (`at_seen_end`: the wall seen up to the box
       and not past it, or the box's side at its far end), or standing alone in front of the wall's unseen
@@ -955,6 +960,24 @@ def furniture_in_front(
             and abs(dk.max() - dd[e]) <= end_tol
         )
 
+    def seen_behind(i: int, j: int, dd: NDArray, t: NDArray) -> bool:
+        """Do the slice data lie on j's line (within `support_tol_m`) behind line i (standing dd in front
+        of it, spanning t along j's line) in at least half of i's 10 cm bins? i must be at least as long as
+        it stands deep (narrower, a wall's piece at a corner or a stub may look so, with the corner's data
+        behind it), and the room's side clear: the interior lies beyond i by furniture's least depth (a
+        centre between the two, as an L-room's may lie, tells no front from a wall)."""
+        if occupied is None or len(occupied) == 0 or L[i] < dd.max():
+            return False
+        if abs(float((interior - lines[j, :2]) @ n[j])) < dd.max() + d_lo:
+            return False
+        rel = occupied - lines[j, :2]
+        on = np.abs(rel @ n[j]) <= tol
+        along = rel[on] @ u[j]
+        lo, hi = float(t.min()), float(t.max())
+        bins = max(1, math.ceil((hi - lo) / 0.1))
+        hit = np.unique(np.floor((along[(along >= lo) & (along < hi)] - lo) / 0.1).astype(np.int64))
+        return len(hit) >= 0.5 * bins
+
     def boxed(i: int, j: int, dd: NDArray) -> bool:
         """Is line i (standing dd in front of line j) a box on j's line: each of its ends joined to j's line
         by a side (a line perpendicular to j from within `thin_wall_end_tol_m` of the end to within that of
@@ -1011,16 +1034,23 @@ def furniture_in_front(
         box standing where j's seen part ends: one end at j's end (joined to j's line by a side, or its foot
         on j's line within twice `thin_wall_end_tol_m` of where j's data stop: the skeleton rounds both
         corners), the whole of i beyond that end, its other end free (within `thin_wall_end_tol_m` of no other
-        line) or joined back to j's line by the box's far side, in line with no other line and at least as long as it stands deep? The capture saw the wall up
-        to the box, which hid it behind, and not past the box's free end (a handheld capture misses a fifth of
-        the walls). A step of the room's outline runs on to a corner (a wall of the room meeting i's line at
-        its free end: not taken); the back of an alcove (j) beside a short stretch of the room's wall (i) has
-        the alcove's other side at its other end, as deep as i stands and in line with nothing, and an alcove's
-        side beside the room's corner has a wall of the room in line with the box's side: not taken."""
+        line) or joined back to j's line by the box's far side, in line with no other line within a door's
+        width (`lines.max_gap_m`: a piece of the same wall; an alcove's side further on is none) and at least
+        as long as it stands deep? The capture saw the wall up to the box, which hid it behind, and not past
+        the box's free end (a handheld capture misses a fifth of the walls). A step of the room's outline
+        runs on to a corner (a wall of the room meeting i's line at its free end: not taken); the back of an
+        alcove (j) beside a short stretch of the room's wall (i) has the alcove's other side at its other end,
+        as deep as i stands and in line with nothing, and an alcove's side beside the room's corner has a
+        wall of the room in line with the box's side: not taken."""
         if L[i] < dd.max():
             return False  # narrower than deep: a wall's piece at a corner and a stub may look so as well
+        # in line with a piece of the same wall: one within a door's width (`lines.max_gap_m`) of it
         inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
         inline[i] = False
+        inline[inline] = (
+            point_segment_distances(lines[inline].reshape(-1, 2), lines[i : i + 1]).reshape(-1, 2).min(axis=1)
+            <= cfg.lines.max_gap_m
+        )
         if inline.any():
             return False
         others = ~band_of(np.arange(m) == i)
@@ -1176,6 +1206,8 @@ def furniture_in_front(
                     rule = "front_boxed"
                 elif at_seen_end(i, j, dd, t, t0, t1):
                     rule = "front_at_seen_end"
+            if rule is None and seen_behind(i, j, dd, t):
+                rule = "front_before_data"
             if rule is None and isolated(i, j, t, t0, t1):
                 rule = "front_alone"
             if rule is not None:

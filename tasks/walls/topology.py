@@ -388,7 +388,9 @@ def _topology(
         keep |= unshadowed_lines(lines, keep, top, cfg)
         if proj.open_top and cfg.furniture_max_length_m > 0:
             # nothing seen above the slice: furniture reached its top too
-            furniture = furniture_in_front(lines, _centre(lines[keep]), cfg, lcfg.angle_tol_deg, why=why)
+            furniture = furniture_in_front(
+                lines, _centre(lines[keep]), cfg, lcfg.angle_tol_deg, why=why, occupied=_occupied(proj)
+            )
             # and a direction the slice shows over only a few decimetres is a rounded or faceted furniture face
             furniture |= lone_directions(lines, cfg.furniture_lone_direction_m, lcfg.angle_tol_deg, grid.size)
             furniture[~keep] = False
