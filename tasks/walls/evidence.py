@@ -902,8 +902,8 @@ def furniture_in_front(
       along at least half of it, or the wall's data there (`occupied` (K, 2), the centres of the cells
       holding slice data, within `support_tol_m` of the wall's line) along at least half of its 10 cm bins
       (seen past it: a wall hides what lies behind it, a shelf lower than the cut does not; the few points
-      make no line), or with both its ends joined to the wall's line by sides (a box standing
-      on the wall just past where the capture saw it: the wall behind and beyond it unseen), or with one
+      make no line), or with both its ends joined to the wall's line by sides (a box standing on the wall
+      just past where the capture saw it: the wall behind and beyond it unseen), or with one
       end where the wall's seen part ends and the other free (`at_seen_end`: the wall seen up to the box
       and not past it, or the box's side at its far end), or standing alone in front of the wall's unseen
       stretch between the room's corners (`isolated`);
