@@ -257,6 +257,15 @@ def _along_lines(walls: NDArray, grid: Grid, shape: tuple[int, ...], tol_m: floa
     return band.astype(bool)
 
 
+def _free_ends(lines: NDArray, tol_m: float) -> NDArray[np.bool_]:
+    """(2M,) whether end k of line i (row i + k M) lies further than `tol_m` from every other line."""
+    m = len(lines)
+    ends = np.concatenate([lines[:, :2], lines[:, 2:]])
+    d = point_segment_distances(ends, lines) if m else np.zeros((0, 0))
+    d[np.arange(2 * m), np.tile(np.arange(m), 2)] = np.inf
+    return d.min(axis=1, initial=np.inf) > tol_m
+
+
 def _wall_data(binary: NDArray, top: NDArray, lines: NDArray, grid: Grid, tol_m: float) -> NDArray:
     """The binary cells that are wall data: those near the slice top, and the others within `tol_m` of
     a kept line (the part of a wall seen below the top). A cabinet's cells, away from every kept line,
@@ -409,6 +418,15 @@ def _topology(
         reg = np.where(refused[:, None], lines, reg)
     refined = reg if xy is None else refine_offsets(reg, xy, proj.cell, grid, cfg.refine_band_m)
     refined = extend_to_data(refined, wall_data, grid, cfg.end_tol_m, cfg.end_gap_m, lcfg.extend_m)
+    if not proj.open_top:
+        # a free end (no other line within `lines.max_gap_m`) runs on through its wall's data however sparse
+        # (a Kinect's far stretch, fewer points per cell than the binarization's share): any wall-like cell.
+        # Without a ceiling furniture reaches the top like the walls, and a cabinet in line with a wall
+        # would carry its end on; an end at a corner has its wall's end already
+        sparse = _wall_data(binary | proj.wall_like, proj.top, lines, grid, cfg.support_tol_m)
+        further = extend_to_data(refined, sparse, grid, cfg.end_tol_m, cfg.end_gap_m, lcfg.extend_m)
+        free = _free_ends(refined, lcfg.max_gap_m)
+        refined = np.where(np.repeat(free.reshape(2, -1).T, 2, axis=1), further, refined)
     # walls of the next rooms, seen through a door in one of this room's walls, go before they shape its corners
     through = seen_through_gaps(
         refined,
