@@ -354,7 +354,7 @@ def _band_half_width(line: NDArray, cell_xy: NDArray, window_m: float = 0.3, sha
     return float(np.quantile(d[sel], share)) if sel.any() else 0.0
 
 
-def _end_distances(walls: NDArray) -> tuple[NDArray, NDArray]:
+def end_distances(walls: NDArray) -> tuple[NDArray, NDArray]:
     """The walls' ends (2M, 2: every first end, then every second) and each end's distance to every wall
     (2M, M; infinite to its own)."""
     m = len(walls)
@@ -371,7 +371,7 @@ def _stubs(walls: NDArray, angle_min_deg: float = 45.0) -> list[tuple[int, int]]
     m = len(walls)
     if m < 2:
         return []
-    ends, d = _end_distances(walls)
+    ends, d = end_distances(walls)
     touching = d <= 1e-6
     L = lengths(walls)
     th = angles(walls)
@@ -400,7 +400,7 @@ def _capped_stubs(walls: NDArray, cap_max_m: float, tol_m: float = 0.01) -> list
     m = len(walls)
     if m < 3:
         return []
-    ends, d = _end_distances(walls)
+    ends, d = end_distances(walls)
     touching = d <= tol_m
     L = lengths(walls)
     th = angles(walls)

@@ -34,6 +34,7 @@ from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import (
     TopCells,
     backed_bridges,
+    end_distances,
     extend_to_data,
     furniture_in_front,
     lone_directions,
@@ -259,11 +260,9 @@ def _along_lines(walls: NDArray, grid: Grid, shape: tuple[int, ...], tol_m: floa
 
 def _free_ends(lines: NDArray, tol_m: float) -> NDArray[np.bool_]:
     """(2M,) whether end k of line i (row i + k M) lies further than `tol_m` from every other line."""
-    m = len(lines)
-    ends = np.concatenate([lines[:, :2], lines[:, 2:]])
-    d = point_segment_distances(ends, lines) if m else np.zeros((0, 0))
-    d[np.arange(2 * m), np.tile(np.arange(m), 2)] = np.inf
-    return d.min(axis=1, initial=np.inf) > tol_m
+    if len(lines) == 0:
+        return np.zeros(0, dtype=bool)
+    return end_distances(lines)[1].min(axis=1, initial=np.inf) > tol_m
 
 
 def _wall_data(binary: NDArray, top: NDArray, lines: NDArray, grid: Grid, tol_m: float) -> NDArray:
@@ -817,9 +816,7 @@ def acute_stubs(walls: NDArray, lcfg: LinesConfig) -> NDArray[np.bool_]:
         return out
     L = lengths(walls)
     th = angles(walls)
-    ends = np.concatenate([walls[:, :2], walls[:, 2:]])  # end k of wall i at row i + k n
-    d = point_segment_distances(ends, walls)
-    d[np.arange(2 * n), np.tile(np.arange(n), 2)] = np.inf
+    ends, d = end_distances(walls)  # end k of wall i at row i + k n
     arm = lcfg.offset_tol_m
     free = d.min(axis=1) > arm
     lo, hi = math.sin(math.radians(lcfg.angle_tol_deg)), math.sin(math.radians(ACUTE_STUB_MAX_DEG))
