@@ -422,10 +422,12 @@ def _topology(
         # (a Kinect's far stretch, fewer points per cell than the binarization's share): any wall-like cell.
         # Without a ceiling furniture reaches the top like the walls, and a cabinet in line with a wall
         # would carry its end on; an end at a corner has its wall's end already
-        sparse = _wall_data(binary | proj.wall_like, proj.top, lines, grid, cfg.support_tol_m)
-        further = extend_to_data(refined, sparse, grid, cfg.end_tol_m, cfg.end_gap_m, lcfg.extend_m)
-        free = _free_ends(refined, lcfg.max_gap_m)
-        refined = np.where(np.repeat(free.reshape(2, -1).T, 2, axis=1), further, refined)
+        free = _free_ends(refined, lcfg.max_gap_m).reshape(2, -1).T  # (M, 2): per line, its two ends
+        some = free.any(axis=1)
+        if some.any():
+            sparse = _wall_data(binary | proj.wall_like, proj.top, lines, grid, cfg.support_tol_m)
+            further = extend_to_data(refined[some], sparse, grid, cfg.end_tol_m, cfg.end_gap_m, lcfg.extend_m)
+            refined[some] = np.where(np.repeat(free[some], 2, axis=1), further, refined[some])
     # walls of the next rooms, seen through a door in one of this room's walls, go before they shape its corners
     through = seen_through_gaps(
         refined,
