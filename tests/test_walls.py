@@ -12,7 +12,7 @@ import pytest
 
 from tasks.cloud import DegenerateInputError
 from tasks.evaluate import evaluate_walls
-from tasks.lines import angles
+from tasks.lines import angles, rotate_segments
 from tasks.synth.rooms import KINDS, furniture_slice, make_room, sample_room, truth_walls
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import refine_offsets
@@ -809,6 +809,89 @@ def test_a_dangling_wall_leaving_a_straight_wall_at_a_narrow_angle_goes():
     # a wall 10 deg off its neighbour, meeting it at their ends (an open room's corner), stays
     bent = np.array([[0, 0, 6, 0], [6, 0, 6 + 4 * math.sin(math.radians(10)), 4]], float)
     assert not acute_stubs(bent, CFG.lines).any()
+
+
+def test_an_extension_left_dangling_goes_and_one_joining_two_walls_stays():
+    from tasks.walls.topology import dangling_extensions
+
+    # a 6 x 4 m room with an alcove 1.3 m wide, 0.7 m deep in its south wall; a step the joins placed at the
+    # west end of the wall beside the alcove, down to the alcove's back wall's line, joins nothing below
+    walls = np.array(
+        [
+            [0, 0, 2.0, 0],
+            [2.0, 0, 2.0, -0.7],  # the alcove's west side (extended: unseen) joins its back wall
+            [2.0, -0.7, 3.3, -0.7],
+            [3.3, -0.7, 3.3, 0],
+            [3.3, 0, 6, 0],
+            [6, 0, 6, 4],
+            [6, 4, 0, 4],
+            [0, 4, 0, 0],
+            [1.4, 0, 1.4, -0.7],  # the step left over: its south end free
+        ],
+        float,
+    )
+    origin = np.array(["observed", "extended", *["observed"] * 6, "extended"])
+    assert dangling_extensions(walls, origin, CFG.lines.offset_tol_m).tolist() == [False] * 8 + [True]
+    # seen, the same wall is a partition stub and stays
+    origin[-1] = "observed"
+    assert not dangling_extensions(walls, origin, CFG.lines.offset_tol_m).any()
+
+
+def test_a_refused_wall_leaves_its_cluster_and_its_neighbours_keep_their_own_angle():
+    from tasks.walls.topology import regularize_within_noise
+
+    # two 6 m walls at 0°, their data 2 cm about them, and a 3 m wall at 2° (within the parallelism
+    # tolerance, 3°), its data 1 cm about it: regularized to their mean (0.4°), the long walls' ends move
+    # 2.1 cm (within their noise) and the short one's 4.2 cm (refused); refused alone, it would still have
+    # turned the long walls 0.4° off their own angle
+    a = math.radians(2.0)
+    lines = np.array([[0, 0, 6, 0], [0, 1, 6, 1], [0, 2, 3 * math.cos(a), 2 + 3 * math.sin(a)]], float)
+    out, rotation, refused = regularize_within_noise(lines, np.array([0.02, 0.02, 0.01]), CFG.lines)
+    assert refused.tolist() == [False, False, True]
+    np.testing.assert_allclose(rotation, 0.0, atol=1e-12)
+    np.testing.assert_allclose(out, lines, atol=1e-12)
+
+
+def test_frames_are_fitted_to_the_points_a_held_wall_on_its_own(rng):
+    from tasks.walls.evidence import refine_frames
+    from tasks.walls.image import Grid
+
+    # a 6 x 4 m room turned 0.3° and a free-standing wall at 20.2°, their points 1 cm noisy; the lines as the
+    # regularization left them: the room's at 0° and 90° (a cell off over its length), the wall at 20°, held
+    turn_deg = 0.3
+    room = rotate_segments(
+        np.array([[0, 0, 6, 0], [6, 0, 6, 4], [6, 4, 0, 4], [0, 4, 0, 0]], float),
+        math.radians(turn_deg),
+        np.array([3.0, 2.0]),
+    )
+    wall = np.array([1, 1, 1 + 2 * math.cos(math.radians(20.2)), 1 + 2 * math.sin(math.radians(20.2))])
+    truth = np.vstack([room, wall])
+    xy = np.concatenate(
+        [wall_points(w[:2], w[2:], 0.0, 0.2, rng, step=0.02, noise=0.01)[:, :2] for w in truth]
+    )
+    lines = np.array([[0, 0, 6, 0], [6, 0, 6, 4], [6, 4, 0, 4], [0, 4, 0, 0]], float)
+    lines = np.vstack([lines, rotate_segments(wall[None], math.radians(-0.2))])
+    grid = Grid(np.array([-1.0, -1.0]), 0.01, (700, 900))
+    cells = np.floor((xy - grid.origin) / grid.size).astype(np.int64)
+    pix = cells[:, 1] * grid.shape[1] + cells[:, 0]
+    held = np.array([False] * 4 + [True])
+    turn = np.degrees(refine_frames(lines, held, xy, pix, grid, 0.06, math.radians(5)))
+    np.testing.assert_allclose(turn[:4], turn_deg, atol=0.02)
+    assert turn[4] == pytest.approx(0.2, abs=0.05)
+    # a turn larger than allowed is not made
+    assert not refine_frames(lines, held, xy, pix, grid, 0.06, math.radians(0.1))[:4].any()
+    # a short line seen sparsely (0.3 m, its points 4 cm apart and 1.5 cm noisy, 2° off it) turns less than
+    # its points say: its own angle, a cell at each end, is about as good as theirs
+    short = np.array([[0.0, 0.0, 0.3, 0.0]])
+    far = rotate_segments(short, math.radians(2.0))[0]
+    sparse = wall_points(far[:2], far[2:], 0.0, 0.3, rng, step=0.04, noise=0.015)[:, :2]
+    cells = np.floor((sparse - grid.origin) / grid.size).astype(np.int64)
+    got = math.degrees(
+        refine_frames(
+            short, np.array([True]), sparse, cells[:, 1] * grid.shape[1] + cells[:, 0], grid, 0.06, 1.0
+        )[0]
+    )
+    assert 0.2 < got < 1.5
 
 
 def _door_cells(lines: np.ndarray, gaps: list[tuple[int, float, float]], grid_m: float = 0.01):

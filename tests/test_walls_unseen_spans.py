@@ -229,3 +229,27 @@ def test_a_closet_the_wider_reaches_make_in_a_ceiling_less_room_is_not_the_room(
     r = run_room(generate_building(126), 126, "r1", "mini", load_config([], []), None, degrade=True)
     assert r.error is None and r.closed, r
     assert r.completeness >= 0.95 and r.correctness >= 0.95 and r.acc_mean_mm <= 10.0, r
+
+
+def test_a_free_end_is_not_run_to_an_alcove_side_that_leads_away_from_the_room():
+    """The south wall seen from its east corner to an alcove's mouth, the alcove's east side and back
+    unseen, its west side seen 0.6 m from the mouth away from the room: running the south wall's free end
+    west to that side would cut the alcove off, the side left outside. Led the other way (into the room),
+    the line closes it."""
+    walls = np.array(
+        [
+            [6, 0, 6, 4],
+            [6, 4, 0, 4],
+            [0, 4, 0, 0],
+            [0, 0, 0.4, 0],
+            [0.4, 0, 0.4, -0.6],  # the alcove's west side, leading south, away from the room
+            [3.7, 0, 6, 0],  # the south wall, seen 2.3 m: its west end free 3.3 m from the side
+        ],
+        float,
+    )
+    origin = np.full(len(walls), "observed")
+    args = (CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True)
+    assert pinned_corners(walls, origin, *args) is None
+    walls[4] = [0.4, 0.6, 0.4, 0.0]  # the same line leading north into the room (a stub): it closes
+    closed = pinned_corners(walls, origin, *args)
+    assert closed is not None and closed[2].area == pytest.approx(24.0, abs=0.01)

@@ -18,15 +18,10 @@ from tasks.walls.config import WallsConfig
 from tasks.walls.image import Grid
 
 
-def refine_offsets(
-    walls: NDArray, xy: NDArray, pix: NDArray, grid: Grid, band_m: float, iterations: int = 2
-) -> NDArray:
-    """Each wall moved along its normal to the median signed distance of the points within `band_m`
-    of it (away from its ends by `band_m`, so that the neighbouring walls do not pull). `pix` (N,) is
-    every point's flat pixel index in `grid`: points are found through a raster of the walls' bands."""
-    out = walls.copy()
-    if band_m <= 0 or len(xy) == 0 or len(walls) == 0:
-        return out
+def _band_points(walls: NDArray, xy: NDArray, pix: NDArray, grid: Grid, band_m: float) -> list[NDArray]:
+    """Per wall, the points of `xy` (N, 2) in its band (within `band_m`, through a raster of the walls'
+    bands: a point in two bands goes to the later wall). `pix` (N,) is every point's flat pixel index in
+    `grid`."""
     label = np.zeros(grid.shape, dtype=np.int32)
     px = grid.to_pixels(walls.reshape(-1, 2)).reshape(-1, 4)
     thick = 2 * math.ceil(band_m / grid.size) + 1
@@ -35,23 +30,115 @@ def refine_offsets(
     owner = label.ravel()[pix] - 1
     order = np.argsort(owner, kind="stable")
     bounds = np.searchsorted(owner[order], np.arange(len(walls) + 1))
-    for i, s in enumerate(out):
-        a, b = s[:2], s[2:]
-        L = float(np.hypot(*(b - a)))
-        if L <= 2 * band_m:
+    return [xy[order[bounds[i] : bounds[i + 1]]] for i in range(len(walls))]
+
+
+def _own_points(wall: NDArray, pts: NDArray, band_m: float, iterations: int = 2) -> tuple[NDArray, float]:
+    """(mask of `pts` (K, 2) that are the wall's own, their median signed distance from it): those away
+    from its ends by `band_m` (the neighbouring walls do not pull) and within `band_m` of that median,
+    found in `iterations` rounds. An empty mask for a wall shorter than 2 `band_m` or with fewer than 10
+    such points."""
+    a, b = wall[:2], wall[2:]
+    L = float(np.hypot(*(b - a)))
+    none = np.zeros(len(pts), dtype=bool)
+    if L <= 2 * band_m:
+        return none, 0.0
+    u = (b - a) / L
+    t, d = (pts - a) @ u, (pts - a) @ np.array([-u[1], u[0]])
+    inside = (t > band_m) & (t < L - band_m)
+    shift, sel = 0.0, none
+    for _ in range(iterations):
+        sel = inside & (np.abs(d - shift) < band_m)
+        if sel.sum() < 10:
+            return none, shift
+        shift = float(np.median(d[sel]))
+    return sel, shift
+
+
+def refine_offsets(walls: NDArray, xy: NDArray, pix: NDArray, grid: Grid, band_m: float) -> NDArray:
+    """Each wall moved along its normal to the median signed distance of the points within `band_m`
+    of it (away from its ends by `band_m`, so that the neighbouring walls do not pull). `pix` (N,) is
+    every point's flat pixel index in `grid`: points are found through a raster of the walls' bands."""
+    out = walls.copy()
+    if band_m <= 0 or len(xy) == 0 or len(walls) == 0:
+        return out
+    for i, pts in enumerate(_band_points(walls, xy, pix, grid, band_m)):
+        _, shift = _own_points(walls[i], pts, band_m)
+        u = (walls[i, 2:] - walls[i, :2]) / max(float(np.hypot(*(walls[i, 2:] - walls[i, :2]))), 1e-12)
+        out[i] = walls[i] + np.array([-u[1], u[0], -u[1], u[0]]) * shift
+    return out
+
+
+def refine_frames(
+    walls: NDArray,
+    held: NDArray,
+    xy: NDArray,
+    pix: NDArray,
+    grid: Grid,
+    band_m: float,
+    max_rad: float,
+    bin_m: float = 0.1,
+) -> NDArray:
+    """(M,) the turn (radians) that fits each frame of the regularized walls (M, 4) to its points: the
+    walls sharing one direction or perpendicular to it (not `held`, those the regularization left at their
+    own angle: each of them is its own frame). Along each wall, the median offset of its own points
+    (`_own_points`) in every `bin_m` bin with at least 3: turning the frame by a small angle tilts every
+    wall's offsets by the same slope along it, so the slope is fitted to all the frame's bins at once, each
+    wall free in its offset (the pooled within-wall regression). Medians, bin by bin, follow the surface
+    most of the points are on (a cabinet front a few cm before the wall over part of it does not tilt it),
+    and every stretch of wall counts alike however densely it was seen. The regularization takes its angles
+    from the Hough segments of the skeleton, good to a cell over a wall's length (0.1-0.3°: 1-3 cm at the
+    ends of a 10 m wall); the points fix it to their noise over the frame's whole length. The two are
+    weighed by their variances (the lines' a cell at each end: grid² / the sum of their squared lengths;
+    the points' the bins' residual variance over their spread along the walls), so a frame of a few short,
+    sparsely seen lines turns little. A turn larger than `max_rad` (the points do not say the same as the
+    lines) is not made."""
+    m = len(walls)
+    out = np.zeros(m)
+    if band_m <= 0 or len(xy) == 0 or m == 0:
+        return out
+    ang = angles(walls)
+    key = np.where(held, -1 - np.arange(m), np.round(np.mod(ang, math.pi / 2) * 1e6).astype(np.int64))
+    pts = _band_points(walls, xy, pix, grid, band_m)
+    for k in np.unique(key):
+        group = np.flatnonzero(key == k)
+        sxy = sxx = 0.0
+        parts: list[tuple[NDArray, NDArray]] = []
+        for i in group:
+            own, _ = _own_points(walls[i], pts[i], band_m)
+            if own.sum() < 10:
+                continue
+            a, b = walls[i, :2], walls[i, 2:]
+            u = (b - a) / float(np.hypot(*(b - a)))
+            rel = pts[i][own] - a
+            t, d = rel @ u, rel @ np.array([-u[1], u[0]])
+            cell = np.floor(t / bin_m).astype(np.int64)
+            order = np.argsort(cell, kind="stable")
+            cell, t, d = cell[order], t[order], d[order]
+            starts = np.flatnonzero(np.r_[True, np.diff(cell) > 0])
+            counts = np.diff(np.r_[starts, len(cell)])
+            full = counts >= 3
+            if full.sum() < 2:
+                continue
+            bins = [slice(s, s + c) for s, c in zip(starts[full], counts[full], strict=True)]
+            tb = np.array([np.median(t[part]) for part in bins])
+            db = np.array([np.median(d[part]) for part in bins])
+            tb, db = tb - tb.mean(), db - db.mean()
+            sxy += float(tb @ db)
+            sxx += float(tb @ tb)
+            parts.append((tb, db))
+        if sxx <= 0:
             continue
-        u = (b - a) / L
-        n = np.array([-u[1], u[0]])
-        pts = xy[order[bounds[i] : bounds[i + 1]]] - a
-        t, d = pts @ u, pts @ n
-        inside = (t > band_m) & (t < L - band_m)
-        shift = 0.0
-        for _ in range(iterations):
-            sel = inside & (np.abs(d - shift) < band_m)
-            if sel.sum() < 10:
-                break
-            shift = float(np.median(d[sel]))
-        out[i] = s + np.concatenate([n, n]) * shift
+        slope = sxy / sxx
+        n_bins = sum(len(tb) for tb, _ in parts)
+        if n_bins <= len(parts) + 1:
+            continue
+        res = sum(float(((db - slope * tb) ** 2).sum()) for tb, db in parts) / (n_bins - len(parts) - 1)
+        var_points = res / sxx
+        var_lines = grid.size**2 / float((lengths(walls[group]) ** 2).sum())
+        turn = math.atan(slope) * var_lines / (var_lines + var_points)
+        if abs(turn) <= max_rad:
+            out[group] = turn
     return out
 
 

@@ -38,6 +38,7 @@ from tasks.walls.evidence import (
     extend_to_data,
     furniture_in_front,
     lone_directions,
+    refine_frames,
     refine_offsets,
     seen_through_gaps,
     support_sampler,
@@ -190,6 +191,7 @@ def model_for(
         "orientation_clusters": len(found.merged.orientation_deg),
         "orientation_criterion": found.merged.orientation_criterion,
         "regularization_refused": found.refused,
+        "frame_fit_turn_max_deg": found.frame_turn_deg,
         "merged_lines": len(found.merged.segments),
         "lines_below_top": found.below_top,
         "lines_furniture_no_ceiling": found.furniture,
@@ -238,6 +240,8 @@ class _Topology:
     """Lines dropped as seen beyond the room in a slice without a ceiling (`beyond_the_room`)."""
     furniture_rules: dict[str, int] = field(default_factory=dict)
     """How many lines each of `furniture_in_front`'s rules took (before the top-reach test's own drops)."""
+    frame_turn_deg: float = 0.0
+    """The largest turn the fit of the frames to the points made (`evidence.refine_frames`), degrees."""
 
 
 def _along_lines(walls: NDArray, grid: Grid, shape: tuple[int, ...], tol_m: float) -> NDArray:
@@ -408,14 +412,16 @@ def _topology(
         lines, noise, chain = lines[keep], noise[keep], chain[keep]
     wall_data = _wall_data(binary, proj.top, lines, grid, cfg.support_tol_m)
     share = support_sampler(wall_data, grid, cfg.support_tol_m)
-    reg, rotation = regularize(lines, lcfg)
-    # a regularization that moves a line's ends further than its data's noise is refused: the data say
-    # the wall runs at its own angle (a wall a few degrees off its neighbours' direction)
-    refused = np.abs(rotation) * 0.5 * lengths(lines) > REFUSE_NOISE_SIGMAS * noise
-    if refused.any():
-        rotation = np.where(refused, 0.0, rotation)
-        reg = np.where(refused[:, None], lines, reg)
-    refined = reg if xy is None else refine_offsets(reg, xy, proj.cell, grid, cfg.refine_band_m)
+    reg, rotation, refused = regularize_within_noise(lines, noise, lcfg)
+    turn = np.zeros(len(reg))
+    if xy is None:
+        refined = reg
+    else:
+        turn = refine_frames(
+            reg, refused, xy, proj.cell, grid, cfg.refine_band_m, math.radians(lcfg.angle_tol_deg)
+        )
+        reg, rotation = rotate_segments(reg, turn), rotation + turn
+        refined = refine_offsets(reg, xy, proj.cell, grid, cfg.refine_band_m)
     refined = extend_to_data(refined, wall_data, grid, cfg.end_tol_m, cfg.end_gap_m, lcfg.extend_m)
     if not proj.open_top:
         # a free end (no other line within `lines.max_gap_m`) runs on through its wall's data however sparse
@@ -483,6 +489,7 @@ def _topology(
         walls, origin = walls[~hung], origin[~hung]
         polygon, walls, origin, _ = _room_polygon(walls, origin, grid.size)
     stray = stray_walls(walls, merged.orientation_deg, share, lcfg) | acute_stubs(walls, lcfg)
+    stray |= dangling_extensions(walls, origin, lcfg.offset_tol_m)
     if stray.any():
         walls, origin = walls[~stray], origin[~stray]
         polygon, walls, origin, _ = _room_polygon(walls, origin, grid.size)
@@ -503,6 +510,7 @@ def _topology(
         furniture_lines,
         beyond_lines,
         why,
+        round(math.degrees(float(np.abs(turn).max(initial=0.0))), 4),
     )
 
 
@@ -563,7 +571,8 @@ def pinned_corners(
     room's far walls behind it); joins two pieces of one wall across a gap of any length when each lies on
     the other's line (within `offset_m`) and nothing lies behind the join (an alcove's back wall behind
     its mouth); and runs a free end along its line to a wall (its end within `tol_m`) as far as the line
-    is seen over when nothing lies behind the piece. With the slice `points` (N, 2), "nothing" includes
+    is seen over when nothing lies behind the piece and that wall, met at its end, does not run on away
+    from the room (an alcove's side: the room goes on past the line there). With the slice `points` (N, 2), "nothing" includes
     them, close behind (a furniture front run on, the wall seen just behind it). What was seen stays: the
     added pieces still may not cross a wall."""
     n = len(walls)
@@ -653,10 +662,21 @@ def pinned_corners(
                 # the corner on the wall (its end when the line passes a cell beyond it)
                 k = 2 * int(hit[2] > 1.0)
                 at = hit[0] if not across_unseen or 0.0 <= hit[2] <= 1.0 else walls[j, k : k + 2]
-                best = (hit[1], at, j)
+                # met at its end (within `offset_m`), a wall that runs on away from the room (its other end
+                # beyond the line, on the far side from the room's centre) says the room goes on past the
+                # line there: an alcove's side, its mouth unseen
+                far = walls[j, 2:4] if hit[2] < 0.5 else walls[j, 0:2]
+                across = np.array([-u[1], u[0]])
+                inward = math.copysign(1.0, float((_centre(walls) - p) @ across))
+                at_end = min(hit[2], 1.0 - hit[2]) * L[j] <= offset_m
+                away = at_end and float((far - p) @ across) * inward < -tol_m
+                best = (hit[1], at, j, away)
         if best is not None and (
             best[0] <= reach_m
-            or _nothing_behind(walls, p, best[1], _centre(walls), (i, best[2]), tol_m, points)
+            or (
+                not best[3]
+                and _nothing_behind(walls, p, best[1], _centre(walls), (i, best[2]), tol_m, points)
+            )
         ):
             cands.append((best[0], best[0], x, x, best[1], best[2]))
     if not cands:
@@ -839,6 +859,18 @@ def acute_stubs(walls: NDArray, lcfg: LinesConfig) -> NDArray[np.bool_]:
     return out
 
 
+def dangling_extensions(walls: NDArray, origin: NDArray, tol_m: float) -> NDArray[np.bool_]:
+    """(M,) walls the connection added for want of data (`EXTENDED`) that join nothing at one end (no
+    other wall within `tol_m`). An extension runs to where it meets another wall; one left dangling, its
+    wall cut back or dropped after the join (an alcove's mouth, a step placed from a line that ran across
+    it), invents a wall where nothing was seen."""
+    n = len(walls)
+    if n < 2:
+        return np.zeros(n, dtype=bool)
+    free = end_distances(walls)[1].min(axis=1) > tol_m
+    return (origin == EXTENDED) & (free[:n] | free[n:])
+
+
 def place_steps(
     conn: Connected,
     lines: NDArray,
@@ -936,6 +968,30 @@ def place_steps(
 
 REFUSE_NOISE_SIGMAS = 3.0
 """A regularization may move a line's ends by at most this many standard deviations of its data about it."""
+
+
+def regularize_within_noise(
+    lines: NDArray, noise: NDArray, lcfg: LinesConfig
+) -> tuple[NDArray, NDArray, NDArray[np.bool_]]:
+    """`regularize` with every rotation that would move a line's ends by more than `REFUSE_NOISE_SIGMAS`
+    times its data's noise (`noise` (M,), metres) refused: the data say that wall runs at its own angle (a
+    wall a few degrees off its neighbours' direction). A refused line keeps its angle and is left out of
+    its cluster's mean, which the others are regularized to again (until none more is refused): a wall held
+    at its own angle must not still pull its neighbour off its own. Returns (lines (M, 4), rotation (M,)
+    radians) as `regularize`, and the refused lines."""
+    n = len(lines)
+    reg, rotation = lines.copy(), np.zeros(n)
+    refused = np.zeros(n, dtype=bool)
+    half = 0.5 * lengths(lines)
+    for _ in range(n + 1):
+        free = ~refused
+        reg[free], rotation[free] = regularize(lines[free], lcfg)
+        more = free & (np.abs(rotation) * half > REFUSE_NOISE_SIGMAS * noise)
+        if not more.any():
+            break
+        refused |= more
+        reg[more], rotation[more] = lines[more], 0.0
+    return reg, rotation, refused
 
 
 def line_noise(hough: NDArray, labels: NDArray, lines: NDArray, floor_m: float) -> NDArray[np.float64]:
