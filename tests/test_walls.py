@@ -857,7 +857,7 @@ def test_frames_are_fitted_to_the_points_a_held_wall_on_its_own(rng):
     from tasks.walls.image import Grid
 
     # a 6 x 4 m room turned 0.3° and a free-standing wall at 20.2°, their points 1 cm noisy; the lines as the
-    # regularization left them: the room's at 0° and 90° (a cell off over its length), the wall at 20°, held
+    # regularization left them: the room's at 0° and 90° (3 cm off at the ends), the wall at 20°, held
     turn_deg = 0.3
     room = rotate_segments(
         np.array([[0, 0, 6, 0], [6, 0, 6, 4], [6, 4, 0, 4], [0, 4, 0, 0]], float),
