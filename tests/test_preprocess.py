@@ -516,13 +516,19 @@ def test_histogram_without_ceiling_warns_and_falls_back(rng):
     assert len(warnings) == 1 and "no ceiling" in warnings[0]
 
 
-def test_histogram_without_floor_or_ceiling_is_an_error(rng):
+def test_histogram_without_floor_or_ceiling_falls_back_to_the_walls_ends(rng):
+    """Walls and a table top only (a handheld scan's floor seen too sparsely to make a peak, cut below the
+    ceiling): the walls still show, so floor and ceiling are the walls' bottom and top, each with a
+    warning, instead of a refusal."""
     cfg = PreprocessConfig()
     z = _heights(rng, floor_area=0.0, ceiling_area=0.0)
     z = z[(z > 0.5) & (z < 2.6) | (np.abs(z - 1.0571) < 0.01)]  # walls and the table top only
     hist, sums = height_histogram(z, cfg.voxel_size_m)
-    with pytest.raises(DegenerateInputError, match="no floor or ceiling"):
-        floor_and_ceiling(hist, sums, cfg, [])
+    warnings: list[str] = []
+    floor, ceiling, stats = floor_and_ceiling(hist, sums, cfg, warnings)
+    assert floor == pytest.approx(0.5, abs=0.02) and ceiling == pytest.approx(2.6, abs=0.02)
+    assert not stats["floor_captured"] and not stats["ceiling_captured"]
+    assert len(warnings) == 2 and "no floor" in warnings[0] and "no ceiling" in warnings[1]
 
 
 # ------------------------------------------------------------------------------- bad input

@@ -181,7 +181,9 @@ def floor_and_ceiling(
     """Floor and ceiling heights from the histogram (thesis 5.1.5): the lowest and highest peaks that rise
     `peak_min_area_m2` above their surroundings, each accepted only within `surface_search_m` of the
     bottom (top) of the data. A surface not captured falls back to that bottom (top), the end of the walls,
-    with a warning; neither captured is an error."""
+    with a warning, and so do both when neither was captured: a handheld scan cut at 1.3-2 m that saw
+    only part of its floor, sparsely, still shows its walls (issue 14: a cloud is refused only when no
+    wall can be told apart; a single plane is, above)."""
     bottom, top = _band_edges(hist)
     span = top - bottom
     if span < cfg.min_wall_span_m:
@@ -196,11 +198,6 @@ def floor_and_ceiling(
     peaks = [_refined_peak(int(i) - 1, hist, z_sums) for i in found]
     floor = peaks[0] if peaks and peaks[0] - bottom <= cfg.surface_search_m else None
     ceiling = peaks[-1] if peaks and top - peaks[-1] <= cfg.surface_search_m else None
-    if floor is None and ceiling is None:
-        raise DegenerateInputError(
-            f"no floor or ceiling in the height histogram: no area of {cfg.peak_min_area_m2} m² within "
-            f"{cfg.surface_search_m} m of the lowest or highest points"
-        )
     if floor is None:
         floor = bottom
         warnings.append(f"no floor peak: floor taken as the bottom of the walls, z = {bottom:.3f} m")
