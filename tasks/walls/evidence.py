@@ -33,26 +33,29 @@ def _band_points(walls: NDArray, xy: NDArray, pix: NDArray, grid: Grid, band_m: 
     return [xy[order[bounds[i] : bounds[i + 1]]] for i in range(len(walls))]
 
 
-def _own_points(wall: NDArray, pts: NDArray, band_m: float, iterations: int = 2) -> tuple[NDArray, float]:
-    """(mask of `pts` (K, 2) that are the wall's own, their median signed distance from it): those away
-    from its ends by `band_m` (the neighbouring walls do not pull) and within `band_m` of that median,
-    found in `iterations` rounds. An empty mask for a wall shorter than 2 `band_m` or with fewer than 10
-    such points."""
+def _own_points(
+    wall: NDArray, pts: NDArray, band_m: float, iterations: int = 2
+) -> tuple[NDArray, NDArray, float]:
+    """The wall's own points of `pts` (K, 2): those away from its ends by `band_m` (the neighbouring walls
+    do not pull) and within `band_m` of their median signed distance from it, found in `iterations` rounds.
+    Returns their positions along the wall and signed distances from it (metres, from its first end, the
+    distance along its left normal), and that median; none for a wall shorter than 2 `band_m` or with
+    fewer than 10 such points."""
     a, b = wall[:2], wall[2:]
     L = float(np.hypot(*(b - a)))
-    none = np.zeros(len(pts), dtype=bool)
+    none = np.zeros(0)
     if L <= 2 * band_m:
-        return none, 0.0
+        return none, none, 0.0
     u = (b - a) / L
     t, d = (pts - a) @ u, (pts - a) @ np.array([-u[1], u[0]])
     inside = (t > band_m) & (t < L - band_m)
-    shift, sel = 0.0, none
+    shift, sel = 0.0, np.zeros(len(pts), dtype=bool)
     for _ in range(iterations):
         sel = inside & (np.abs(d - shift) < band_m)
         if sel.sum() < 10:
-            return none, shift
+            return none, none, shift
         shift = float(np.median(d[sel]))
-    return sel, shift
+    return t[sel], d[sel], shift
 
 
 def refine_offsets(walls: NDArray, xy: NDArray, pix: NDArray, grid: Grid, band_m: float) -> NDArray:
@@ -63,7 +66,7 @@ def refine_offsets(walls: NDArray, xy: NDArray, pix: NDArray, grid: Grid, band_m
     if band_m <= 0 or len(xy) == 0 or len(walls) == 0:
         return out
     for i, pts in enumerate(_band_points(walls, xy, pix, grid, band_m)):
-        _, shift = _own_points(walls[i], pts, band_m)
+        _, _, shift = _own_points(walls[i], pts, band_m)
         u = (walls[i, 2:] - walls[i, :2]) / max(float(np.hypot(*(walls[i, 2:] - walls[i, :2]))), 1e-12)
         out[i] = walls[i] + np.array([-u[1], u[0], -u[1], u[0]]) * shift
     return out
@@ -105,13 +108,9 @@ def refine_frames(
         sxy = sxx = 0.0
         parts: list[tuple[NDArray, NDArray]] = []
         for i in group:
-            own, _ = _own_points(walls[i], pts[i], band_m)
-            if own.sum() < 10:
+            t, d, _ = _own_points(walls[i], pts[i], band_m)
+            if len(t) == 0:
                 continue
-            a, b = walls[i, :2], walls[i, 2:]
-            u = (b - a) / float(np.hypot(*(b - a)))
-            rel = pts[i][own] - a
-            t, d = rel @ u, rel @ np.array([-u[1], u[0]])
             cell = np.floor(t / bin_m).astype(np.int64)
             order = np.argsort(cell, kind="stable")
             cell, t, d = cell[order], t[order], d[order]

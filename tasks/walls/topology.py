@@ -585,6 +585,7 @@ def pinned_corners(
     free = np.flatnonzero(d.min(axis=1) > tol_m)
     th = angles(walls)
     nrm = np.column_stack([-np.sin(th), np.cos(th)])
+    centre = _centre(walls)
 
     def span(k: int) -> float:
         """The length wall k's line is seen over: the extent of k and the walls in line with it."""
@@ -615,7 +616,7 @@ def pinned_corners(
                 if gap <= reach_m or (
                     across_unseen
                     and abs(float((p - q) @ np.array([-v[1], v[0]]))) <= offset_m
-                    and _nothing_behind(walls, p, q, _centre(walls), (i, j), tol_m, points)
+                    and _nothing_behind(walls, p, q, centre, (i, j), tol_m, points)
                 ):
                     cands.append((gap, gap, x, y, p + off * np.array([-u[1], u[0]]), j))
             continue
@@ -667,16 +668,13 @@ def pinned_corners(
                 # line there: an alcove's side, its mouth unseen
                 far = walls[j, 2:4] if hit[2] < 0.5 else walls[j, 0:2]
                 across = np.array([-u[1], u[0]])
-                inward = math.copysign(1.0, float((_centre(walls) - p) @ across))
+                inward = math.copysign(1.0, float((centre - p) @ across))
                 at_end = min(hit[2], 1.0 - hit[2]) * L[j] <= offset_m
                 away = at_end and float((far - p) @ across) * inward < -tol_m
                 best = (hit[1], at, j, away)
         if best is not None and (
             best[0] <= reach_m
-            or (
-                not best[3]
-                and _nothing_behind(walls, p, best[1], _centre(walls), (i, best[2]), tol_m, points)
-            )
+            or (not best[3] and _nothing_behind(walls, p, best[1], centre, (i, best[2]), tol_m, points))
         ):
             cands.append((best[0], best[0], x, x, best[1], best[2]))
     if not cands:
