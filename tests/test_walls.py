@@ -941,6 +941,79 @@ def test_walls_seen_through_a_door_are_told_from_the_rooms_own_walls():
     assert not seen_through_gaps(lines, cells, grid, interior, 0.3, 0.0, 0.05).any()  # 0: off
 
 
+def test_a_thin_partition_taken_as_one_line_gives_its_two_faces(rng):
+    from tasks.walls.evidence import two_faces
+    from tasks.walls.image import Grid
+
+    def face(y: float, n: int, x0: float = 0.0, x1: float = 2.0) -> np.ndarray:
+        return np.column_stack([rng.uniform(x0, x1, n), y + rng.normal(0, 0.005, n)])
+
+    grid = Grid(np.array([-0.5, -0.5]), 0.01, (150, 350))
+    walls = np.array([[0.0, 0.0, 2.0, 0.0]])  # the line between the faces, as a coarse binarization gives it
+    partition = np.concatenate([face(-0.05, 600), face(0.05, 300)])  # the far face seen at half the density
+    pix = np.ravel_multi_index(np.rint(grid.to_pixels(partition)).astype(int).T[::-1], grid.shape)
+    found = two_faces(walls, partition, pix, grid, 0.06, 0.06)
+    assert np.allclose(found, [[-0.05, 0.05]], atol=0.005), found
+    # one face with a cabinet's front 10 cm before a third of it, and one face with a noisy spread: one wall
+    for pts in (
+        np.concatenate([face(0.0, 600), face(0.1, 200, 0.5, 1.1)]),
+        face(0.0, 900) + np.column_stack([np.zeros(900), rng.normal(0, 0.02, 900)]),
+    ):
+        pix = np.ravel_multi_index(np.rint(grid.to_pixels(pts)).astype(int).T[::-1], grid.shape)
+        assert np.isnan(two_faces(walls, pts, pix, grid, 0.12, 0.06)).all()
+
+
+def test_a_split_partition_drops_its_skeleton_pieces_and_a_face_found_already_is_not_split_again():
+    from tasks.walls.evidence import split_faces
+
+    lines = np.array(
+        [
+            [0.0, 0.0, 2.0, 0.0],  # 0 between a partition's faces at -0.05 and +0.05
+            [1.9, 0.01, 2.0, 0.01],  # 1 a piece of the partition's skeleton at its end, between the faces
+            [0.0, 1.0, 2.0, 1.0],  # 2 one face of another partition, the other (3) a line already
+            [0.0, 1.09, 2.0, 1.09],  # 3
+            [0.0, 0.0, 0.0, 2.0],  # 4 the host wall
+        ]
+    )
+    faces = np.full((5, 2), np.nan)
+    faces[0] = [-0.05, 0.05]
+    faces[2] = [-0.001, 0.085]  # the band of line 2 caught the tail of line 3's points
+    out, src = split_faces(lines, lines.copy(), faces, 3.0, 0.01)
+    assert src.tolist() == [0, 2, 3, 4, 0]
+    assert np.allclose(out[[0, -1]], [[0, -0.05, 2, -0.05], [0, 0.05, 2, 0.05]])
+    assert np.allclose(out[1:4], lines[[2, 3, 4]])
+
+
+def test_a_wall_behind_a_partition_stub_was_seen_round_its_end_not_through_a_door():
+    from tasks.walls.evidence import open_ends, seen_through_gaps
+
+    room = [
+        [0, 0, 6, 0],  # 0
+        [6, 0, 6, 4],  # 1
+        [6, 4, 1.6, 4],  # 2 the north wall, its west piece (3) found apart from it
+        [1.2, 4, 0, 4],  # 3 ... straight behind the stub's data, 2 m behind it
+        [0, 4, 0, 0],  # 4
+    ]
+    stub = [[0, 2, 1.4, 2]]  # 5 a partition from the west wall, its end free in the room
+    wall = [[0, 2, 1.4, 2], [2.3, 2, 6, 2]]  # 5, 6: a wall across the room, a door at x 1.4-2.3
+    interior = np.array([3.0, 1.0])
+    lines = np.array(room + stub, dtype=float)
+    cells, grid = _door_cells(lines, [])
+    assert open_ends(lines, 2.0, 0.05).tolist() == [[False, False]] * 5 + [[False, True]]
+    assert not seen_through_gaps(lines, cells, grid, interior, 0.3, 0.5, 0.05).any()
+    lines = np.array(room + wall, dtype=float)
+    cells, grid = _door_cells(lines, [])
+    assert not open_ends(lines, 2.0, 0.05).any()
+    assert np.flatnonzero(seen_through_gaps(lines, cells, grid, interior, 0.3, 0.5, 0.05)).tolist() == [3]
+    # the stub with nothing longer of the room behind it within 2 m of its ends (the north wall's long piece
+    # only at x 4.5-6): the piece straight behind it was seen through a door in it, as far as the data tell
+    lines = np.array(room + stub, dtype=float)
+    lines[2] = [6, 4, 4.5, 4]
+    cells, grid = _door_cells(lines, [])
+    assert open_ends(lines, 2.0, 0.05)[5].tolist() == [False, True]
+    assert np.flatnonzero(seen_through_gaps(lines, cells, grid, interior, 0.3, 0.5, 0.05)).tolist() == [3]
+
+
 def test_a_corridor_keeps_no_wall_of_the_rooms_seen_through_its_doors(rng):
     # a 8 m x 2 m corridor with a door in each long wall; through them the camera saw a side wall and the
     # far wall of the room south and a side wall of the room north: none is a wall of the corridor

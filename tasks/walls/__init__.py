@@ -31,11 +31,14 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    than three times its data's noise (`topology.line_noise`: a wall a few degrees off its neighbours keeps
    its angle); each wall's offset is refined to the median
    of the slice points near it (the skeleton is only good to a pixel), and its ends are moved out along it
-   as far as its data goes (`extend_to_data`: the skeleton stops short of a band's end). A line wholly
+   as far as its data goes (`extend_to_data`: the skeleton stops short of a band's end). A line whose
+   band holds two faces `thin_wall_min_m` or more apart is a thin partition one binarization took as one
+   wall: it becomes those two faces (`evidence.two_faces`, `split_faces`). A line wholly
    behind another, longer line of the room (more than `thin_wall_max_m` on its side away from the room),
    at least `through_gap_share` of it straight behind that line's data, was seen through a door in it: a
    wall of the next room, dropped before connecting (`evidence.seen_through_gaps`; an alcove's back wall
-   lies behind its mouth, not behind the wall's data);
+   lies behind its mouth, not behind the wall's data; a partition stub, its end open and the room going on
+   behind it, hides nothing: what lies behind it was seen round its end);
 7. topology (5.2.5.2, `tasks.connect.connect_detailed`; `topology`): extension and trimming (trimming only
    overshoot, not a wall's observed data), perpendicular joins of free ends onto parallel walls, removal
    of extensions with less than `min_overlap` of data, one at a time and judged with the regularization

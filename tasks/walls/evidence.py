@@ -72,6 +72,97 @@ def refine_offsets(walls: NDArray, xy: NDArray, pix: NDArray, grid: Grid, band_m
     return out
 
 
+FACES_MIN_BINS = 5
+"""`two_faces`: a wall's two faces are judged along at least this many bins (0.5 m of 10 cm bins, clear of its
+ends): a few decimetres of furniture side show peaks as well."""
+
+
+def two_faces(
+    walls: NDArray, xy: NDArray, pix: NDArray, grid: Grid, band_m: float, min_gap_m: float, bin_m: float = 0.1
+) -> NDArray[np.float64]:
+    """(M, 2) for each wall whose band (`band_m`, away from its ends) holds two faces, their offsets from it
+    (along its left normal, metres; NaN for the others): a thin partition whose faces, `min_gap_m` or more
+    apart, one binarization took as one wall. Two faces are two peaks of the points' offsets (1 cm bins) at
+    least `min_gap_m` apart, with at most a quarter of the smaller peak between them, each running along at
+    least half the wall (`bin_m` bins, at least `FACES_MIN_BINS` of them). A room's wall shows the room one
+    face; a cabinet's front before it stands further off or along a part of it."""
+    out = np.full((len(walls), 2), np.nan)
+    if band_m <= 0 or min_gap_m <= 0 or len(xy) == 0:
+        return out
+    step = 0.01
+    edges = np.arange(-band_m, band_m + step / 2, step)
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    for i, pts in enumerate(_band_points(walls, xy, pix, grid, band_m)):
+        a, b = walls[i, :2], walls[i, 2:]
+        L = float(np.hypot(*(b - a)))
+        if L - 2 * band_m < FACES_MIN_BINS * bin_m or len(pts) < 20:
+            continue
+        u = (b - a) / L
+        t, d = (pts - a) @ u, (pts - a) @ np.array([-u[1], u[0]])
+        inside = (t > band_m) & (t < L - band_m) & (np.abs(d) <= band_m)
+        t, d = t[inside], d[inside]
+        h = np.histogram(d, edges)[0]
+        p1 = int(np.argmax(h))
+        far = np.abs(centres - centres[p1]) >= min_gap_m
+        if not far.any() or h[far].max() == 0:
+            continue
+        p2 = int(np.flatnonzero(far)[np.argmax(h[far])])
+        lo, hi = sorted((p1, p2))
+        if h[lo + 1 : hi].min() > 0.25 * min(h[p1], h[p2]):
+            continue
+        n_bins = max(1, math.floor((L - 2 * band_m) / bin_m))
+        faces = []
+        for p in (lo, hi):
+            on = np.abs(d - centres[p]) <= 0.02
+            cover = np.bincount(
+                np.minimum(((t[on] - band_m) / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins
+            )
+            faces.append((float(np.median(d[on])), float((cover > 0).mean())))
+        if min(f[1] for f in faces) >= 0.5 and faces[1][0] - faces[0][0] >= min_gap_m:
+            out[i] = [faces[0][0], faces[1][0]]
+    return out
+
+
+FACE_FOUND_M = 0.03
+"""`split_faces`: a line parallel to a split line, along half of it and this near one of the two faces, is that
+face found already."""
+
+
+def split_faces(
+    lines: NDArray, refined: NDArray, faces: NDArray, angle_tol_deg: float, tol_m: float
+) -> tuple[NDArray, NDArray[np.intp]]:
+    """The refined lines with each line that `two_faces` found two faces in (`faces` (M, 2), offsets from
+    `lines`, NaN for the others) replaced by its first face, its second appended, and the lines that lie
+    between the two faces along them (within `angle_tol_deg`; the partition's own skeleton pieces) dropped.
+    A line one of whose faces is another line already (its band caught the tail of that line's points) stays
+    as refined. Returns (lines (K, 4), the index in `lines` each comes from (K,))."""
+    out = refined.copy()
+    keep = np.ones(len(lines), dtype=bool)
+    split = []
+    sin_tol = math.sin(math.radians(angle_tol_deg))
+    L = lengths(lines)
+    for i in np.flatnonzero(np.isfinite(faces[:, 0])):
+        u = (lines[i, 2:] - lines[i, :2]) / L[i]
+        nrm = np.array([-u[1], u[0]])
+        ends = lines.reshape(-1, 2, 2) - lines[i, :2]  # (M, 2 ends, 2)
+        t, off = ends @ u, ends @ nrm
+        d = lines[:, 2:] - lines[:, :2]
+        parallel = np.abs(u[0] * d[:, 1] - u[1] * d[:, 0]) <= sin_tol * L
+        parallel[i] = False
+        overlap = np.clip(t.max(axis=1), 0, L[i]) - np.clip(t.min(axis=1), 0, L[i])
+        found = np.abs(off.mean(axis=1)[:, None] - faces[i][None, :]).min(axis=1) <= FACE_FOUND_M
+        if (parallel & (overlap >= 0.5 * L[i]) & found).any():
+            continue
+        between = ((off > faces[i, 0] + tol_m) & (off < faces[i, 1] - tol_m)).all(axis=1)
+        along = ((t >= -tol_m) & (t <= L[i] + tol_m)).all(axis=1)
+        keep &= ~(parallel & between & along)
+        out[i] = lines[i] + np.tile(nrm, 2) * faces[i, 0]
+        split.append((i, lines[i] + np.tile(nrm, 2) * faces[i, 1]))
+    keep[[i for i, _ in split]] = True
+    src = np.concatenate([np.flatnonzero(keep), [i for i, _ in split]]).astype(np.intp)
+    return np.concatenate([out[keep], np.array([f for _, f in split]).reshape(-1, 4)]), src
+
+
 def refine_frames(
     walls: NDArray,
     held: NDArray,
@@ -813,6 +904,35 @@ def lifted(faces: list[NDArray], z_lo: float, z_hi: float, step_m: float) -> NDA
     return np.concatenate([out, *ready]) if ready else out
 
 
+OPEN_END_MIN_M = 2.0
+"""`seen_through_gaps`: a line whose end runs on this far without meeting another line (wider than a double door
+or a window) ends free in the room."""
+
+
+def open_ends(
+    lines: NDArray, reach_m: float, tol_m: float, back_m: float = 0.3, step_m: float = 0.05
+) -> NDArray[np.bool_]:
+    """(M, 2) whether each end of each line (x0 y0, then x1 y1) is open: its line, from `back_m` before that
+    end (an end that overshoots a corner) to `reach_m` past it, comes within `tol_m` of no other line run on
+    `reach_m` past both its ends (samples every `step_m`). A wall's end at a corner (the next wall's line
+    crosses it, however short of the corner either was found) or at a door's jamb (the wall goes on past the
+    door) is not open; a partition stub's free end, standing in the room, is."""
+    lines = np.asarray(lines, dtype=np.float64)
+    out = np.zeros((len(lines), 2), dtype=bool)
+    if len(lines) < 2:
+        return out
+    L = lengths(lines)
+    u = np.zeros((len(lines), 2))
+    u[L > 0] = (lines[L > 0, 2:] - lines[L > 0, :2]) / L[L > 0, None]
+    run_on = np.concatenate([lines[:, :2] - reach_m * u, lines[:, 2:] + reach_m * u], axis=1)
+    for i in np.flatnonzero(L > 0):
+        s = np.arange(-min(back_m, 0.5 * L[i]), reach_m + 1e-9, step_m)
+        others = np.delete(run_on, i, axis=0)
+        for k, (end, way) in enumerate(((lines[i, :2], -u[i]), (lines[i, 2:], u[i]))):
+            out[i, k] = point_segment_distances(end + s[:, None] * way, others).min() > tol_m
+    return out
+
+
 def seen_through_gaps(
     lines: NDArray,
     wall_data: NDArray[np.bool_],
@@ -832,13 +952,18 @@ def seen_through_gaps(
     in it. A room's own walls are never behind another of its walls' data: an alcove's or an L-room's far
     walls lie behind a wall's *line* but beyond its end or behind the gap itself (an alcove's mouth), and a
     thin wall's second face lies within `min_depth_m` (the thickest thin wall) of its first. `min_share` 0
-    switches the test off."""
+    switches the test off.
+
+    A line with an open end (`open_ends`) and a longer line wholly behind it, along it or within
+    `OPEN_END_MIN_M` past its ends (the room goes on there: a partition stub standing free in the room), hides
+    nothing: the room's walls behind it were seen round its end."""
     lines = np.asarray(lines, dtype=np.float64)
     out = np.zeros(len(lines), dtype=bool)
     if min_share <= 0 or interior is None or len(lines) < 2:
         return out
     L = lengths(lines)
     ok = L > 0
+    stub = open_ends(lines, OPEN_END_MIN_M, tol_m).any(axis=1)
     u = np.zeros((len(lines), 2))
     u[ok] = (lines[ok, 2:] - lines[ok, :2]) / L[ok, None]
     back = np.column_stack([u[:, 1], -u[:, 0]])
@@ -853,7 +978,12 @@ def seen_through_gaps(
         deep = np.bincount(owner, depth <= min_depth_m, len(lines)) == 0
         cand = deep & (L < L[w])
         cand[w] = False
-        if not cand.any():
+        # the room going on behind W: a longer line wholly behind it, along it or within OPEN_END_MIN_M past an end
+        t_all = np.stack([(lines[:, :2] - lines[w, :2]) @ u[w], (lines[:, 2:] - lines[w, :2]) @ u[w]], axis=1)
+        by = (t_all.max(axis=1) >= -OPEN_END_MIN_M) & (t_all.min(axis=1) <= L[w] + OPEN_END_MIN_M)
+        if not cand.any() or (stub[w] and (deep & by & (L > L[w])).any()):
+            # a line with an open end and the room going on behind it (a longer line there) is a partition
+            # stub: what lies behind it was seen round its end
             continue
         sel = cand[owner]
         inside = (t[sel] >= 0) & (t[sel] <= L[w])

@@ -41,9 +41,11 @@ from tasks.walls.evidence import (
     refine_frames,
     refine_offsets,
     seen_through_gaps,
+    split_faces,
     support_sampler,
     thin_wall_faces,
     top_reach_shares,
+    two_faces,
     unshadowed_lines,
 )
 from tasks.walls.image import Coarse, Grid, Projection, binarize, hough_segments, skeleton, sparse_cells
@@ -422,6 +424,12 @@ def _topology(
         )
         reg, rotation = rotate_segments(reg, turn), rotation + turn
         refined = refine_offsets(reg, xy, proj.cell, grid, cfg.refine_band_m)
+        # a thin partition one binarization took as one wall: its two faces
+        faces = two_faces(reg, xy, proj.cell, grid, cfg.refine_band_m, cfg.thin_wall_min_m)
+        refined, src = split_faces(reg, refined, faces, lcfg.angle_tol_deg, grid.size)
+        second = np.arange(len(src)) >= len(np.unique(src))  # the second faces come last
+        rotation = rotation[src]
+        chain = np.where(second, chain.max(initial=-1) + 1 + np.cumsum(second) - 1, chain[src])
     refined = extend_to_data(refined, wall_data, grid, cfg.end_tol_m, cfg.end_gap_m, lcfg.extend_m)
     if not proj.open_top:
         # a free end (no other line within `lines.max_gap_m`) runs on through its wall's data however sparse
