@@ -141,12 +141,12 @@ def split_faces(
     split = []
     sin_tol = math.sin(math.radians(angle_tol_deg))
     L = lengths(lines)
+    d = lines[:, 2:] - lines[:, :2]
     for i in np.flatnonzero(np.isfinite(faces[:, 0])):
-        u = (lines[i, 2:] - lines[i, :2]) / L[i]
+        u = d[i] / L[i]
         nrm = np.array([-u[1], u[0]])
         ends = lines.reshape(-1, 2, 2) - lines[i, :2]  # (M, 2 ends, 2)
         t, off = ends @ u, ends @ nrm
-        d = lines[:, 2:] - lines[:, :2]
         parallel = np.abs(u[0] * d[:, 1] - u[1] * d[:, 0]) <= sin_tol * L
         parallel[i] = False
         overlap = np.clip(t.max(axis=1), 0, L[i]) - np.clip(t.min(axis=1), 0, L[i])
@@ -156,8 +156,9 @@ def split_faces(
         between = ((off > faces[i, 0] + tol_m) & (off < faces[i, 1] - tol_m)).all(axis=1)
         along = ((t >= -tol_m) & (t <= L[i] + tol_m)).all(axis=1)
         keep &= ~(parallel & between & along)
-        out[i] = lines[i] + np.tile(nrm, 2) * faces[i, 0]
-        split.append((i, lines[i] + np.tile(nrm, 2) * faces[i, 1]))
+        shift = np.tile(nrm, 2)
+        out[i] = lines[i] + shift * faces[i, 0]
+        split.append((i, lines[i] + shift * faces[i, 1]))
     keep[[i for i, _ in split]] = True
     src = np.concatenate([np.flatnonzero(keep), [i for i, _ in split]]).astype(np.intp)
     return np.concatenate([out[keep], np.array([f for _, f in split]).reshape(-1, 4)]), src
@@ -933,6 +934,15 @@ def open_ends(
     return out
 
 
+def _room_behind(lines: NDArray, w: int, u: NDArray, behind: NDArray[np.bool_]) -> bool:
+    """Whether a line of `behind` (M,) runs along line `w` (direction `u`) or within `OPEN_END_MIN_M` past one
+    of its ends: the room goes on behind `w`, which, with an end open, is a partition stub."""
+    t = np.stack([(lines[:, :2] - lines[w, :2]) @ u, (lines[:, 2:] - lines[w, :2]) @ u], axis=1)
+    L = float(np.hypot(*(lines[w, 2:] - lines[w, :2])))
+    by = (t.max(axis=1) >= -OPEN_END_MIN_M) & (t.min(axis=1) <= L + OPEN_END_MIN_M)
+    return bool((behind & by).any())
+
+
 def seen_through_gaps(
     lines: NDArray,
     wall_data: NDArray[np.bool_],
@@ -978,12 +988,7 @@ def seen_through_gaps(
         deep = np.bincount(owner, depth <= min_depth_m, len(lines)) == 0
         cand = deep & (L < L[w])
         cand[w] = False
-        # the room going on behind W: a longer line wholly behind it, along it or within OPEN_END_MIN_M past an end
-        t_all = np.stack([(lines[:, :2] - lines[w, :2]) @ u[w], (lines[:, 2:] - lines[w, :2]) @ u[w]], axis=1)
-        by = (t_all.max(axis=1) >= -OPEN_END_MIN_M) & (t_all.min(axis=1) <= L[w] + OPEN_END_MIN_M)
-        if not cand.any() or (stub[w] and (deep & by & (L > L[w])).any()):
-            # a line with an open end and the room going on behind it (a longer line there) is a partition
-            # stub: what lies behind it was seen round its end
+        if not cand.any() or (stub[w] and _room_behind(lines, w, u[w], deep & (L > L[w]))):
             continue
         sel = cand[owner]
         inside = (t[sel] >= 0) & (t[sel] <= L[w])
