@@ -119,7 +119,9 @@ def connect_detailed(
     eps = max(T, 1e-9) * 1e-6
     sin_tol = math.sin(math.radians(max(cfg.angle_tol_deg, 1e-3)))
 
-    _extend_and_trim(walls, T, T if cfg.trim_m is None else min(T, float(cfg.trim_m)), sin_tol)
+    _extend_and_trim(
+        walls, T, T if cfg.trim_m is None else min(T, float(cfg.trim_m)), sin_tol, max(cfg.offset_tol_m, eps)
+    )
     chain = None if step_chain is None else np.asarray(step_chain, dtype=np.intp).reshape(len(segments))
     _join_free_ends(walls, T, eps, sin_tol, max(cfg.offset_tol_m, eps), interior_xy, support_fn, chain)
     pieces, piece_parent, piece_wall, extended = _node_pieces(walls, eps)
@@ -171,10 +173,15 @@ def _remove_unsupported(
     return removed
 
 
-def _extend_and_trim(walls: list[_Wall], T: float, trim: float, sin_tol: float) -> None:
+def _extend_and_trim(
+    walls: list[_Wall], T: float, trim: float, sin_tol: float, offset_tol: float = 0.0
+) -> None:
     """Move every end to the best intersection with a non-parallel line when the end moves out at most T
     or back at most `trim`, and the intersection lies within T of the other segment (5.2.5.2, fig 5.14
-    a-c). All walls are judged against the segments as they were before this step."""
+    a-c). An end does not move out past where a parallel line closer than `offset_tol` begins (the other
+    side of a step of a few cm, or the same wall's next piece: the extension would run along it, and the
+    room's outline double back). All walls are judged against the segments as they were before this
+    step."""
     if len(walls) < 2:
         return
     segs = np.array([w.as_segment() for w in walls])
@@ -182,10 +189,22 @@ def _extend_and_trim(walls: list[_Wall], T: float, trim: float, sin_tol: float) 
     Lv = np.hypot(D[:, 0], D[:, 1])
     U = np.array([w.u for w in walls])
     for i, w in enumerate(walls):
-        ok = np.abs(U[i, 0] * U[:, 1] - U[i, 1] * U[:, 0]) >= sin_tol
+        cross = np.abs(U[i, 0] * U[:, 1] - U[i, 1] * U[:, 0])
+        ok = cross >= sin_tol
         ok[i] = False
         if not ok.any():
             continue
+        # parallel lines within offset_tol: how far each end may move out before running along one
+        near = (cross < sin_tol) & (
+            np.abs((0.5 * (A + segs[:, 2:]) - w.a) @ np.array([-w.u[1], w.u[0]])) <= offset_tol
+        )
+        near[i] = False
+        tn = np.sort(np.stack([(A[near] - w.a) @ w.u, (segs[near, 2:] - w.a) @ w.u]), axis=0)  # (2, K)
+        # (end 0, end 1): up to the nearest such line beyond the end; none where one already runs past it
+        room = (
+            float(np.min(np.maximum(w.t0 - tn[1], 0.0)[tn[0] < w.t0], initial=np.inf)),
+            float(np.min(np.maximum(tn[0] - w.t1, 0.0)[tn[1] > w.t1], initial=np.inf)),
+        )
         den = np.where(ok, U[i, 0] * D[:, 1] - U[i, 1] * D[:, 0], 1.0)
         qp = A - w.a
         t = (qp[:, 0] * D[:, 1] - qp[:, 1] * D[:, 0]) / den  # along wall i (unit direction)
@@ -196,7 +215,11 @@ def _extend_and_trim(walls: list[_Wall], T: float, trim: float, sin_tol: float) 
         for e, t_end, outward in ((0, w.t0, -1.0), (1, w.t1, 1.0)):
             move = (t - t_end) * outward  # > 0 extends, < 0 trims
             valid = (
-                ok & (move <= T) & (-move <= trim) & (beyond <= T) & ~((move < 0) & (-move > 0.5 * length))
+                ok
+                & (move <= min(T, room[e]))
+                & (-move <= trim)
+                & (beyond <= T)
+                & ~((move < 0) & (-move > 0.5 * length))
             )
             if valid.any():
                 score = np.where(valid, np.abs(move) + beyond, np.inf)

@@ -203,13 +203,14 @@ def explained_variance(x: NDArray, labels: NDArray, weights: NDArray | None = No
 
 
 def cluster_orientations(
-    theta: NDArray, weights: NDArray, cfg: LinesConfig
+    theta: NDArray, weights: NDArray, cfg: LinesConfig, seg_lengths: NDArray | None = None
 ) -> tuple[NDArray[np.intp], NDArray[np.float64], tuple[float, ...], str]:
     """Orientation k-means on doubled angles (so 0° and 180° coincide), k = the smallest whose explained
     variance reaches `cfg.explained_variance` (elbow, eq 5.8). Eq 5.8 is global: two clusters a few degrees
     apart add almost nothing to the variance when clusters 90° apart dominate it, so every cluster is then
     tested on its own (`_split_bimodal`): it is split when its members' angles fall into two groups further
-    apart than the parallelism tolerance and well beyond the spread of line angles within each group.
+    apart than the parallelism tolerance and well beyond the spread of line angles within each group, each
+    holding a segment of `cfg.split_min_length_m` (`seg_lengths` (N,); the weights when not given).
     Clusters whose means lie within `angle_tol_deg` of each other are then joined. Returns (labels (N,),
     cluster means in radians [0, pi) (k,), explained variance for each k tried, the criterion that decided
     k: "eq 5.8" or "eq 5.8 + per-cluster split (n)")."""
@@ -236,7 +237,9 @@ def cluster_orientations(
             break
     labels = np.unique(best_labels, return_inverse=True)[1].astype(np.intp)
     tol = math.radians(cfg.angle_tol_deg)
-    labels, splits = _split_bimodal(theta, w, labels, tol, cfg.max_orientation_clusters)
+    labels, splits = _split_bimodal(
+        theta, w, labels, tol, cfg.max_orientation_clusters, cfg.split_min_length_m, seg_lengths
+    )
     means = _cluster_mean_angles(theta, w, labels)
     labels, means = _join_close_clusters(theta, w, labels, means, tol)
     criterion = "eq 5.8" if splits == 0 else f"eq 5.8 + per-cluster split ({splits})"
@@ -253,13 +256,21 @@ segments a few degrees off a long wall are noise of that wall, not a second dire
 
 
 def _split_bimodal(
-    theta: NDArray, w: NDArray, labels: NDArray, tol: float, max_clusters: int
+    theta: NDArray,
+    w: NDArray,
+    labels: NDArray,
+    tol: float,
+    max_clusters: int,
+    min_length: float = 0.0,
+    seg_lengths: NDArray | None = None,
 ) -> tuple[NDArray[np.intp], int]:
     """Split clusters whose member angles are bimodal: the best weighted two-group split of a cluster's
     angles (exact in 1D: sorted angles, every cut) is taken when the groups' means are more than `tol`
     apart, more than SPLIT_SEPARATION pooled within-group standard deviations apart (the noise of the
-    line angles, measured on the cluster itself), and each group holds SPLIT_MIN_SHARE of the weight.
-    Repeats until no cluster splits. Returns (labels, number of splits)."""
+    line angles, measured on the cluster itself), each group holds SPLIT_MIN_SHARE of the weight and a
+    segment at least `min_length` long (`seg_lengths` (N,), else the weights). Repeats until no cluster
+    splits. Returns (labels, number of splits)."""
+    seg_lengths = w if seg_lengths is None else np.asarray(seg_lengths, dtype=np.float64)
     labels = labels.copy()
     splits = 0
     queue = list(np.unique(labels))
@@ -290,7 +301,8 @@ def _split_bimodal(
         sd = math.sqrt(max(float(ssw[cut]), 0.0) / W)
         sep = abs(m2 - m1)
         share = min(w1[cut], w2[cut]) / W
-        if sep > tol and sep > SPLIT_SEPARATION * sd and share >= SPLIT_MIN_SHARE:
+        longest = min(seg_lengths[m[order[: cut + 1]]].max(), seg_lengths[m[order[cut + 1 :]]].max())
+        if sep > tol and sep > SPLIT_SEPARATION * sd and share >= SPLIT_MIN_SHARE and longest >= min_length:
             new = int(labels.max()) + 1
             labels[m[order[cut + 1 :]]] = new
             splits += 1
@@ -553,7 +565,7 @@ def merge_segments(
     idx = np.flatnonzero(keep)
     seg, wk = segments[idx], w[idx]
     theta = angles(seg)
-    o_labels, o_means, evs, criterion = cluster_orientations(theta, wk, cfg)
+    o_labels, o_means, evs, criterion = cluster_orientations(theta, wk, cfg, L[idx])
     orient_out[idx] = o_labels
 
     sin_tol = math.sin(math.radians(cfg.angle_tol_deg))
@@ -615,7 +627,7 @@ def regularize(
     theta = angles(segments)
     w = lengths(segments) * (1.0 if weights is None else np.asarray(weights, dtype=np.float64))
     w = np.where(w > 0, w, 1e-12)
-    labels, means, _, _ = cluster_orientations(theta, w, cfg)
+    labels, means, _, _ = cluster_orientations(theta, w, cfg, lengths(segments))
     target = _perpendicular_targets(
         means, np.bincount(labels, w, len(means)), math.radians(cfg.angle_tol_deg)
     )

@@ -17,6 +17,10 @@ class LinesConfig:
     variance of the doubled-angle unit vectors."""
     kmeans_restarts: int = 4
     """Deterministic k-means restarts per k (farthest-point seeds from different starting segments)."""
+    split_min_length_m: float = 0.0
+    """A cluster split into two directions a few degrees apart (`cluster_orientations`) needs a segment at
+    least this long in each: a wall of its own direction is seen over that much, while a furniture face or
+    a plant's facets a few degrees off the walls are shorter. 0: no such test."""
     angle_tol_deg: float = 3.0
     """Parallel / perpendicular tolerance: orientation clusters closer than this are made parallel; pairs
     within this of 90° are made exactly perpendicular (eq 5.9). Other angles are kept."""
@@ -52,4 +56,12 @@ class LinesConfig:
         return replace(self, **scaled)
 
 
-_LENGTH_FIELDS = ("offset_tol_m", "max_gap_m", "extend_m", "trim_m", "step_window_m", "min_length_m")
+_LENGTH_FIELDS = (
+    "offset_tol_m",
+    "max_gap_m",
+    "extend_m",
+    "trim_m",
+    "step_window_m",
+    "min_length_m",
+    "split_min_length_m",
+)

@@ -388,3 +388,34 @@ def test_empty_and_degenerate_inputs():
     single = np.array([[0, 0, 1, 0.0]])
     assert len(merge_segments(single, CFG).segments) == 1
     assert connect(single, CFG)[0].shape == (1, 4)
+
+
+def test_the_two_sides_of_a_step_do_not_run_on_over_each_other_to_a_corner():
+    # a wall seen in two pieces 3.5 cm apart (a step), the later one ending 0.75 m from the west wall:
+    # extending it to that corner would run it along the earlier piece, and the outline double back
+    walls = np.array(
+        [
+            [0.0, -3.0, 0.0, 0.0],  # west wall
+            [0.1, 0.035, 0.9, 0.035],  # the step's earlier side
+            [0.75, 0.0, 2.5, 0.0],  # its later side, overlapping the earlier one by 0.15 m
+            [2.5, 0.0, 2.5, -3.0],  # east wall
+        ]
+    )
+    out = connect_detailed(walls, CFG, step_chain=np.array([0, 1, 1, 2])).segments
+    along = out[np.abs(out[:, 1] - out[:, 3]) < 1e-9]  # the pieces along x
+    # together they cover the wall once (2.5 m), with no piece lying over another
+    assert lengths(along).sum() == pytest.approx(2.5, abs=0.01), out
+    # on different chains (no step seen between them) the later one still may not run along the earlier
+    out = connect_detailed(walls, CFG, step_chain=np.array([0, 1, 2, 3])).segments
+    along = out[np.abs(out[:, 1] - out[:, 3]) < 1e-9]
+    assert lengths(along).sum() <= 2.5 + 0.15 + 1e-6, out
+
+
+def test_the_data_do_not_carry_a_step_s_side_over_the_other():
+    from tasks.walls.topology import stop_at_steps
+
+    before = np.array([[2.73, 0.0, 3.15, 0.0], [1.89, 0.035, 2.79, 0.035], [0.0, 1.0, 0.0, 2.0]])
+    after = np.array([[2.07, 0.0, 3.19, 0.0], [1.88, 0.035, 3.17, 0.035], [0.0, 0.9, 0.0, 2.1]])
+    out = stop_at_steps(before, after, np.array([4, 4, 5]))
+    # each side runs on outward, not past where the other side began; another chain's line is untouched
+    assert np.allclose(out, [[2.73, 0.0, 3.19, 0.0], [1.88, 0.035, 2.79, 0.035], [0.0, 0.9, 0.0, 2.1]])

@@ -540,6 +540,30 @@ def test_a_cluster_of_two_directions_a_few_degrees_apart_is_split(rng):
     assert len(means) == 2 and criterion == "eq 5.8"
 
 
+def test_a_direction_a_few_degrees_off_held_only_by_short_segments_is_no_wall_s(rng):
+    """A plant's facets and a cabinet's side drawn a few degrees off the walls (segments up to 0.7 m) make
+    a second mode in the walls' cluster; with `split_min_length_m` (1 m, the walls' default) they stay with
+    the walls, while a wall of its own direction, seen over a 1.2 m segment, is still split off."""
+    from tasks.lines import LinesConfig, cluster_orientations
+
+    walls = np.radians(np.concatenate([rng.normal(0.0, 0.3, 12), rng.normal(90.0, 0.3, 12)]))
+    walls_len = rng.uniform(1.0, 3.0, len(walls))
+    off = np.radians(rng.normal(6.0, 0.3, 10))
+    off_len = rng.uniform(0.3, 0.7, len(off))
+    theta = np.mod(np.concatenate([walls, off]), np.pi)
+    L = np.concatenate([walls_len, off_len])
+    cfg = LinesConfig(split_min_length_m=1.0)
+    assert cluster_orientations(theta, L, LinesConfig())[3].startswith(
+        "eq 5.8 + per-cluster split"
+    )  # the test off
+    _, means, _, criterion = cluster_orientations(theta, L, cfg)
+    assert criterion == "eq 5.8" and len(means) == 2
+    # one of them 1.2 m long: a wall
+    L[-1] = 1.2
+    _, means, _, criterion = cluster_orientations(theta, L, cfg)
+    assert criterion.startswith("eq 5.8 + per-cluster split") and len(means) == 3
+
+
 def test_line_noise_is_the_spread_of_the_members_about_the_line():
     from tasks.walls.topology import line_noise
 

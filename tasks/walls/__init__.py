@@ -38,11 +38,16 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    at least `through_gap_share` of it straight behind that line's data, was seen through a door in it: a
    wall of the next room, dropped before connecting (`evidence.seen_through_gaps`; an alcove's back wall
    lies behind its mouth, not behind the wall's data; a partition stub, its end open and the room going on
-   behind it, hides nothing: what lies behind it was seen round its end);
+   behind it, hides nothing: what lies behind it was seen round its end). In a slice with nothing seen
+   above it (no ceiling) furniture reaches the slice top like the walls: its faces are told by where they
+   stand (`evidence.furniture_in_front`, `lone_directions`), and a front the capture saw through (an open
+   shelf's books) moves onto the wall seen behind it (`evidence.seen_through_fronts`). The two sides of a
+   step of a few cm do not run on over each other along their data (`topology.stop_at_steps`);
 7. topology (5.2.5.2, `tasks.connect.connect_detailed`; `topology`): extension and trimming (trimming only
-   overshoot, not a wall's observed data), perpendicular joins of free ends onto parallel walls, removal
-   of extensions with less than `min_overlap` of data, one at a time and judged with the regularization
-   rotation undone. A join across an unseen wall goes where the data holds it, else at the end of the wall
+   overshoot, not a wall's observed data; an end moves out no further than where a parallel line within
+   `lines.offset_tol_m` begins, the other side of a step), perpendicular joins of free ends onto parallel
+   walls, removal of extensions with less than `min_overlap` of data, one at a time and judged with the
+   regularization rotation undone. A join across an unseen wall goes where the data holds it, else at the end of the wall
    nearer the room's interior (its reflex corner, seen from anywhere in the room). The room is the
    largest face the walls enclose when the walls on or inside it hold most of the wall length; walls
    outside it (seen through doors and windows), groups hung from the ceiling (lamps) and dangling walls

@@ -146,10 +146,11 @@ class WallsConfig:
     line (at 1 cm the metre values are larger and rule)."""
     hough_theta_deg: float = 0.5
     """Angular resolution of the Hough accumulator (degrees)."""
-    lines: LinesConfig = field(default_factory=lambda: LinesConfig(trim_m=0.3))
+    lines: LinesConfig = field(default_factory=lambda: LinesConfig(trim_m=0.3, split_min_length_m=1.0))
     """Clustering, regularization and topology thresholds (metres; `tasks.lines`). Trimming cuts only
     overshoot (a data band's width past a corner), never observed wall back to a partition standing on
-    it, hence `trim_m` below `extend_m`."""
+    it, hence `trim_m` below `extend_m`; a direction a few degrees off a cluster's needs a Hough segment
+    of 1 m (a plant's facets, a cabinet's side drawn some degrees off, are shorter)."""
     refine_band_m: float = 0.06
     """Slice points within this distance of a wall refine its offset (median); 0 switches it off."""
     support_tol_m: float = 0.05

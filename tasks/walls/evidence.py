@@ -1487,6 +1487,109 @@ def furniture_in_front(
     return out
 
 
+SEEN_THROUGH_MIN_SHARE = 0.5
+"""`seen_through_fronts`: a front with data behind it in at least this share of the 10 cm bins where it is seen."""
+
+
+def seen_through_fronts(
+    lines: NDArray, candidates: NDArray, interior: NDArray | None, occupied: NDArray, cfg: WallsConfig
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.float64]]:
+    """(moved (M,), sides (M,), lines (M, 4)): the lines a capture saw through, moved onto the wall behind
+    them, and their sides, for a slice with nothing seen above it (a handheld scan cut at 1.3-2 m), where an
+    open shelf reaches the slice top like a wall.
+
+    A wall hides what lies behind it. Where a line among `candidates` (M,), longer than furniture is deep
+    (`furniture_max_depth_m`) and at most `furniture_max_length_m`, parallel to a longer candidate (within
+    twice the angle tolerance, as a front to its wall), is seen (its 10 cm bins holding cells of `occupied`
+    (K, 2), the centres of the cells with slice data, within `support_tol_m` of it), and in at least
+    `SEEN_THROUGH_MIN_SHARE` of those bins the data also lie on a line parallel to it
+    `furniture_min_depth_m` to `furniture_max_depth_m` behind it (away from `interior`), it is the front of
+    an open shelf (its books, its boards), and the wall it stands against is that line behind: it moves
+    there (the median offset of those data). Its sides, lines across it from its ends to the wall's line
+    (within `thin_wall_end_tol_m`), go.
+
+    Not moved: a line with a line across one of its ends (any line, a candidate or not) running on past
+    the wall found behind it (a wall of the room: the room lies there; an L-shaped room's centre may lie in
+    its other wing); a wall with a door (what lies beyond is seen where the wall itself is not); a thin
+    partition seen from both sides (a stub standing in the room: a parallel line within `thin_wall_max_m`
+    behind, along half of it), as the room goes on behind it."""
+    lines = np.asarray(lines, dtype=np.float64).reshape(-1, 4)
+    out = lines.copy()
+    moved, sides = np.zeros(len(lines), dtype=bool), np.zeros(len(lines), dtype=bool)
+    if interior is None or len(occupied) == 0 or len(lines) < 2:
+        return moved, sides, out
+    candidates = np.asarray(candidates, dtype=bool)
+    tol, end_tol = cfg.support_tol_m, cfg.thin_wall_end_tol_m
+    d_lo, d_hi = cfg.furniture_min_depth_m, cfg.furniture_max_depth_m
+    L = lengths(lines)
+    ang = angles(lines)
+    step = 0.01
+    # parallel within twice the angle tolerance, as a front stands to its wall (`furniture_in_front`)
+    sin_loose = math.sin(math.radians(2 * cfg.lines.angle_tol_deg))
+    loose = np.abs(np.sin(ang[:, None] - ang[None, :])) <= sin_loose
+    # ...and across it as a side stands, good to 2 support_tol_m over its length (`furniture_in_front`)
+    sin_side = np.maximum(sin_loose, np.sin(np.arctan2(2 * tol, np.maximum(L, 1e-12))))
+    across = np.abs(np.cos(ang[:, None] - ang[None, :])) <= sin_side[None, :]
+    for i in np.flatnonzero(candidates & (L > d_hi) & (L <= cfg.furniture_max_length_m)):
+        if not (loose[i] & candidates & (L > L[i])).any():
+            continue  # in no direction of the room's walls: no shelf's front
+        a = lines[i, :2]
+        u = (lines[i, 2:] - a) / L[i]
+        n = np.array([-u[1], u[0]])
+        if float((interior - a) @ n) > 0:
+            n = -n  # n points away from the room
+        if float((a - interior) @ n) < d_lo:
+            continue  # the room's centre too near the line to tell its front from its back
+        rel = occupied - a
+        t, off = rel @ u, rel @ n
+        inside = (t >= 0) & (t < L[i])
+        bins = np.floor(t / 0.1).astype(np.int64)
+        own = np.unique(bins[inside & (np.abs(off) <= tol)])
+        if len(own) < 0.5 * math.ceil(L[i] / 0.1):
+            continue
+        # a thin partition's other face behind it: the room goes on past its end
+        par = np.abs(np.sin(ang - ang[i])) <= math.sin(math.radians(cfg.lines.angle_tol_deg))
+        par[i] = False
+        if par.any():
+            d_par = (0.5 * (lines[par, :2] + lines[par, 2:]) - a) @ n
+            t_par = np.stack([(lines[par, :2] - a) @ u, (lines[par, 2:] - a) @ u])
+            overlap = np.minimum(t_par.max(axis=0), L[i]) - np.maximum(t_par.min(axis=0), 0.0)
+            if ((d_par > 0) & (d_par <= cfg.thin_wall_max_m) & (overlap >= 0.5 * L[i])).any():
+                continue
+        best, at = 0.0, 0.0
+        for d in np.arange(d_lo, d_hi + 0.5 * step, step):
+            behind = np.unique(bins[inside & (np.abs(off - d) <= tol)])
+            share = len(np.intersect1d(behind, own, assume_unique=True)) / len(own)
+            if share > best:
+                best, at = share, float(d)
+        if best < SEEN_THROUGH_MIN_SHARE:
+            continue
+        depth = float(np.median(off[inside & (np.abs(off - at) <= tol)]))
+        # the lines across it at its ends (those not taken for walls too): one running on past the wall found
+        # behind it is a wall of the room; a side runs from its line to the wall's
+        at_ends = across[i].copy()
+        at_ends[i] = False
+        at_ends[at_ends] = (
+            point_segment_distances(lines[i].reshape(2, 2), lines[at_ends]).min(axis=0) <= end_tol
+        )
+        ends = lines[at_ends].reshape(-1, 2, 2) - a
+        dk = ends @ n  # (K, 2) behind the front
+        if (dk.max(axis=1, initial=0.0) > depth + end_tol).any():
+            continue
+        out[i] += np.tile(depth * n, 2)
+        moved[i] = True
+        tk = ends @ u
+        side = (
+            (L[at_ends] <= depth + 2 * end_tol)
+            & (dk.min(axis=1) >= -end_tol)
+            & (dk.max(axis=1) >= depth - end_tol)
+        )
+        side &= np.minimum(np.abs(tk).max(axis=1), np.abs(tk - L[i]).max(axis=1)) <= end_tol
+        side &= candidates[at_ends]
+        sides[np.flatnonzero(at_ends)[side]] = True
+    return moved, sides & ~moved, out
+
+
 def lone_directions(
     lines: NDArray, min_total_m: float, angle_tol_deg: float, grid_m: float
 ) -> NDArray[np.bool_]:

@@ -313,6 +313,9 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
         if len(bridges):
             walls = np.concatenate([walls, bridges])
             origin = np.concatenate([origin, np.full(len(bridges), EXTENDED)])
+    # a join between two walls' coincident ends (no length: under 1 mm) is no wall
+    real = lengths(walls) >= 1e-3
+    walls, origin = walls[real], origin[real]
     share = support_sampler(best.binary, grid, cfg.support_tol_m)
     support = share(walls)
     polygon = best.polygon

@@ -40,6 +40,7 @@ from tasks.walls.evidence import (
     lone_directions,
     refine_frames,
     refine_offsets,
+    seen_through_fronts,
     seen_through_gaps,
     split_faces,
     support_sampler,
@@ -288,6 +289,31 @@ LOW_REACH_MAX_SHARE = 0.2
 (a piece of a cabinet's front may graze the wall's top-reaching data at its end)."""
 
 
+def stop_at_steps(before: NDArray, after: NDArray, chain: NDArray) -> NDArray:
+    """`after` (M, 4), the lines `before` (M, 4) extended along their data, with no line of a chain merging
+    split at a step (the same `chain` (M,)) run on past where its neighbour across the step begins: the two
+    sides of a jog of a few cm lie in each other's band of data, and each would run on over the other (the
+    room's outline would then double back along the wall)."""
+    out = np.array(after, dtype=np.float64, copy=True)
+    for c in np.unique(chain):
+        idx = np.flatnonzero(chain == c)
+        if len(idx) < 2:
+            continue
+        d = before[idx[0], 2:] - before[idx[0], :2]
+        u = d / max(float(np.hypot(*d)), 1e-12)
+        tb = np.stack([before[idx, :2] @ u, before[idx, 2:] @ u], axis=1)  # (K, 2)
+        lo_b, hi_b, mid = tb.min(axis=1), tb.max(axis=1), tb.mean(axis=1)
+        for a, i in enumerate(idx):
+            ends = np.array([out[i, :2] @ u, out[i, 2:] @ u])
+            later, earlier = mid > mid[a], mid < mid[a]
+            hi = max(hi_b[a], lo_b[later].min()) if later.any() else np.inf
+            lo = min(lo_b[a], hi_b[earlier].max()) if earlier.any() else -np.inf
+            for e in range(2):
+                t = float(np.clip(ends[e], lo, hi))
+                out[i, 2 * e : 2 * e + 2] += (t - ends[e]) * u
+    return out
+
+
 def split_below_top(
     hough: NDArray, merged: MergedLines, top: TopCells, cfg: WallsConfig, angle_tol_deg: float, quantum: float
 ) -> MergedLines:
@@ -410,6 +436,11 @@ def _topology(
             furniture[~keep] = False
             furniture_lines = int(furniture.sum())
             keep &= ~furniture
+            # an open shelf's front, seen through: the wall behind it
+            moved, sides, lines = seen_through_fronts(lines, keep, _centre(lines[keep]), _occupied(proj), cfg)
+            keep &= ~sides
+            why["seen_through"] = int(moved.sum())
+            furniture_lines += int(sides.sum())
         below_top = int((~keep).sum()) - furniture_lines
         lines, noise, chain = lines[keep], noise[keep], chain[keep]
     wall_data = _wall_data(binary, proj.top, lines, grid, cfg.support_tol_m)
@@ -430,6 +461,7 @@ def _topology(
         second = np.arange(len(src)) >= len(np.unique(src))  # the second faces come last
         rotation = rotation[src]
         chain = np.where(second, chain.max(initial=-1) + 1 + np.cumsum(second) - 1, chain[src])
+    unextended = refined
     refined = extend_to_data(refined, wall_data, grid, cfg.end_tol_m, cfg.end_gap_m, lcfg.extend_m)
     if not proj.open_top:
         # a free end (no other line within `lines.max_gap_m`) runs on through its wall's data however sparse
@@ -442,6 +474,7 @@ def _topology(
             sparse = _wall_data(binary | proj.wall_like, proj.top, lines, grid, cfg.support_tol_m)
             further = extend_to_data(refined[some], sparse, grid, cfg.end_tol_m, cfg.end_gap_m, lcfg.extend_m)
             refined[some] = np.where(np.repeat(free[some], 2, axis=1), further, refined[some])
+    refined = stop_at_steps(unextended, refined, chain)
     # walls of the next rooms, seen through a door in one of this room's walls, go before they shape its corners
     through = seen_through_gaps(
         refined,
