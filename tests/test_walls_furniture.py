@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -14,6 +15,16 @@ from tasks.walls.evidence import furniture_in_front
 from tests.scenes import wall_points
 
 CFG = WallsConfig()
+
+
+def _cut_slice_model(pts: np.ndarray, truth: np.ndarray, cut: float) -> tuple[np.ndarray, Any, dict]:
+    """(slice, model, scores against `truth`) of a cloud cut at `cut` with no ceiling: the slice is the
+    highest half metre under the walls' top, and the top given to the model is the walls'."""
+    from tasks.walls.model import model_walls
+
+    band = pts[pts[:, 2] >= cut - 0.5]
+    model = model_walls(band, 0.0, cut, CFG)
+    return band, model, evaluate_walls(model.walls, truth)
 
 
 def test_furniture_faces_in_front_of_a_wall_are_told_from_walls_and_an_alcove():
@@ -61,9 +72,7 @@ def test_a_room_without_a_ceiling_keeps_its_walls_and_drops_a_wardrobe(rng):
 
     cut = 1.6
     pts, truth = _room_with_a_wardrobe(rng, cut)
-    band = pts[pts[:, 2] >= cut - 0.5]  # the slice: the highest half metre under the walls' top
-    model = model_walls(band, 0.0, cut, CFG)  # no ceiling: the given top is the walls'
-    ev = evaluate_walls(model.walls, truth)
+    band, model, ev = _cut_slice_model(pts, truth, cut)
     assert model.closed and len(model.walls) == 4, model.walls
     assert ev["correctness"] == 1.0 and ev["completeness"] > 0.99, ev
     assert model.metrics["lines_furniture_no_ceiling"] >= 1
@@ -214,9 +223,7 @@ def test_a_room_without_a_ceiling_drops_a_cabinet_standing_past_a_wall_s_seen_en
 
     cut = 1.5
     pts, truth = _box_past_a_seen_end(rng, cut)
-    band = pts[pts[:, 2] >= cut - 0.5]
-    model = model_walls(band, 0.0, cut, CFG)
-    ev = evaluate_walls(model.walls, truth)
+    band, model, ev = _cut_slice_model(pts, truth, cut)
     assert ev["correctness"] == 1.0, (ev, model.walls)
     assert model.metrics["lines_furniture_no_ceiling"] >= 1
     # without the furniture tests the cabinet's front and side are walls of the room
@@ -393,9 +400,7 @@ def test_an_open_shelf_s_front_seen_through_is_moved_onto_the_wall_behind_it(rng
 
     cut = 1.6
     pts, truth = _room_with_an_open_shelf(rng, cut)
-    band = pts[pts[:, 2] >= cut - 0.5]
-    model = model_walls(band, 0.0, cut, CFG)
-    ev = evaluate_walls(model.walls, truth)
+    band, model, ev = _cut_slice_model(pts, truth, cut)
     assert ev["correctness"] == 1.0, (ev, model.walls)
     assert model.metrics["furniture_rules_no_ceiling"]["seen_through"] == 1
     # without the rule the books stand 0.3 m in front of the wall
