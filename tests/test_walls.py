@@ -540,7 +540,7 @@ def test_a_cluster_of_two_directions_a_few_degrees_apart_is_split(rng):
     assert len(means) == 2 and criterion == "eq 5.8"
 
 
-def test_a_direction_a_few_degrees_off_held_only_by_short_segments_is_no_wall_s(rng):
+def test_a_direction_a_few_degrees_off_held_only_by_short_segments_is_not_split_off(rng):
     """A plant's facets and a cabinet's side drawn a few degrees off the walls (segments up to 0.7 m) make
     a second mode in the walls' cluster; with `split_min_length_m` (1 m, the walls' default) they stay with
     the walls, while a wall of its own direction, seen over a 1.2 m segment, is still split off."""
@@ -553,9 +553,8 @@ def test_a_direction_a_few_degrees_off_held_only_by_short_segments_is_no_wall_s(
     theta = np.mod(np.concatenate([walls, off]), np.pi)
     L = np.concatenate([walls_len, off_len])
     cfg = LinesConfig(split_min_length_m=1.0)
-    assert cluster_orientations(theta, L, LinesConfig())[3].startswith(
-        "eq 5.8 + per-cluster split"
-    )  # the test off
+    # without the test (the default LinesConfig) the short segments make a direction of their own
+    assert cluster_orientations(theta, L, LinesConfig())[3].startswith("eq 5.8 + per-cluster split")
     _, means, _, criterion = cluster_orientations(theta, L, cfg)
     assert criterion == "eq 5.8" and len(means) == 2
     # one of them 1.2 m long: a wall
