@@ -428,8 +428,9 @@ def _topology(
         keep |= unshadowed_lines(lines, keep, top, cfg)
         if proj.open_top and cfg.furniture_max_length_m > 0:
             # nothing seen above the slice: furniture reached its top too
+            occupied = _occupied(proj)
             furniture = furniture_in_front(
-                lines, _centre(lines[keep]), cfg, lcfg.angle_tol_deg, why=why, occupied=_occupied(proj)
+                lines, _centre(lines[keep]), cfg, lcfg.angle_tol_deg, why=why, occupied=occupied
             )
             # and a direction the slice shows over only a few decimetres is a rounded or faceted furniture face
             furniture |= lone_directions(lines, cfg.furniture_lone_direction_m, lcfg.angle_tol_deg, grid.size)
@@ -437,7 +438,7 @@ def _topology(
             furniture_lines = int(furniture.sum())
             keep &= ~furniture
             # an open shelf's front, seen through: the wall behind it
-            moved, sides, lines = seen_through_fronts(lines, keep, _centre(lines[keep]), _occupied(proj), cfg)
+            moved, sides, lines = seen_through_fronts(lines, keep, _centre(lines[keep]), occupied, cfg)
             keep &= ~sides
             why["seen_through"] = int(moved.sum())
             furniture_lines += int(sides.sum())
