@@ -41,7 +41,9 @@ walls themselves score a labelled accuracy `p_acc_truth` (21-25 mm on the Kinect
 accuracy is judged against the truth walls (`acc_mm`) and p_acc is shown beside that floor. Targets: no
 room refused, labelled completeness >= 0.85 (the seen walls only, by construction), correctness against the
 truth walls >= 0.95 (a model wall bridging an unseen span is right when it lies on the true wall), mean
-accuracy against the truth walls <= 20 mm.
+accuracy against the truth walls <= 20 mm. A room can be closed where every truth wall was seen (seen10) over
+at least 0.5 m (`CLOSABLE_SEEN_M`; per wall in the JSON's `wall_seen_m`): the summary gives how many of those
+rooms were closed.
 
 Rendered clouds are cached (`--cache`, default /tmp/indoor-survey-bench/walls_survey) by seed, room,
 size and the fusion settings, so re-running the method costs only preprocess and walls.
@@ -93,6 +95,10 @@ SEEN_TOL_M = 0.05
 SEEN_SURFACE_POINTS = 10
 """`seen_surface`: at least this many fused points within SEEN_TOL_M (a fully seen wall gives ~250 voxels of
 2 cm there; stray noise of a face 10 cm away, e.g. the other side of a partition, gives a few)."""
+CLOSABLE_SEEN_M = 0.5
+"""A degraded room can be closed when every truth wall has a surface seen (`seen10`) over at least this
+length in the slice's band: each wall's line is then in the data, and only corners and spans between are
+unseen."""
 
 
 @dataclass
@@ -115,6 +121,8 @@ class RoomResult:
     seen_surface: float
     unseen_walls: list[str]
     error: str | None = None
+    wall_seen_m: list[float] | None = None
+    """Per truth wall, in order round the room: the length (m) whose samples have a surface (`seen10`)."""
     degraded: str | None = None
     """The handheld degradation drawn for the room (spacing, cut, unseen share), None when not degraded."""
     p_compl: float = math.nan
@@ -127,6 +135,11 @@ class RoomResult:
     corners_closed: str | None = None
     """What closed an open room's corners (the walls metrics' `corners_closed`): "pinned" (a wall's data
     reach the corner), "across unseen spans", or None (closed without them, or left open)."""
+
+    @property
+    def closable(self) -> bool:
+        """Every wall seen over CLOSABLE_SEEN_M (see there): the unseen share allows a closed room."""
+        return bool(self.wall_seen_m) and min(self.wall_seen_m) >= CLOSABLE_SEEN_M
 
     def meets(self) -> bool:
         if self.error is not None:
@@ -307,6 +320,9 @@ def run_room(
         seen=seen,
         seen_surface=seen_surface,
         unseen_walls=unseen,
+        wall_seen_m=[
+            round(float(s * np.hypot(*(w[2:] - w[:2]))), 3) for w, s in zip(truth, per_wall, strict=True)
+        ],
     )
 
 
@@ -360,7 +376,9 @@ def summary(results: list[RoomResult]) -> list[str]:
                 f"  degraded: completeness of the seen walls {mean('compl_seen'):.3f}, labelled completeness "
                 f"{mean('p_compl'):.3f}, labelled correctness {mean('p_corr'):.3f}, labelled accuracy "
                 f"{mean('p_acc_mm'):.1f} mm (the truth walls: {mean('p_acc_truth_mm'):.1f} mm), refused "
-                f"{len(sel) - len(ok)}, closed {sum(r.closed for r in ok)}/{len(sel)}"
+                f"{len(sel) - len(ok)}, closed {sum(r.closed for r in ok)}/{len(sel)}; of the rooms whose "
+                f"every wall was seen over {CLOSABLE_SEEN_M} m, closed {sum(r.closed for r in ok if r.closable)}/"
+                f"{sum(r.closable for r in sel)}"
             )
         across = [r for r in ok if r.corners_closed == "across unseen spans"]
         if across:
