@@ -104,6 +104,27 @@ def test_a_line_past_a_corner_goes():
     assert not past_a_corner(lines, np.array([2.5, 2.0]), CFG).any()
 
 
+def test_a_furniture_face_and_a_jamb_make_no_corner_to_judge_the_far_walls_by():
+    """A handheld room (survey building 192's r2, its south-west corner at the origin) whose north wall was
+    seen only east of 4.6 m and its slanted east wall only up north: a cabinet's 0.4 m top face before the
+    west wall and a door's 0.24 m jamb on the south wall lie across each other, and both far walls lie
+    behind both their lines. They are the room's walls, longer than either: they stay."""
+    room = [
+        [0.0, 0.0, 3.0, 0.0],  # the south wall west of the door
+        [0.1, 0.0, 0.1, 1.2],  # the west wall's two pieces
+        [0.09, 4.08, 0.09, 2.23],
+        [0.19, 2.2, 0.59, 2.2],  # the cabinet's top face
+        [3.9, 0.03, 3.9, -0.21],  # the door's east jamb
+    ]
+    far = [[4.64, 4.08, 6.01, 4.08], [5.38, 2.42, 5.98, 4.08]]  # the north wall's seen end, the east wall's
+    lines = np.array(room + far, dtype=float)
+    interior = np.array([2.61, 1.31])
+    assert not past_a_corner(lines, interior, CFG).any()
+    # shorter than the cabinet's face, a line there would be what a door shows of the next room
+    lines[5] = [4.64, 4.08, 4.94, 4.08]
+    assert past_a_corner(lines, interior, CFG).tolist() == [False] * 5 + [True, False]
+
+
 def test_an_l_room_s_wing_is_not_past_a_corner():
     # an L-room: 6 m x 3 m with a wing 2 m x 3 m north of its west end; the walls' centre lies east of the
     # wing's inner wall (x = 2), so that wall's back is the wing's side: the wing lies behind both inner walls

@@ -156,12 +156,15 @@ def past_a_corner(
     however much of it went unseen, with nothing of the room past it. An L-room's inner walls do not make
     one (the wing's inner wall runs from their crossing to behind the other), nor do the pieces of a wall
     crossing the other's line. Lines in `gone` are no walls of the room. The walls judged by lie more than
-    `beyond_room_min_depth_m` from the interior (a line through it has no side to tell)."""
+    `beyond_room_min_depth_m` from the interior (a line through it has no side to tell), and a line is judged
+    past them only when it is shorter than the longer of the two: the room's walls are seen along more than
+    a door shows of the next room's, and a furniture face and a door's jamb, a few decimetres each, make no
+    corner to judge the room's far walls by."""
     lines, out, gone = _judged(lines, gone)
     m = len(lines)
     if cfg.beyond_room_min_depth_m <= 0 or interior is None or m < 3:
         return out
-    _, ok, _, normal, back, ang = _line_frames(lines, interior)
+    L, ok, _, normal, back, ang = _line_frames(lines, interior)
     end_tol, deep = cfg.thin_wall_end_tol_m, cfg.beyond_room_min_depth_m
     clear = np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= deep
     walls = np.flatnonzero(ok & clear & ~gone)
@@ -174,7 +177,13 @@ def past_a_corner(
             if abs(math.cos(ang[a] - ang[b])) >= math.sqrt(0.5) or hi[a, b] > end_tol or hi[b, a] > end_tol:
                 continue
             past = (
-                ok & ~gone & ~out & (lo[a] > end_tol) & (lo[b] > end_tol) & (np.maximum(lo[a], lo[b]) > deep)
+                ok
+                & ~gone
+                & ~out
+                & (lo[a] > end_tol)
+                & (lo[b] > end_tol)
+                & (np.maximum(lo[a], lo[b]) > deep)
+                & (L < max(L[a], L[b]))
             )
             out |= past
     return out
