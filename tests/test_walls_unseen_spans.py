@@ -282,3 +282,17 @@ def test_a_handheld_room_whose_every_wall_was_seen_closes_on_its_true_walls():
     r = run_room(generate_building(102), 102, "r5", "mini", load_config([], []), None, degrade=True)
     assert r.error is None and r.closable, r
     assert r.closed and r.correctness >= 0.99 and r.completeness >= 0.99, r
+
+
+@pytest.mark.slow
+def test_a_free_end_seen_over_a_metre_runs_on_to_the_wall_its_line_meets():
+    """Survey building 128's L-shaped room r3 degraded like a handheld scan: a wall's free end whose line
+    is seen over more than a metre meets another wall further on than that length. It stopped there and the
+    room stayed open (completeness 0.59); it now runs on, and the room closes on its true walls."""
+    from bench.walls_survey import run_room
+    from tasks.config import load_config
+    from tasks.synth.building import generate_building
+
+    r = run_room(generate_building(128), 128, "r3", "mini", load_config([], []), None, degrade=True)
+    assert r.error is None and r.closed, r
+    assert r.completeness >= 0.99 and r.correctness >= 0.99, r

@@ -627,10 +627,11 @@ def pinned_corners(
     room's far walls behind it); joins two pieces of one wall across a gap of any length when each lies on
     the other's line (within `offset_m`) and nothing lies behind the join (an alcove's back wall behind
     its mouth); and runs a free end along its line to a wall (its end within `tol_m`) as far as the line
-    is seen over when nothing lies behind the piece and that wall, met at its end, does not run on away
-    from the room (an alcove's side: the room goes on past the line there). With the slice `points` (N, 2), "nothing" includes
-    them, close behind (a furniture front run on, the wall seen just behind it). What was seen stays: the
-    added pieces still may not cross a wall."""
+    is seen over (any distance when that is `UNSEEN_RUN_FREE_SPAN_M` or more) when nothing lies behind
+    the piece and that wall, met at its end, does not run on away from the room (an alcove's side: the room
+    goes on past the line there). With the slice `points` (N, 2), "nothing" includes them, close behind (a
+    furniture front run on, the wall seen just behind it). What was seen stays: the added pieces still may
+    not cross a wall."""
     n = len(walls)
     if n < 3:
         return None
@@ -705,8 +706,11 @@ def pinned_corners(
         p = ends[x]
         u = (p - ends[(x + n) % (2 * n)]) / max(L[i], 1e-12)
         best = None
-        # across unseen spans, as far as the wall's line is seen over, when no wall lies behind the piece
-        limit = max(reach_m, span(i)) if across_unseen else reach_m
+        # across unseen spans, as far as the wall's line is seen over (any distance when that is
+        # `UNSEEN_RUN_FREE_SPAN_M` or more), when no wall lies behind the piece
+        limit = reach_m
+        if across_unseen:
+            limit = math.inf if span(i) >= UNSEEN_RUN_FREE_SPAN_M else max(reach_m, span(i))
         for j in range(n):
             if j == i or abs(math.sin(th[i] - th[j])) < math.sin(math.radians(45.0)):
                 continue
