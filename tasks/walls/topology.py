@@ -567,9 +567,10 @@ targets (2 gained, 2 lost) and 2 more TLS rooms; 4 times the seen length for eve
 3 fewer Kinect rooms met them."""
 
 
-def _may_run(run_m: float, span_m: float) -> bool:
-    """May a wall whose line is seen over `span_m` run on `run_m` across an unseen span to a corner?"""
-    return span_m >= UNSEEN_RUN_FREE_SPAN_M or run_m <= UNSEEN_RUN_RATIO * span_m
+def _unseen_run_limit(span_m: float, ratio: float = UNSEEN_RUN_RATIO) -> float:
+    """How far (m) a wall whose line is seen over `span_m` may run on across an unseen span: `ratio` times
+    that, without limit from `UNSEEN_RUN_FREE_SPAN_M` on."""
+    return math.inf if span_m >= UNSEEN_RUN_FREE_SPAN_M else ratio * span_m
 
 
 UNSEEN_HELD_MIN_SHARE = 0.85
@@ -621,7 +622,7 @@ def pinned_corners(
     `across_unseen` (a handheld scan's spans seen at no height, 0.5 m and more short of each corner) also
     closes a corner that neither end is within `reach_m` of, when each wall runs on unseen for no more than
     `UNSEEN_RUN_RATIO` times the length its line is seen over, or as far as the corner when that length is
-    `UNSEEN_RUN_FREE_SPAN_M` or more (`_may_run`), no other wall lies inside the parallelogram
+    `UNSEEN_RUN_FREE_SPAN_M` or more (`_unseen_run_limit`), no other wall lies inside the parallelogram
     the corner and the two free ends span (an L-room's notch, the room's own walls across it) and nothing
     lies behind either added piece (`_nothing_behind`: a partition stub's face run across the room has the
     room's far walls behind it); joins two pieces of one wall across a gap of any length when each lies on
@@ -693,8 +694,8 @@ def pinned_corners(
         pinned = min(ext) <= reach_m and ext[far] <= span((i, j)[far])
         if not pinned and not (
             across_unseen
-            and _may_run(ext[0], span(i))
-            and _may_run(ext[1], span(j))
+            and ext[0] <= _unseen_run_limit(span(i))
+            and ext[1] <= _unseen_run_limit(span(j))
             and _open_corner(walls, ends[x], ends[y], corner, (i, j), tol_m, points)
         ):
             continue
@@ -708,9 +709,7 @@ def pinned_corners(
         best = None
         # across unseen spans, as far as the wall's line is seen over (any distance when that is
         # `UNSEEN_RUN_FREE_SPAN_M` or more), when no wall lies behind the piece
-        limit = reach_m
-        if across_unseen:
-            limit = math.inf if span(i) >= UNSEEN_RUN_FREE_SPAN_M else max(reach_m, span(i))
+        limit = max(reach_m, _unseen_run_limit(span(i), 1.0)) if across_unseen else reach_m
         for j in range(n):
             if j == i or abs(math.sin(th[i] - th[j])) < math.sin(math.radians(45.0)):
                 continue
