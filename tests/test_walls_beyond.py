@@ -44,6 +44,14 @@ def test_the_next_rooms_partitions_behind_a_corridor_wall_go():
     assert out.tolist() == [False] * 6 + [True, True]
 
 
+def test_the_next_room_s_wall_by_a_door_s_jamb_goes():
+    # seen through the door at x = 3-4 from 0.6 m behind the south wall's line, beside the jamb at x = 4: the
+    # wall's own piece ends within a door's width of it, but holds it no more than a back wall or a side would
+    new, out = _run([[4.05, -0.6, 4.05, -1.75]])
+    assert out.tolist() == [False] * 6 + [True]
+    assert new[-1].tolist() == [4.05, -0.6, 4.05, -1.75]  # judged, not cut
+
+
 def test_the_building_wall_beyond_a_corner_is_cut_or_goes():
     # the west end wall seen with the outer wall that goes on past the corner (through the north door)
     new, out = _run([[0, 0, 0, 3.8]])

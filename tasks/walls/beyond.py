@@ -230,7 +230,8 @@ def across_beyond_the_room(
       partition standing on W's back face);
     - or it lies wholly more than `thin_wall_max_m` behind, in a gap of the pieces (a door), and no other
       line comes within `lines.max_gap_m` of it (an alcove's back wall or a wing's far wall would hold it;
-      the partition's other face, parallel within `thin_wall_max_m` and behind W too, does not) nor leaves
+      the partition's other face, parallel within `thin_wall_max_m` and behind W too, does not, nor do W's
+      pieces: the next room's wall seen beside a door's jamb comes within a door's width of it) nor leaves
       W's line outward within that of the foot (an alcove's or a wing's side);
     - or it stands on W's line (within `thin_wall_end_tol_m`) and reaches more than `thin_wall_max_m`
       behind, away from the span's ends, held by nothing but W's pieces and with no other line leaving W's
@@ -339,7 +340,7 @@ def across_beyond_the_room(
             )
             if (
                 on_data
-                or (depth[c].min() > thin and not near.any() and not wing.any())
+                or (depth[c].min() > thin and not (near & ~same).any() and not wing.any())
                 or (lined.any() and depth[c].max() > deep)
             ):
                 out[c] = True
