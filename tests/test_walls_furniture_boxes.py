@@ -19,8 +19,9 @@ CENTRE = np.array([3.0, 2.0])
 
 def test_a_plant_s_short_facet_drawn_some_degrees_off_its_wall_is_a_front():
     """A plant's facet, 0.25 m long and 0.5 m in front of the south wall, drawn 8° off the wall's direction
-    (a short line's ends are good to a few cm each): a front, as a side drawn so is a side. A facet 30° off
-    is not judged a front (`lone_directions` judges it), nor one 8° off shorter than furniture is deep."""
+    (a short line's ends are good to a few cm each): a front, as a side drawn so is a side, and so is one
+    0.15 m long (shorter than furniture is deep: a ten-sided plant's facets are 0.19 m). A facet 30° off is
+    not judged a front (`lone_directions` judges it), however short."""
 
     def facet(deg: float, length: float = 0.25) -> list[float]:
         d = length * np.array([math.cos(math.radians(deg)), math.sin(math.radians(deg))])
@@ -30,9 +31,10 @@ def test_a_plant_s_short_facet_drawn_some_degrees_off_its_wall_is_a_front():
     assert np.flatnonzero(furniture_in_front(lines, CENTRE, CFG, 3.0)).tolist() == [4]
     steep = np.array([*ROOM, facet(30.0)], dtype=float)
     assert not furniture_in_front(steep, CENTRE, CFG, 3.0).any()
-    # a line shorter than furniture is deep (a corner's frayed data as likely as a face) is not loosened so
-    frayed = np.array([*ROOM, facet(8.0, 0.15)], dtype=float)
-    assert not furniture_in_front(frayed, CENTRE, CFG, 3.0).any()
+    short = np.array([*ROOM, facet(8.0, 0.15)], dtype=float)
+    assert np.flatnonzero(furniture_in_front(short, CENTRE, CFG, 3.0)).tolist() == [4]
+    short_steep = np.array([*ROOM, facet(30.0, 0.15)], dtype=float)
+    assert not furniture_in_front(short_steep, CENTRE, CFG, 3.0).any()
 
 
 def test_a_cabinet_front_seen_shorter_than_furniture_is_deep_standing_alone_is_furniture():

@@ -1405,9 +1405,10 @@ def furniture_in_front(
         return c0 - tol <= lo and hi <= c1 + tol and c1 - c0 > L[i] + tol
 
     for i in np.flatnonzero(L <= cfg.furniture_max_length_m):
-        # a short front's direction is good to about 2 support_tol_m / its length, as a side's is (a line
-        # shorter than furniture is deep, as likely a corner's frayed data as a face, is not loosened so)
-        cos_front = min(cos_loose, math.cos(math.atan2(2 * tol, L[i]))) if L[i] >= d_lo else cos_loose
+        # a short front's direction is good to about 2 support_tol_m / its length, as a side's is, and a
+        # plant's facet shorter than furniture is deep as well as a longer one, up to what that gives at the
+        # least depth (27°; a faceted plant shows one facet within half its turn, 18° for ten, of the wall's)
+        cos_front = min(cos_loose, math.cos(math.atan2(2 * tol, max(L[i], d_lo))))
         for j in np.argsort(-L):
             if j == i or abs(math.cos(ang[i] - ang[j])) < cos_front:
                 continue
