@@ -52,6 +52,19 @@ def test_the_next_room_s_wall_by_a_door_s_jamb_goes():
     assert new[-1].tolist() == [4.05, -0.6, 4.05, -1.75]  # judged, not cut
 
 
+def test_a_line_held_only_by_a_line_gone_beyond_the_room_goes():
+    # the next room's corner seen through the door at x = 3-4: its two walls hold each other, until the one
+    # along the corridor is found beyond the room (`beyond_the_room`)
+    corner = [[3.5, -1.2, 3.5, -2.5], [3.0, -1.2, 3.5, -1.2]]
+    _, out = _run(corner)
+    assert not out.any()
+    lines = np.array(CORRIDOR + corner, dtype=float)
+    gone = np.array([False] * 7 + [True])
+    new, out = across_beyond_the_room(lines, INTERIOR, CFG, 3.0, gone)
+    assert out.tolist() == [False] * 6 + [True, False]  # the one it judged; the one gone stays gone, not out
+    assert np.array_equal(new, lines)
+
+
 def test_the_building_wall_beyond_a_corner_is_cut_or_goes():
     # the west end wall seen with the outer wall that goes on past the corner (through the north door)
     new, out = _run([[0, 0, 0, 3.8]])

@@ -209,7 +209,11 @@ def _meets_at_end(w: NDArray, others: NDArray, tol_m: float) -> bool:
 
 
 def across_beyond_the_room(
-    lines: NDArray, interior: NDArray | None, cfg: WallsConfig, angle_tol_deg: float
+    lines: NDArray,
+    interior: NDArray | None,
+    cfg: WallsConfig,
+    angle_tol_deg: float,
+    gone: NDArray | None = None,
 ) -> tuple[NDArray, NDArray[np.bool_]]:
     """For a slice with nothing seen above it (a handheld scan): the walls of the next rooms that run
     *across* a wall W of this room behind W's line (away from the room's `interior`), seen through a door
@@ -241,11 +245,13 @@ def across_beyond_the_room(
       stands before a wall): the building's wall going on past the room's corner.
     A line that runs from the room (more than `thin_wall_end_tol_m` in front of W's line) through W's line
     at an end of the span and on more than `beyond_room_min_depth_m` behind it is that corner's wall and the
-    building's wall beyond it seen as one: it is cut at W's line. `beyond_room_min_depth_m` 0 switches the
-    test off."""
-    lines = np.asarray(lines, dtype=np.float64).copy()
+    building's wall beyond it seen as one: it is cut at W's line. `gone` (M,) are lines already found beyond
+    the room (`beyond_the_room`): they are no line of the room, so they are not judged, judge nothing and hold
+    nothing (the next room's corner seen through a door, its other wall gone, holds this one no more).
+    `beyond_room_min_depth_m` 0 switches the test off."""
+    lines, out, gone = _judged(lines, gone)
+    lines = lines.copy()
     m = len(lines)
-    out = np.zeros(m, dtype=bool)
     if cfg.beyond_room_min_depth_m <= 0 or interior is None or m < 3:
         return lines, out
     L, ok, u, normal, back, ang = _line_frames(lines, interior)
@@ -256,10 +262,10 @@ def across_beyond_the_room(
     apart = point_segment_distances(lines.reshape(-1, 2), lines).reshape(m, 2, m).min(axis=1)
     apart = np.minimum(apart, apart.T)  # the segments' distance: an end of either to the other
     for w in np.argsort(-L):
-        if not ok[w] or out[w] or not clear[w]:
+        if not ok[w] or out[w] or gone[w] or not clear[w]:
             continue
         # its pieces: a wall at a few tenths of a degree off the next piece's angle misses it by centimetres
-        same = collinear_with(lines, ang, normal, w, cos_tol, end_tol)
+        same = collinear_with(lines, ang, normal, w, cos_tol, end_tol) & ~gone
         t0 = (lines[same, :2] - lines[w, :2]) @ u[w]
         t1 = (lines[same, 2:] - lines[w, :2]) @ u[w]
         pieces = np.column_stack([np.minimum(t0, t1), np.maximum(t0, t1)])
@@ -267,7 +273,7 @@ def across_beyond_the_room(
         rel = lines.reshape(-1, 2) - lines[w, :2]
         depth = (rel @ back[w]).reshape(m, 2)
         along = (rel @ u[w]).reshape(m, 2)
-        across = ok & ~out & (np.abs(np.cos(ang - ang[w])) < math.sqrt(0.5))
+        across = ok & ~out & ~gone & (np.abs(np.cos(ang - ang[w])) < math.sqrt(0.5))
         # where each line across meets W's line
         dd = depth[:, 1] - depth[:, 0]
         safe = np.where(np.abs(dd) > 1e-12, dd, 1.0)
@@ -292,7 +298,7 @@ def across_beyond_the_room(
                 continue
             # the partition's other face (parallel, within a thin wall's thickness, behind W too) holds nothing
             face = collinear_with(lines, ang, normal, c, cos_tol, thin) & (depth.min(axis=1) > end_tol)
-            near = (apart[c] <= gap) & ~face
+            near = (apart[c] <= gap) & ~face & ~gone
             near[c] = False
             wing = outward & (np.abs(foot - foot[c]) <= gap)
             wing[c] = False
@@ -300,7 +306,7 @@ def across_beyond_the_room(
                 # beyond the span's end (where W's wall went unseen): deeper than furniture, held by nothing
                 # and in line with no line of the room (the wall of a wing, whose other walls went unseen,
                 # goes on from one of the room's)
-                in_line = collinear_with(lines, ang, normal, c, cos_tol, end_tol) & ~out
+                in_line = collinear_with(lines, ang, normal, c, cos_tol, end_tol) & ~out & ~gone
                 in_line[c] = False
                 if depth[c].min() > deep and not near.any() and not wing.any() and not in_line.any():
                     out[c] = True
