@@ -304,7 +304,11 @@ def _join_free_ends(
         _, j, x, tv = best
         v = walls[j]
         need = max(v.t0 - tv, tv - v.t1, 0.0)
-        if support_fn is not None and need > eps:
+        # a join no longer than twice `offset_tol` (a step of a few cm) lies that near one wall's data or the
+        # other's all along: its support is theirs, and says nothing of where the step is. It stays at our
+        # end, the interior side's wall's: its end is a convex corner, seen wherever that wall is, while the
+        # other wall's stretch beside the step is in the step's shadow from along the wall
+        if support_fn is not None and need > eps and abs(float((x - p) @ nrm)) > 2 * offset_tol:
             # the join may go anywhere between our end and the other wall's: where the data holds most of it
             # (the unseen wall's own few points), else at our end (the interior side's, taken first)
             out = w.u if e == 1 else -w.u

@@ -336,6 +336,31 @@ def test_the_join_across_an_alcove_side_goes_where_its_few_points_are():
         assert len(walls) == 3 and is_closed(wall_graph(np.vstack([walls, [[0, 0, 3.5, -0.6]]])))
 
 
+def test_a_step_s_join_stays_at_the_interior_side_wall_s_end_whatever_the_support():
+    """A corridor's wall with a 6.5 cm step (more than `offset_tol`): the recessed stretch (y = 0.065, away from
+    the interior) seen up to x = 2.0, the protruding one (y = 0) from x = 2.3: the step's shadow along the wall
+    hides the recessed stretch beside it. The join stays at x = 2.3, the protruding wall's end (a convex
+    corner), though the support (the walls' data within 2 cm) is as high anywhere along the gap: a join this
+    short lies near one wall's data or the other's all along. An alcove's 0.6 m side still goes where its
+    points are (the test above)."""
+    recessed = [0.0, 0.065, 2.0, 0.065]
+    protruding = [2.3, 0.0, 5.0, 0.0]
+    segs = np.array([recessed, protruding])
+
+    def support(pieces, parent):
+        pts, owner = sample_segments(pieces, 0.005)
+        near = point_segment_distances(pts, segs).min(axis=1) < 0.05
+        # the recessed wall's data denser: a join at its end would be held best if that were asked
+        dense = point_segment_distances(pts, segs[:1]).min(axis=1) < 0.05
+        return (np.bincount(owner, near, len(pieces)) + 0.2 * np.bincount(owner, dense, len(pieces))) / (
+            np.bincount(owner, minlength=len(pieces))
+        )
+
+    walls, origin = connect(segs, CFG, support, interior_xy=np.array([2.5, -1.0]))
+    join = walls[origin == EXTENDED]
+    assert len(join) == 1 and join[0, [0, 2]] == pytest.approx([2.3, 2.3], abs=1e-9)
+
+
 def test_explained_variance_elbow_finds_three_directions(rng):
     th = np.concatenate(
         [rng.normal(0, 0.01, 20), rng.normal(np.pi / 2, 0.01, 20), rng.normal(1.2217, 0.01, 5)]
