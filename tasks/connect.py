@@ -254,7 +254,8 @@ def _join_free_ends(
     a step between parallel walls). A line closer than `offset_tol` is the same line, unless `chain` (by
     input index) puts both walls in one chain split at a step. With `interior_xy`, the ends of walls whose lines pass nearer that point
     go first; with `support_fn`, a join that could go anywhere between the two walls' ends goes where its
-    data is (at least 0.1 more support than at the first end)."""
+    data is (at least 0.1 more support than at the first end), unless it is no longer than twice
+    `offset_tol` (a step of a few cm, whose support is the two walls' own data)."""
     n_orig = len(walls)
     done: set[tuple[int, int]] = set()
     ends = _free_ends(walls, eps)

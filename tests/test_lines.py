@@ -340,7 +340,7 @@ def test_a_step_s_join_stays_at_the_interior_side_wall_s_end_whatever_the_suppor
     """A corridor's wall with a 6.5 cm step (more than `offset_tol`): the recessed stretch (y = 0.065, away from
     the interior) seen up to x = 2.0, the protruding one (y = 0) from x = 2.3: the step's shadow along the wall
     hides the recessed stretch beside it. The join stays at x = 2.3, the protruding wall's end (a convex
-    corner), though the support (the walls' data within 2 cm) is as high anywhere along the gap: a join this
+    corner), though the support (the walls' data within 5 cm) is as high anywhere along the gap: a join this
     short lies near one wall's data or the other's all along. An alcove's 0.6 m side still goes where its
     points are (the test above)."""
     recessed = [0.0, 0.065, 2.0, 0.065]
