@@ -488,13 +488,12 @@ def _topology(
     )
     if proj.open_top:
         # nothing seen above the slice (a handheld scan): the wall in front of a door may be barely seen
-        cut, across = across_beyond_the_room(refined, _centre(refined), cfg, lcfg.angle_tol_deg)
-        beyond = beyond_the_room(refined, _centre(refined), cfg, lcfg.angle_tol_deg, across)
+        centre = _centre(refined)
+        cut, across = across_beyond_the_room(refined, centre, cfg, lcfg.angle_tol_deg)
+        beyond = beyond_the_room(refined, centre, cfg, lcfg.angle_tol_deg, across)
         if beyond.any():
             # a line across held only by a line beyond the room (the next room's corner seen through a door)
-            cut, more = across_beyond_the_room(
-                cut, _centre(refined), cfg, lcfg.angle_tol_deg, across | beyond
-            )
+            cut, more = across_beyond_the_room(cut, centre, cfg, lcfg.angle_tol_deg, across | beyond)
             across |= more
         refined = cut
         beyond |= across & ~through
