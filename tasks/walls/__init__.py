@@ -77,6 +77,9 @@ not (they fade out gradually), and too large an α breaks the walls apart. The c
 the longest run of consecutive candidates that give a closed wall graph and the same walls (every wall end
 within `stable_tol_m` of a wall of the neighbour's model); without a closed model, the longest run of
 equal models; a closed model holding under half the candidates' median wall length (a closet the walls of
-a poorly seen room enclose) does not count as closed. The chosen α is run again with the refinement. Occupancy alone cannot tell a tall cabinet
+a poorly seen room enclose) does not count as closed. The chosen α is run again with the refinement; when
+the refined walls do not close where the pixel model did (a sparse stretch it bridged), they are closed at
+the corners their data pin or across unseen spans first, and only then is the pixel model kept. Occupancy
+alone cannot tell a tall cabinet
 from the wall above a window (both fill part of the slice): the top-reach test does that, not α.
 """
