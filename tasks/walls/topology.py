@@ -1159,7 +1159,8 @@ def _room_polygon(walls: NDArray, origin: NDArray, tol_m: float) -> tuple[Any, N
     """The room: the largest face the walls enclose, provided the walls on or inside its outline hold most
     of the wall length (else it is a column or a cupboard, not the room: None). With a room, the walls are
     clipped to its outline (a wall seen through a door, or a wall line running on past the room's
-    corner, is not one of its inner faces). Returns (room, walls, origin, walls dropped)."""
+    corner, is not one of its inner faces), and a join no longer than `tol_m` goes, the ends of the walls it
+    joined moved to its middle (they still meet). Returns (room, walls, origin, walls dropped)."""
     polys = room_polygons(walls) if len(walls) >= 3 else []
     if not polys:
         return None, walls, origin, 0
@@ -1175,11 +1176,13 @@ def _room_polygon(walls: NDArray, origin: NDArray, tol_m: float) -> tuple[Any, N
         return None, walls, origin, 0
     room = polys[0]
     corners = np.concatenate([np.asarray(r.coords) for r in [room.exterior, *room.interiors]])
-    out, out_origin = [], []
-    for wall, geom, o in zip(walls, inner, origin, strict=True):
+    out, out_origin, joins = [], [], []
+    for wall, geom, o, length in zip(walls, inner, origin, L, strict=True):
         for part in shapely.get_parts(geom):
             # a wall cut in two (its span behind a partition stub lies outside the room) gives two walls
             if part.geom_type != "LineString" or part.length <= tol_m:
+                if part.geom_type == "LineString" and abs(part.length - length) <= 1e-9:
+                    joins.append(wall)  # a whole join within the tolerance (a step of a few mm): no wall
                 continue
             c = np.asarray(part.coords)[[0, -1]]
             for k in (0, 1):
@@ -1191,6 +1194,11 @@ def _room_polygon(walls: NDArray, origin: NDArray, tol_m: float) -> tuple[Any, N
             out.append([*c[0], *c[1]])
             out_origin.append(o)
     kept = np.array(out, dtype=np.float64).reshape(-1, 4)
+    ends = kept.reshape(-1, 2)  # a view: end k of wall i at row 2 i + k
+    for j in joins:
+        # ...but the walls it joined still meet: their ends at it go to its middle
+        at = (np.hypot(*(ends - j[:2]).T) <= 1e-9) | (np.hypot(*(ends - j[2:]).T) <= 1e-9)
+        ends[at] = 0.5 * (j[:2] + j[2:])
     dropped = int((kept_len <= tol_m).sum())
     return polys[0], kept, np.array(out_origin, dtype=origin.dtype), dropped
 
