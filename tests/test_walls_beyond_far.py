@@ -71,6 +71,21 @@ def test_a_wing_beyond_the_end_of_a_wall_s_seen_span_stays():
     assert not out.any()
 
 
+def test_a_wall_s_unseen_stretch_runs_to_the_end_wall_crossing_its_line():
+    # a corridor 12 m x 2 m whose south wall went unseen for its first 1.5 m; its west end wall, seen 0.6 m
+    # on past the corner (the building's wall), crosses the south wall's line there: the room's corner, not
+    # the room going on behind the south wall. The next room's wall seen through the door at x = 3-4 goes
+    room = [[1.5, 0, 3, 0], [4, 0, 12, 0], [0, 2, 12, 2], [12, 0, 12, 2], [0, 1.6, 0, -0.6]]
+    lines = np.array([*room, [3.5, -1.2, 3.5, -2.5]], dtype=float)
+    _, out = across_beyond_the_room(lines, np.array([6.0, 1.0]), CFG, TOL)
+    assert out.tolist() == [False] * 5 + [True]
+    # a wall running on further behind the line (an L-room's outer wall, its wing behind the south wall)
+    # does not end the span there: the room may go on behind it
+    lines[4] = [0, 1.6, 0, -2.5]
+    _, out = across_beyond_the_room(lines, np.array([6.0, 1.0]), CFG, TOL)
+    assert not out.any()
+
+
 def _end_door(extra: list[list[float]]) -> np.ndarray:
     # a corridor 12 m x 2 m whose west end wall (x = 0) has a door at y = 0.6-1.5
     room = [[0, 0, 12, 0], [0, 2, 12, 2], [12, 0, 12, 2], [0, 0, 0, 0.6], [0, 1.5, 0, 2.0]]

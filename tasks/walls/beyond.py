@@ -208,6 +208,46 @@ def _meets_at_end(w: NDArray, others: NDArray, tol_m: float) -> bool:
     return False
 
 
+def _to_the_room_s_ends(
+    lo: float,
+    hi: float,
+    foot: NDArray,
+    depth: NDArray,
+    across: NDArray,
+    outward: NDArray,
+    live: NDArray,
+    along: NDArray,
+    end_tol: float,
+    deep: float,
+) -> tuple[float, float]:
+    """The span (`lo`, `hi`, along W's line) of a wall W seen in pieces, run on to the room's end walls: a
+    line across (`across`) through W's line (`depth` (M, 2) of its ends behind that line: more than `end_tol`
+    in front at one end, behind it at the other, but no more than `deep`: a wall running on further behind
+    may be an L-room's outer wall, its wing behind W) whose `foot` on W's line lies past the span, where
+    none of the room's lines in front (`live`, ends `along` W's line) goes further: the room's end, up to
+    which W's wall ran unseen. Only for a W whose pieces span at least half of the room in front of it, and
+    not past a line leaving W's line outward (`outward`) there: an L-room's wing starts where its inner wall
+    turns away."""
+    front = live & (depth.max(axis=1) <= end_tol)
+    if not front.any():
+        return lo, hi
+    reach = along[front]
+    r0, r1 = float(reach.min()), float(reach.max())
+    if hi - lo < 0.5 * (r1 - r0):
+        return lo, hi
+    ends = (
+        across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) > end_tol) & (depth.max(axis=1) <= deep)
+    )
+    turns = foot[outward]
+    new_lo = foot[ends & (foot < lo - end_tol) & (foot <= r0 + end_tol)]
+    if len(new_lo) and not ((turns >= new_lo.min() - end_tol) & (turns <= lo + end_tol)).any():
+        lo = float(new_lo.min())
+    new_hi = foot[ends & (foot > hi + end_tol) & (foot >= r1 - end_tol)]
+    if len(new_hi) and not ((turns <= new_hi.max() + end_tol) & (turns >= hi - end_tol)).any():
+        hi = float(new_hi.max())
+    return lo, hi
+
+
 def across_beyond_the_room(
     lines: NDArray,
     interior: NDArray | None,
@@ -227,8 +267,10 @@ def across_beyond_the_room(
     wall). Its collinear pieces are the lines parallel to it within `thin_wall_end_tol_m` of its line.
     Only lines shorter than their span are judged (the room's wall is seen along more than a wall seen
     through its door, and a short line across a wall, a door's jamb or a box's side, is no wall to judge
-    by). A line L across W (nearer its normal than its direction) whose foot (where its line meets W's)
-    lies within that span is beyond the room when
+    by). The span runs on past W's pieces to the room's end wall where that crosses W's line no deeper than
+    `beyond_room_min_depth_m` (`_to_the_room_s_ends`: W's wall went unseen up to the corner, and the end
+    wall's data run on a little past it). A line L across W (nearer its normal than its direction) whose
+    foot (where its line meets W's) lies within that span is beyond the room when
     - it lies wholly more than `thin_wall_end_tol_m` behind W's line and its foot lies on W's data, that
       far inside one of the pieces: nothing of the room lies behind the room's seen wall (the next room's
       partition standing on W's back face);
@@ -280,10 +322,13 @@ def across_beyond_the_room(
         foot = np.where(
             np.abs(dd) > 1e-12, along[:, 0] - depth[:, 0] * (along[:, 1] - along[:, 0]) / safe, along[:, 0]
         )
-        at_corner = np.minimum(np.abs(foot - lo), np.abs(foot - hi)) <= end_tol
         # the room's walls ending on W's line from the room's side, and those leaving it outward
         inside = across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) <= end_tol)
         outward = across & (np.abs(depth.min(axis=1)) <= end_tol) & (depth.max(axis=1) > thin)
+        lo, hi = _to_the_room_s_ends(
+            lo, hi, foot, depth, across, outward, ok & ~out & ~gone, along, end_tol, deep
+        )
+        at_corner = np.minimum(np.abs(foot - lo), np.abs(foot - hi)) <= end_tol
         reveals = across & (np.abs(depth.min(axis=1)) <= end_tol) & (depth.max(axis=1) <= thin)
         if (across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) > thin) & ~at_corner).any():
             continue  # a wall of the room runs on from the room through W's line: the room goes on behind it
