@@ -80,6 +80,6 @@ equal models; a closed model holding under half the candidates' median wall leng
 a poorly seen room enclose) does not count as closed. The chosen α is run again with the refinement; when
 the refined walls do not close where the pixel model did (a sparse stretch it bridged), they are closed at
 the corners their data pin or across unseen spans first, and only then is the pixel model kept. Occupancy
-alone cannot tell a tall cabinet
-from the wall above a window (both fill part of the slice): the top-reach test does that, not α.
+alone cannot tell a tall cabinet from the wall above a window (both fill part of the slice): the top-reach
+test does that, not α.
 """

@@ -307,7 +307,7 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
                 best = again
                 reason += "; the refined walls closed at their corners (`close_at_corners`)"
         if cands[chosen].closed and not best.closed:
-            # the refinement moved a borderline corner out of reach: keep the pixel-accurate model
+            # still open: keep the pixel-accurate model
             best = cands[chosen]
             reason += "; offsets not refined (the refined walls did not close)"
     timings["walls_s"] = time.perf_counter() - t1

@@ -1182,7 +1182,7 @@ def _room_polygon(walls: NDArray, origin: NDArray, tol_m: float) -> tuple[Any, N
             # a wall cut in two (its span behind a partition stub lies outside the room) gives two walls
             if part.geom_type != "LineString" or part.length <= tol_m:
                 if part.geom_type == "LineString" and abs(part.length - length) <= 1e-9:
-                    joins.append(wall)  # a whole join within the tolerance (a step of a few mm): no wall
+                    joins.append(wall)  # a whole wall within the tolerance (a step's join of a few mm)
                 continue
             c = np.asarray(part.coords)[[0, -1]]
             for k in (0, 1):
