@@ -301,8 +301,9 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
         if cands[chosen].closed and not best.closed and corners is None:
             # the refinement moved a borderline corner out of reach (a sparse stretch the pixel model bridged):
             # the refined walls closed at the corners their data pin, or across unseen spans, before the
-            # pixel-accurate model, whose pieces each sit on their own cells (jogs of a cell or two)
-            again = model_for(proj, cfg, alphas[chosen], xy, coarse, xy)
+            # pixel-accurate model, whose pieces each sit on their own cells (jogs of a cell or two); the
+            # open refined model is the one `model_for` with `corners` would close, so it is not made again
+            again = with_corners(best, xy, cfg)
             if again.closed:
                 best = again
                 reason += "; the refined walls closed at their corners (`close_at_corners`)"
