@@ -165,3 +165,19 @@ def test_a_far_wall_running_on_past_the_room_s_corner_is_the_next_room_s():
     # far line may be the wing's wall and stays
     lines[2] = [3.6, -2.0, 3.6, 4]
     assert not beyond_the_room(lines, interior, CFG, TOL)[5]
+
+
+def test_walls_seen_through_a_door_go_when_they_pull_the_lines_centre_near_the_door_s_wall():
+    """A room 4.6 m x 4.8 m seen mostly along its west and north walls, its north wall's door showing 3 m of
+    the next room's walls 1.9 m behind it: with those lines the walls' length-weighted centre, taken for the
+    room's interior, lies 0.6 m from the north wall's line. That is on the room's side by more than a thin
+    wall's thickness, enough to tell the room's side, so the lines behind the door go."""
+    from tasks.walls.topology import _centre
+
+    room = [[0, 0, 1.1, 0], [2.0, 0, 4.6, 0], [0, 0, 0, -4.3], [4.6, -0.8, 4.6, -1.9], [1.8, -4.8, 2.4, -4.8]]
+    through_door = [[0.7, 1.85, 2.2, 1.85], [0.7, 1.85, 1.7, 1.72], [1.05, 1.9, 1.6, 1.67]]
+    lines = np.array(room + through_door, dtype=float)
+    centre = _centre(lines)
+    assert CFG.thin_wall_max_m < -centre[1] < CFG.beyond_room_min_depth_m
+    _, across = across_beyond_the_room(lines, centre, CFG, TOL)
+    assert beyond_the_room(lines, centre, CFG, TOL, across).tolist() == [False] * 5 + [True] * 3

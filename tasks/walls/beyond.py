@@ -70,11 +70,11 @@ def beyond_the_room(
     pts, owner = sample_segments(lines, 0.05)
     thin = cfg.thin_wall_max_m
     end_tol = cfg.thin_wall_end_tol_m
-    # the room's side of a line is judged by the interior: a line passing nearer it than the depth asked
-    # for (a short piece in a corridor, whose lines' centre lies by its long wall) has no side to tell
-    clear = (
-        np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= cfg.beyond_room_min_depth_m
-    )
+    # the room's side of a line is judged by the interior: a line passing nearer it than a thin wall's
+    # thickness (a short piece in a corridor, whose lines' centre lies by its long wall) has no side to tell;
+    # the walls seen through a door pull the centre towards the door's wall, by more than half a metre in a
+    # room seen mostly along that wall
+    clear = np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= cfg.thin_wall_max_m
     step = np.bincount(owner, minlength=m)
     step = np.where(step > 1, L / np.maximum(step - 1, 1), 0.0)  # each sample's share of its line's length
     for w in np.argsort(-L):

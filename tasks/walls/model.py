@@ -19,6 +19,7 @@ from tasks.preview import Key, View, frame_picture
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import backed_bridges, support_sampler
 from tasks.walls.image import Grid, coarse_projection, projection_image
+from tasks.walls.round import round_objects
 from tasks.walls.topology import choose_alpha, model_for, with_corners
 
 
@@ -253,6 +254,14 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
     t0 = time.perf_counter()
     pts = _check_input(slice_points, floor_z_m, ceiling_z_m, cfg)
     cfg, grid_choice = grid_from_data(pts, cfg)
+    # a plant's pot, a bin: no wall, and its facets drawn as lines would make stubs and false corners
+    t_round = time.perf_counter()
+    on_round, round_things = round_objects(pts[:, :2], cfg.grid_size_m, cfg)
+    if on_round.any() and (~on_round).sum() >= cfg.min_points:
+        pts = pts[~on_round]
+    else:
+        on_round, round_things = np.zeros(len(pts), dtype=bool), []
+    timings["round_objects_s"] = time.perf_counter() - t_round
     proj = projection_image(pts, cfg, ceiling_z_m)
     coarse = coarse_projection(pts, proj, cfg, ceiling_z_m)
     grid, counts = proj.grid, proj.counts
@@ -344,6 +353,8 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
     metrics: dict[str, Any] = {
         "points": len(pts),
         **grid_choice,
+        "round_objects": round_things,
+        "round_object_points": int(on_round.sum()),
         "image_shape": list(counts.shape),
         "slice_voxel_layers": proj.n_levels,
         "alpha": best.alpha,

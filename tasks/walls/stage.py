@@ -18,6 +18,7 @@ from tasks.preview import retitle
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import faces_below_slice, lifted
 from tasks.walls.model import WallModel, model_walls
+from tasks.walls.round import on_round_objects
 
 
 def levelled_to_input(levelling: dict[str, Any]) -> tuple[NDArray[np.float64], float]:
@@ -99,6 +100,11 @@ def room_model(
     Each costs a second model only when it applies. Returns the model and those choices (metrics)."""
     model = model_walls(slice_points, floor_z_m, ceiling_z_m, cfg)
     grid = float(model.metrics["grid_size_m"])
+    first, round_things = model, model.metrics["round_objects"]
+    if round_things:
+        # the round things found go before any model made again: on another grid, or with faces stood up
+        # from below the slice, the same pot might not be found again
+        slice_points = slice_points[~on_round_objects(slice_points[:, :2], round_things, grid)]
     noise = wall_noise(slice_points, model.walls, cfg.noise_band_m)
     choices: dict[str, Any] = {"wall_noise_m": round(noise, 4), "grid_from_noise": False}
     if cfg.grid_noise_ratio > 0 and noise > cfg.grid_noise_ratio * grid:
@@ -123,6 +129,9 @@ def room_model(
         points = np.concatenate([points, lifted(faces, float(z.min()), float(z.max()), grid)])
         choices["faces_below_slice"] += found
         model = model_walls(points, floor_z_m, ceiling_z_m, cfg)
+    if model is not first and round_things:
+        model.metrics["round_objects"] = round_things + model.metrics["round_objects"]
+        model.metrics["round_object_points"] += first.metrics["round_object_points"]
     return model, choices
 
 

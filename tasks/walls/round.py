@@ -1,0 +1,160 @@
+"""Round things in the slice (a plant's pot, a bin, a round column): arcs of a circle a few decimetres across,
+which no wall makes. Their points go before the walls are looked for: drawn as lines, a pot's facets make
+stubs and false corners beside the walls it stands by (a handheld scan's low slice cuts through every pot)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from tasks.walls.config import WallsConfig
+
+ARC_BINS = 36
+"""The circle's directions, 10 degrees each, for how much of it the points cover."""
+BIN_MIN_SHARE = 0.25
+"""A direction counts as covered when it holds at least this share of the median covered direction's points
+(and at least 3): a wall's stray points near a circle tangent to it cover none."""
+MAX_CANDIDATES = 50
+"""Peaks of the circle transform looked at, strongest first."""
+
+
+def _arc_deg(angle_deg: NDArray) -> float:
+    """The longest run of covered 10-degree directions (circular) of points at `angle_deg` about a centre."""
+    count = np.bincount((np.mod(angle_deg, 360.0) // (360 / ARC_BINS)).astype(np.int64), minlength=ARC_BINS)
+    if not (count > 0).any():
+        return 0.0
+    covered = count >= max(3.0, BIN_MIN_SHARE * float(np.median(count[count > 0])))
+    if covered.all():
+        return 360.0
+    run = best = 0
+    for c in np.concatenate([covered, covered]):
+        run = run + 1 if c else 0
+        best = max(best, run)
+    return float(best * 360 / ARC_BINS)
+
+
+def _two_lines_share(pts: NDArray, tol_m: float) -> float:
+    """Share of `pts` (K, 2) within `tol_m` of the two straight lines that explain most of them (RANSAC, one
+    line after the other; fixed seeds, so the same points give the same share)."""
+    from skimage.measure import LineModelND, ransac
+
+    left = np.ones(len(pts), dtype=bool)
+    for seed in range(2):
+        if left.sum() < 2:
+            break
+        _, inliers = ransac(
+            pts[left],
+            LineModelND,
+            min_samples=2,
+            residual_threshold=tol_m,
+            max_trials=200,
+            stop_probability=0.999,
+            rng=seed,
+        )
+        if inliers is None:
+            break
+        left[np.flatnonzero(left)[inliers]] = False
+    return 1.0 - float(left.mean())
+
+
+def round_objects(
+    xy: NDArray, grid_m: float, cfg: WallsConfig
+) -> tuple[NDArray[np.bool_], list[dict[str, Any]]]:
+    """(N,) the slice points `xy` (N, 2) on round things, and those things (centre, radius, arc) for the
+    metrics. A round thing is a circle of radius `round_radius_m` whose points, within a grid cell (`grid_m`,
+    the data's scale) of it, cover an arc of at least `round_min_arc_deg` and which explains at least
+    `round_margin` more of the points near it (within 3 cells) than two straight lines do: a corner's two
+    walls or a box's faces, however noisy, are explained better by lines. Candidates are the peaks of the
+    circle Hough transform of the points' occupancy at two cells. Its points are those inside the circle
+    or within 2 cells of it (`on_round_objects`)."""
+    from scipy.spatial import cKDTree
+    from skimage.measure import CircleModel, ransac
+    from skimage.transform import hough_circle, hough_circle_peaks
+
+    r_min, r_max = cfg.round_radius_m
+    if r_max <= 0 or len(xy) < 10:
+        return np.zeros(len(xy), dtype=bool), []
+    cell = 2.0 * grid_m
+    radii = np.arange(max(1, math.ceil(r_min / cell)), math.floor(r_max / cell) + 1)
+    if len(radii) == 0:
+        return np.zeros(len(xy), dtype=bool), []
+    lo = xy.min(axis=0) - r_max
+    ij = np.floor((xy - lo) / cell).astype(np.int64)
+    image = np.zeros(tuple(ij.max(axis=0) + 1 + int(r_max / cell)), dtype=bool)
+    image[ij[:, 0], ij[:, 1]] = True
+    # a covered arc fills that share of the circle's cells, less the cells a coarse circle misses
+    votes = hough_circle(image, radii, normalize=True)
+    _, col, row, rad = hough_circle_peaks(
+        votes,
+        radii,
+        min_xdistance=int(radii[0]),
+        min_ydistance=int(radii[0]),
+        threshold=0.75 * cfg.round_min_arc_deg / 360.0,
+        total_num_peaks=MAX_CANDIDATES,
+    )
+    tree = cKDTree(xy)
+    found: list[dict[str, Any]] = []
+    for c0, c1, r in zip(row, col, rad, strict=True):
+        centre, radius = lo + (np.array([c0, c1]) + 0.5) * cell, float(r) * cell
+        near = np.asarray(tree.query_ball_point(centre, radius + 6 * grid_m), dtype=np.int64)
+        if len(near) < 10:
+            continue
+        p = xy[near]
+        band = np.abs(np.hypot(*(p - centre).T) - radius) <= 2 * cell
+        q = p[band] - centre
+        if len(q) < 10 or _arc_deg(np.degrees(np.arctan2(q[:, 1], q[:, 0]))) < cfg.round_min_arc_deg:
+            continue  # not even the transform's circle, two cells wide, is covered so far: a wall's tangent
+        # the circle most of the band's points lie on, within a cell: a wall the round thing stands by
+        # would pull a least-squares fit towards it
+        fit, _ = ransac(
+            p[band],
+            CircleModel,
+            min_samples=3,
+            residual_threshold=grid_m,
+            max_trials=200,
+            stop_probability=0.999,
+            rng=0,
+        )
+        if fit is None or not fit:
+            continue
+        centre, radius = np.asarray(fit.center, dtype=np.float64), float(fit.radius)
+        if not r_min <= radius <= r_max:
+            continue
+        d = np.abs(np.hypot(*(p - centre).T) - radius)
+        on = d <= grid_m
+        arc = _arc_deg(np.degrees(np.arctan2(p[on, 1] - centre[1], p[on, 0] - centre[0])))
+        if arc < cfg.round_min_arc_deg:
+            continue
+        close = d <= 3 * grid_m
+        circle_share = float(on[close].mean())
+        lines_share = _two_lines_share(p[close], grid_m)
+        if circle_share - lines_share < cfg.round_margin:
+            continue
+        if any(np.hypot(*(centre - f["centre"])) < max(radius, f["radius_m"]) for f in found):
+            continue  # the same thing found again at a neighbouring radius
+        found.append(
+            {
+                "centre": centre,
+                "radius_m": radius,
+                "arc_deg": arc,
+                "circle_share": round(circle_share, 3),
+                "lines_share": round(lines_share, 3),
+            }
+        )
+    things = [
+        {**f, "centre": [round(float(v), 3) for v in f["centre"]], "radius_m": round(f["radius_m"], 3)}
+        for f in found
+    ]
+    return on_round_objects(xy, things, grid_m), things
+
+
+def on_round_objects(xy: NDArray, things: list[dict[str, Any]], grid_m: float) -> NDArray[np.bool_]:
+    """(N,) the points `xy` (N, 2) inside one of the round `things` (`round_objects`) or within 2 cells
+    (`grid_m`) of its circle."""
+    out = np.zeros(len(xy), dtype=bool)
+    for t in things:
+        out |= np.hypot(xy[:, 0] - t["centre"][0], xy[:, 1] - t["centre"][1]) <= t["radius_m"] + 2 * grid_m
+    return out

@@ -1,0 +1,101 @@
+"""Round things in the slice (`round.round_objects`): a plant's pot standing by a wall is found and its points
+go; a corner's or an alcove's noisy walls, which a circle can thread, are no round thing; and in a room cut
+low without a ceiling the pot's facets no longer make walls."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from tasks.evaluate import evaluate_walls
+from tasks.walls.config import WallsConfig
+from tasks.walls.round import round_objects
+from tests.scenes import wall_points
+
+CFG = WallsConfig()
+GRID = 0.015
+
+
+def _pot(
+    centre: tuple[float, float],
+    radius: float,
+    z0: float,
+    z1: float,
+    rng: np.random.Generator,
+    seen_deg: tuple,
+) -> np.ndarray:
+    """A plant's pot as the survey generator builds it: a decagon `radius` across its corners, z0..z1, its
+    facets' points seen from `seen_deg[0]` to `seen_deg[1]` (degrees about its centre, less than 360 apart)."""
+    k = np.radians(np.arange(11) * 36.0)
+    ring = np.column_stack([centre[0] + radius * np.cos(k), centre[1] + radius * np.sin(k)])
+    faces = [wall_points(ring[i], ring[i + 1], z0, z1, rng, step=0.02, noise=0.008) for i in range(10)]
+    pts = np.concatenate(faces)
+    ang = np.degrees(np.arctan2(pts[:, 1] - centre[1], pts[:, 0] - centre[0]))
+    lo, hi = seen_deg
+    return pts[(ang - lo) % 360 <= hi - lo]
+
+
+def test_a_pot_by_a_wall_is_round_and_its_points_go(rng):
+    wall = wall_points((0, 0), (3, 0), 0.8, 1.3, rng, step=0.02, noise=0.008)
+    # a pot 0.3 m in radius, 5 cm from the wall, seen from the room over 200 degrees
+    pot = _pot((1.5, 0.35), 0.3, 0.8, 1.3, rng, seen_deg=(-10.0, 190.0))
+    xy = np.concatenate([wall, pot])[:, :2]
+    on, things = round_objects(xy, GRID, CFG)
+    assert len(things) == 1, things
+    (t,) = things
+    assert (
+        math.hypot(t["centre"][0] - 1.5, t["centre"][1] - 0.35) < 0.03 and abs(t["radius_m"] - 0.29) < 0.03
+    ), t
+    assert t["arc_deg"] >= 150 and t["circle_share"] - t["lines_share"] >= CFG.round_margin
+    assert on[len(wall) :].mean() > 0.95
+    # the wall keeps its points, but for those where the pot's round nearly touches it
+    assert on[: len(wall)].mean() < 0.05
+    assert not on[: len(wall)][np.abs(wall[:, 0] - 1.5) > 0.25].any()
+    # switched off by a radius of 0
+    off, none = round_objects(xy, GRID, replace(CFG, round_radius_m=(0.0, 0.0)))
+    assert not off.any() and none == []
+
+
+def test_a_noisy_corner_and_an_alcove_are_no_round_thing(rng):
+    # a corner whose walls' points spread by 2.5 cm (a handheld scan's registration): a circle threads it
+    corner = np.concatenate(
+        [
+            wall_points((0, 0), (2, 0), 1.0, 1.5, rng, step=0.02, noise=0.025),
+            wall_points((0, 0), (0, 2), 1.0, 1.5, rng, step=0.02, noise=0.025),
+        ]
+    )
+    # an alcove 0.5 m wide and 0.4 m deep: three sides a circle of 0.25 m touches
+    alcove = np.concatenate(
+        [
+            wall_points((4, 0), (4, 0.4), 1.0, 1.5, rng, step=0.02, noise=0.008),
+            wall_points((4, 0.4), (4.5, 0.4), 1.0, 1.5, rng, step=0.02, noise=0.008),
+            wall_points((4.5, 0.4), (4.5, 0), 1.0, 1.5, rng, step=0.02, noise=0.008),
+            wall_points((3, 0), (4, 0), 1.0, 1.5, rng, step=0.02, noise=0.008),
+            wall_points((4.5, 0), (5.5, 0), 1.0, 1.5, rng, step=0.02, noise=0.008),
+        ]
+    )
+    on, things = round_objects(np.concatenate([corner, alcove])[:, :2], GRID, CFG)
+    assert things == [] and not on.any()
+
+
+def test_a_room_cut_low_loses_no_wall_to_a_pot_and_draws_none_of_its_facets():
+    from tasks.walls.model import model_walls
+
+    rng = np.random.default_rng(0)
+    cut = 1.3
+    corners = [(0, 0), (5, 0), (5, 4), (0, 4)]
+    truth = np.array([[*corners[i], *corners[(i + 1) % 4]] for i in range(4)], float)
+    walls = [wall_points(t[:2], t[2:], 0.0, cut, rng, step=0.03, noise=0.008) for t in truth]
+    # a pot 0.1 m from the west wall, seen from the room over 240 degrees, up to the cut like the walls
+    pot = _pot((0.4, 2.0), 0.3, 0.4, cut, rng, seen_deg=(-120.0, 120.0))
+    band = np.concatenate([*walls, pot])
+    band = band[band[:, 2] >= cut - 0.5]
+    model = model_walls(band, 0.0, cut, CFG)
+    assert len(model.metrics["round_objects"]) == 1 and model.metrics["round_object_points"] > 0
+    ev = evaluate_walls(model.walls, truth)
+    assert model.closed and ev["correctness"] == 1.0 and ev["completeness"] > 0.99, (ev, model.walls)
+    # without looking for round things a facet of the pot is a wall of the room
+    kept = model_walls(band, 0.0, cut, replace(CFG, round_radius_m=(0.0, 0.0)))
+    assert evaluate_walls(kept.walls, truth)["correctness"] < 0.99
