@@ -118,6 +118,38 @@ def test_a_corridor_whose_corner_the_west_wall_pins_closes_along_the_north_wall(
     assert lengths(model.walls[model.origin == "extended"]).max() == pytest.approx(3.0, abs=0.05)
 
 
+def test_a_wall_runs_on_past_a_partition_standing_on_it_to_the_corner_its_data_pin():
+    """A room 3.6 m x 4.6 m with a partition 1.4 m long and 9 cm thick standing on its west wall 2.9 m from
+    the south-west corner: the west wall behind the partition, in the pocket it makes, went unseen, and the
+    north wall stops 0.3 m short of the north-west corner. The west wall's end at the partition's face is
+    no corner (the partition's other face and its end stand beside it): the wall runs on to the corner."""
+    walls = np.array(
+        [
+            [3.6, 0, 3.6, 4.6],  # east
+            [0, 2.9, 0, 0],  # west, up to the partition's upper face
+            [3.6, 4.6, 0.3, 4.6],  # north, stopping short of the corner
+            [1.4, 2.9, 0, 2.9],  # the partition's upper face, ending on the west wall's end
+            [1.4, 2.81, 0, 2.81],  # its lower face, ending on the west wall
+            [0, 0, 3.6, 0],  # south
+            [1.4, 2.9, 1.4, 2.81],  # its end
+        ],
+        dtype=float,
+    )
+    origin = np.array(["observed"] * 6 + ["extended"])
+    truth = np.array([[0, 0, 3.6, 0], [3.6, 0, 3.6, 4.6], [3.6, 4.6, 0, 4.6], [0, 4.6, 0, 0]], float)
+    closed = pinned_corners(walls, origin, CFG.lines.extend_m, G, thin_m=CFG.thin_wall_max_m)
+    assert closed is not None
+    out, _, polygon, longest = closed
+    assert longest == pytest.approx(1.7)
+    assert polygon.area == pytest.approx(3.6 * 4.6 - 1.4 * 0.09, abs=0.02)
+    assert evaluate_walls(out, truth)["completeness"] == pytest.approx(1.0)
+    # a wall's end at one line across it, a corner, stays one: without the partition's other face the room
+    # stays open
+    assert pinned_corners(np.delete(walls, 4, axis=0), origin[:-1], CFG.lines.extend_m, G, thin_m=0.3) is None
+    # and without looking for partitions too
+    assert pinned_corners(walls, origin, CFG.lines.extend_m, G) is None
+
+
 def test_a_join_within_the_tolerance_leaves_the_walls_it_joined_meeting():
     # a 4 m x 3 m room whose south wall is two pieces 0.8 mm apart, joined by a step of that length
     walls = np.array(

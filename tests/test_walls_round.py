@@ -58,6 +58,19 @@ def test_a_pot_by_a_wall_is_round_and_its_points_go(rng):
     assert not off.any() and none == []
 
 
+def test_a_pot_across_the_transform_s_tiles_is_found_as_in_one(rng, monkeypatch):
+    import tasks.walls.round as round_module
+
+    wall = wall_points((0, 0), (3, 0), 0.8, 1.3, rng, step=0.02, noise=0.008)
+    pot = _pot((1.5, 0.35), 0.3, 0.8, 1.3, rng, seen_deg=(-10.0, 190.0))
+    xy = np.concatenate([wall, pot])[:, :2]
+    whole = round_objects(xy, GRID, CFG)
+    # tiles of 1.2 m (40 cells of 3 cm): the pot's centre lies 0.3 m from a tile's edge
+    monkeypatch.setattr(round_module, "TILE_CELLS", 40)
+    tiled = round_objects(xy, GRID, CFG)
+    assert len(tiled[1]) == 1 and tiled[1] == whole[1] and (tiled[0] == whole[0]).all()
+
+
 def test_a_noisy_corner_and_an_alcove_are_no_round_thing(rng):
     # a corner whose walls' points spread by 2.5 cm (a handheld scan's registration): a circle threads it
     corner = np.concatenate(

@@ -18,7 +18,13 @@ BIN_MIN_SHARE = 0.25
 """A direction counts as covered when it holds at least this share of the median covered direction's points
 (and at least 3): a wall's stray points near a circle tangent to it cover none."""
 MAX_CANDIDATES = 50
-"""Peaks of the circle transform looked at, strongest first."""
+"""Peaks of the circle transform looked at per tile, strongest first."""
+TILE_CELLS = 1024
+"""The transform is made tile by tile, this many cells a side (plus the largest radius around): a plane per
+radius of a whole floor's slice would take gigabytes."""
+LINES = 3
+"""The straight lines a round thing's points are compared with: a box's or an alcove's three faces, a circle
+touches all three (two lines left a shelf in a room's corner 0.001 short of a round thing's margin)."""
 
 
 def _arc_deg(angle_deg: NDArray) -> float:
@@ -36,24 +42,32 @@ def _arc_deg(angle_deg: NDArray) -> float:
     return float(best * 360 / ARC_BINS)
 
 
-def _two_lines_share(pts: NDArray, tol_m: float) -> float:
-    """Share of `pts` (K, 2) within `tol_m` of the two straight lines that explain most of them (RANSAC, one
-    line after the other; fixed seeds, so the same points give the same share)."""
-    from skimage.measure import LineModelND, ransac
+def _ransac(pts: NDArray, model: type, samples: int, tol_m: float, seed: int) -> tuple[Any, NDArray | None]:
+    """skimage's RANSAC fit of `model` to `pts` within `tol_m`: (the model, its inliers), stopping once an
+    all-inlier sample has been drawn with 99.9 % confidence (at most 200 draws), from a fixed `seed`."""
+    from skimage.measure import ransac
+
+    return ransac(
+        pts,
+        model,
+        min_samples=samples,
+        residual_threshold=tol_m,
+        max_trials=200,
+        stop_probability=0.999,
+        rng=seed,
+    )
+
+
+def _lines_share(pts: NDArray, tol_m: float) -> float:
+    """Share of `pts` (K, 2) within `tol_m` of the `LINES` straight lines that explain most of them (RANSAC,
+    one line after the other; fixed seeds, so the same points give the same share)."""
+    from skimage.measure import LineModelND
 
     left = np.ones(len(pts), dtype=bool)
-    for seed in range(2):
+    for seed in range(LINES):
         if left.sum() < 2:
             break
-        _, inliers = ransac(
-            pts[left],
-            LineModelND,
-            min_samples=2,
-            residual_threshold=tol_m,
-            max_trials=200,
-            stop_probability=0.999,
-            rng=seed,
-        )
+        _, inliers = _ransac(pts[left], LineModelND, 2, tol_m, seed)
         if inliers is None:
             break
         left[np.flatnonzero(left)[inliers]] = False
@@ -66,12 +80,12 @@ def round_objects(
     """(N,) the slice points `xy` (N, 2) on round things, and those things (centre, radius, arc) for the
     metrics. A round thing is a circle of radius `round_radius_m` whose points, within a grid cell (`grid_m`,
     the data's scale) of it, cover an arc of at least `round_min_arc_deg` and which explains at least
-    `round_margin` more of the points near it (within 3 cells) than two straight lines do: a corner's two
-    walls or a box's faces, however noisy, are explained better by lines. Candidates are the peaks of the
+    `round_margin` more of the points near it (within 3 cells) than three straight lines do: a corner's two
+    walls or a box's three faces, however noisy, are explained better by lines. Candidates are the peaks of the
     circle Hough transform of the points' occupancy at two cells. Its points are those inside the circle
     or within 2 cells of it (`on_round_objects`)."""
     from scipy.spatial import cKDTree
-    from skimage.measure import CircleModel, ransac
+    from skimage.measure import CircleModel
     from skimage.transform import hough_circle, hough_circle_peaks
 
     r_min, r_max = cfg.round_radius_m
@@ -85,19 +99,34 @@ def round_objects(
     ij = np.floor((xy - lo) / cell).astype(np.int64)
     image = np.zeros(tuple(ij.max(axis=0) + 1 + int(r_max / cell)), dtype=bool)
     image[ij[:, 0], ij[:, 1]] = True
-    # a covered arc fills that share of the circle's cells, less the cells a coarse circle misses
-    votes = hough_circle(image, radii, normalize=True)
-    _, col, row, rad = hough_circle_peaks(
-        votes,
-        radii,
-        min_xdistance=int(radii[0]),
-        min_ydistance=int(radii[0]),
-        threshold=0.75 * cfg.round_min_arc_deg / 360.0,
-        total_num_peaks=MAX_CANDIDATES,
-    )
+    peaks = []
+    pad = int(radii[-1]) + 1
+    for i0 in range(0, image.shape[0], TILE_CELLS):
+        for j0 in range(0, image.shape[1], TILE_CELLS):
+            # one tile and the circles' reach around it: the transform holds a plane per radius
+            a0, b0 = max(0, i0 - pad), max(0, j0 - pad)
+            tile = image[a0 : i0 + TILE_CELLS + pad, b0 : j0 + TILE_CELLS + pad]
+            if not tile.any():
+                continue
+            # a covered arc fills that share of the circle's cells, less the cells a coarse circle misses
+            _, col, row, rad = hough_circle_peaks(
+                hough_circle(tile, radii, normalize=True),
+                radii,
+                min_xdistance=int(radii[0]),
+                min_ydistance=int(radii[0]),
+                threshold=0.75 * cfg.round_min_arc_deg / 360.0,
+                total_num_peaks=MAX_CANDIDATES,
+            )
+            mine = (
+                (row + a0 >= i0)
+                & (row + a0 < i0 + TILE_CELLS)
+                & (col + b0 >= j0)
+                & (col + b0 < j0 + TILE_CELLS)
+            )
+            peaks += list(zip(row[mine] + a0, col[mine] + b0, rad[mine], strict=True))
     tree = cKDTree(xy)
     found: list[dict[str, Any]] = []
-    for c0, c1, r in zip(row, col, rad, strict=True):
+    for c0, c1, r in peaks:
         centre, radius = lo + (np.array([c0, c1]) + 0.5) * cell, float(r) * cell
         near = np.asarray(tree.query_ball_point(centre, radius + 6 * grid_m), dtype=np.int64)
         if len(near) < 10:
@@ -109,15 +138,7 @@ def round_objects(
             continue  # not even the transform's circle, two cells wide, is covered so far: a wall's tangent
         # the circle most of the band's points lie on, within a cell: a wall the round thing stands by
         # would pull a least-squares fit towards it
-        fit, _ = ransac(
-            p[band],
-            CircleModel,
-            min_samples=3,
-            residual_threshold=grid_m,
-            max_trials=200,
-            stop_probability=0.999,
-            rng=0,
-        )
+        fit, _ = _ransac(p[band], CircleModel, 3, grid_m, 0)
         if fit is None or not fit:
             continue
         centre, radius = np.asarray(fit.center, dtype=np.float64), float(fit.radius)
@@ -130,7 +151,7 @@ def round_objects(
             continue
         close = d <= 3 * grid_m
         circle_share = float(on[close].mean())
-        lines_share = _two_lines_share(p[close], grid_m)
+        lines_share = _lines_share(p[close], grid_m)
         if circle_share - lines_share < cfg.round_margin:
             continue
         if any(np.hypot(*(centre - f["centre"])) < max(radius, f["radius_m"]) for f in found):

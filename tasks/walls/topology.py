@@ -97,14 +97,23 @@ def close_at_corners(
     if len(backed):
         walls = np.concatenate([walls, backed])
         origin = np.concatenate([origin, np.full(len(backed), EXTENDED, dtype=origin.dtype)])
-    closed = pinned_corners(walls, origin, cfg.lines.extend_m, grid_m, cfg.lines.offset_tol_m)
+    closed = pinned_corners(
+        walls, origin, cfg.lines.extend_m, grid_m, cfg.lines.offset_tol_m, thin_m=cfg.thin_wall_max_m
+    )
     if closed is not None:
         return (*closed, "pinned")
     if cfg.close_unseen_spans:
         # nothing pins the corners: an unseen span (a corner both walls point at, a collinear gap) is closed
         # where nothing the capture saw stands against it (`pinned_corners` with `across_unseen`)
         closed = pinned_corners(
-            walls, origin, cfg.lines.extend_m, grid_m, cfg.lines.offset_tol_m, True, points=xy
+            walls,
+            origin,
+            cfg.lines.extend_m,
+            grid_m,
+            cfg.lines.offset_tol_m,
+            True,
+            points=xy,
+            thin_m=cfg.thin_wall_max_m,
         )
         if closed is not None and _points_held(closed[2], xy, UNSEEN_HELD_BUFFER_M) >= UNSEEN_HELD_MIN_SHARE:
             return (*closed, "across unseen spans")
@@ -609,6 +618,7 @@ def pinned_corners(
     offset_m: float = 0.05,
     across_unseen: bool = False,
     points: NDArray | None = None,
+    thin_m: float = 0.0,
 ) -> tuple[NDArray, NDArray, Any, float] | None:
     """An open room's unseen corners closed where the data pin them (None when that does not close it).
 
@@ -637,7 +647,11 @@ def pinned_corners(
     the piece and that wall, met at its end, does not run on away from the room (an alcove's side: the room
     goes on past the line there). With the slice `points` (N, 2), "nothing" includes them, close behind (a
     furniture front run on, the wall seen just behind it). What was seen stays: the added pieces still may
-    not cross a wall."""
+    not cross a wall.
+
+    A wall's end where a thin partition (two faces within `thin_m`, `_at_a_stub`) stands on its line counts
+    as free too: the wall runs on past the partition (the pocket behind a partition stub whose wall the
+    capture never saw). `thin_m` 0 leaves such ends joined."""
     n = len(walls)
     if n < 3:
         return None
@@ -645,9 +659,11 @@ def pinned_corners(
     ends = np.concatenate([walls[:, :2], walls[:, 2:]])  # end k of wall i at row i + k n
     d = point_segment_distances(ends, walls)
     d[np.arange(2 * n), np.tile(np.arange(n), 2)] = np.inf
-    free = np.flatnonzero(d.min(axis=1) > tol_m)
     th = angles(walls)
     nrm = np.column_stack([-np.sin(th), np.cos(th)])
+    free = np.union1d(
+        np.flatnonzero(d.min(axis=1) > tol_m), _at_a_stub(walls, ends, d, th, nrm, tol_m, thin_m)
+    )
     centre = _centre(walls)
 
     def span(k: int) -> float:
@@ -765,6 +781,50 @@ def pinned_corners(
     if polygon is None:
         return None
     return out, out_origin, polygon, longest
+
+
+def _at_a_stub(
+    walls: NDArray, ends: NDArray, d: NDArray, th: NDArray, nrm: NDArray, tol_m: float, thin_m: float
+) -> NDArray[np.int64]:
+    """Rows of the walls' `ends` (2M, 2) (end k of wall i at row i + k M; `d` (2M, M) their distances to the
+    walls, `th` the walls' angles, `nrm` their unit normals) where a thin partition stands on the wall's
+    line: the end is joined to a line across the wall (more than 45°) that has a parallel line within `thin_m`
+    on the same side of the wall, the two overlapping along their direction and ending together (within
+    `thin_m`) away from the wall: the partition's two faces and its free end. The wall is no corner there."""
+    n = len(walls)
+    if thin_m <= 0 or n < 3:
+        return np.zeros(0, dtype=np.int64)
+    across = np.abs(np.sin(th[:, None] - th[None, :])) >= math.sin(math.radians(45.0))
+
+    def second_face(a: int, k: int, p: NDArray) -> bool:
+        ends_a = walls[a].reshape(2, 2)
+        near = int(np.argmin(np.hypot(*(ends_a - p).T)))
+        if np.hypot(*(ends_a[near] - p)) > tol_m:
+            return False  # the line does not end at the wall's end: it passes it
+        u = (ends_a[1 - near] - ends_a[near]) / max(
+            float(np.hypot(*(ends_a[1 - near] - ends_a[near]))), 1e-12
+        )
+        far = float((ends_a[1 - near] - p) @ u)
+        for b in np.flatnonzero(~across[a]):
+            if b in (a, k):
+                continue
+            off = np.abs((walls[b].reshape(2, 2) - ends_a[0]) @ nrm[a])
+            t = (walls[b].reshape(2, 2) - p) @ u
+            if (
+                off.max() <= thin_m
+                and off.min() > tol_m
+                and t.min() > -tol_m
+                and abs(t.max() - far) <= thin_m
+            ):
+                return True
+        return False
+
+    out = [
+        int(e)
+        for e in np.flatnonzero(d.min(axis=1) <= tol_m)
+        if any(second_face(a, e % n, ends[e]) for a in np.flatnonzero((d[e] <= tol_m) & across[e % n]))
+    ]
+    return np.asarray(out, dtype=np.int64)
 
 
 def _samples(walls: NDArray, skip: tuple[int, ...], step_m: float = 0.05) -> NDArray:
