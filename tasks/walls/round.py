@@ -24,7 +24,8 @@ TILE_CELLS = 1024
 radius of a whole floor's slice would take gigabytes."""
 LINES = 3
 """The straight lines a round thing's points are compared with: a box's or an alcove's three faces, a circle
-touches all three (two lines left a shelf in a room's corner 0.001 short of a round thing's margin)."""
+touches all three (against two lines, at a margin of 0.1, a shelf in a room's corner came within 0.001 of
+being a round thing)."""
 
 
 def _arc_deg(angle_deg: NDArray) -> float:
