@@ -296,3 +296,25 @@ def test_a_free_end_seen_over_a_metre_runs_on_to_the_wall_its_line_meets():
     r = run_room(generate_building(128), 128, "r3", "mini", load_config([], []), None, degrade=True)
     assert r.error is None and r.closed, r
     assert r.completeness >= 0.99 and r.correctness >= 0.99, r
+
+
+def test_a_short_wall_from_a_seen_corner_runs_on_unseen_to_the_next():
+    """The east wall seen over 0.6 m only, but from the south-east corner, where the south wall ends too:
+    a wall of the room, no furniture face, so it runs 3.4 m on to the north-east corner. The same 0.6 m
+    seen away from any corner (0.5 m up the wall, the south wall stopping short of it) does not, nor does
+    a box's 0.6 m side at its corner with the box's 0.5 m front: a corner with no wall of the room."""
+    walls = _open_rectangle()
+    walls[1] = [6, 0, 6, 0.6]
+    origin = np.full(len(walls), "observed")
+    closed = pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True)
+    assert closed is not None
+    out, _, polygon, longest = closed
+    assert polygon.area == pytest.approx(24.0, abs=0.01) and longest == pytest.approx(3.4)
+    assert evaluate_walls(out, RECT)["correctness"] == 1.0
+    walls[1] = [6, 0.5, 6, 1.1]
+    walls[0] = [0, 0, 5.5, 0]
+    assert pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True) is None
+    walls[1] = [6, 0.3, 6, 0.9]
+    box = np.concatenate([walls, [[5.5, 0.3, 6, 0.3]]])
+    origin = np.full(len(box), "observed")
+    assert pinned_corners(box, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True) is None

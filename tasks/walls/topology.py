@@ -523,7 +523,7 @@ def _topology(
     # the room's interior, for the joins across unseen walls: the walls' length-weighted centre
     interior = _centre(refined)
     conn = connect_detailed(refined, lcfg, support_fn, interior, step_chain=chain)
-    conn = place_steps(conn, refined, proj.counts, grid, lcfg.offset_tol_m)
+    conn = place_steps(conn, refined, proj.counts, grid, lcfg.offset_tol_m, interior)
     walls, origin = _drop_short_stubs(conn.segments, conn.origin, cfg.min_wall_length_m)
     polygon, walls, origin, outside = _room_polygon(walls, origin, grid.size)
     away = _lines_away_from(refined, polygon, grid.size)
@@ -535,7 +535,7 @@ def _topology(
 
         kept = np.flatnonzero(~away)
         again = connect_detailed(refined[kept], lcfg, support_kept, interior, step_chain=chain[kept])
-        again = place_steps(again, refined[kept], proj.counts, grid, lcfg.offset_tol_m)
+        again = place_steps(again, refined[kept], proj.counts, grid, lcfg.offset_tol_m, interior)
         w2, o2 = _drop_short_stubs(again.segments, again.origin, cfg.min_wall_length_m)
         p2, w2, o2, out2 = _room_polygon(w2, o2, grid.size)
         if p2 is not None:
@@ -637,7 +637,9 @@ def pinned_corners(
     `across_unseen` (a handheld scan's spans seen at no height, 0.5 m and more short of each corner) also
     closes a corner that neither end is within `reach_m` of, when each wall runs on unseen for no more than
     `UNSEEN_RUN_RATIO` times the length its line is seen over, or as far as the corner when that length is
-    `UNSEEN_RUN_FREE_SPAN_M` or more (`_unseen_run_limit`), no other wall lies inside the parallelogram
+    `UNSEEN_RUN_FREE_SPAN_M` or more (`_unseen_run_limit`) or when its other end is a seen corner of the room
+    (joined to a wall across that ends there too, whose line is seen over `UNSEEN_RUN_FREE_SPAN_M` or more: a
+    wall the capture saw only at its corner, no furniture face), no other wall lies inside the parallelogram
     the corner and the two free ends span (an L-room's notch, the room's own walls across it) and nothing
     lies behind either added piece (`_nothing_behind`: a partition stub's face run across the room has the
     room's far walls behind it); joins two pieces of one wall across a gap of any length when each lies on
@@ -678,6 +680,17 @@ def pinned_corners(
         t = np.concatenate([(walls[inline, :2] - walls[k, :2]) @ u, (walls[inline, 2:] - walls[k, :2]) @ u])
         return float(t.max() - t.min())
 
+    # ends at a seen corner of the room: joined to a wall across that ends there too (within `tol_m`) and
+    # whose line is seen over `UNSEEN_RUN_FREE_SPAN_M` or more (a step's few cm, a box's side, are no wall)
+    at_corner = np.zeros(2 * n, dtype=bool)
+    for e in np.flatnonzero(d.min(axis=1) <= tol_m):
+        k = e % n
+        near = np.flatnonzero((d[e] <= tol_m) & (np.abs(np.sin(th - th[k])) >= math.sin(math.radians(45.0))))
+        ending = np.minimum(
+            np.hypot(*(walls[near, :2] - ends[e]).T), np.hypot(*(walls[near, 2:] - ends[e]).T)
+        )
+        at_corner[e] = any(span(int(j)) >= UNSEEN_RUN_FREE_SPAN_M for j in near[ending <= tol_m])
+
     cands = []
     for x, y in itertools.combinations(free, 2):
         i, j = x % n, y % n
@@ -715,8 +728,8 @@ def pinned_corners(
         pinned = min(ext) <= reach_m and ext[far] <= span((i, j)[far])
         if not pinned and not (
             across_unseen
-            and ext[0] <= _unseen_run_limit(span(i))
-            and ext[1] <= _unseen_run_limit(span(j))
+            and (ext[0] <= _unseen_run_limit(span(i)) or at_corner[(x + n) % (2 * n)])
+            and (ext[1] <= _unseen_run_limit(span(j)) or at_corner[(y + n) % (2 * n)])
             and _open_corner(walls, ends[x], ends[y], corner, (i, j), tol_m, points)
         ):
             continue
@@ -993,15 +1006,22 @@ def dangling_extensions(walls: NDArray, origin: NDArray, tol_m: float) -> NDArra
     return (origin == EXTENDED) & (free[:n] | free[n:])
 
 
+STEP_MAX_TOLS = 2.0
+"""`place_steps` moves joins up to this many times `lines.offset_tol_m` long: the jogs where two rooms' walls
+of different thickness meet (5-7 cm), whose refined lines may lie a little further apart than the tolerance
+that chained them."""
+
+
 def place_steps(
     conn: Connected,
     lines: NDArray,
     counts: NDArray,
     grid: Grid,
     offset_tol_m: float,
+    interior: NDArray | None = None,
 ) -> Connected:
-    """Each step of the connected walls (a perpendicular join shorter than `offset_tol_m` between the ends of
-    two parallel walls, a jog of a few cm) moved along them to where the data changes from one wall to
+    """Each step of the connected walls (a perpendicular join shorter than `STEP_MAX_TOLS` times
+    `offset_tol_m` between the ends of two parallel walls, a jog of a few cm) moved along them to where the data changes from one wall to
     the other. Connect places a join at a wall's end, and where neither wall was found across an unseen
     or sparsely seen stretch (a Hough line needs dense cells) that end can lie a metre from the step.
 
@@ -1009,13 +1029,13 @@ def place_steps(
     step, every grid column along the walls counts the occupied voxels (`counts`) nearer each wall's line
     than half the step; the step goes to the cut that leaves most of the first wall's data on its side
     and most of the second's on the other (the greatest sum of count differences). Where several cuts
-    tie (a stretch with data on neither line), the step goes to the middle of them: a step of a few cm
-    hides almost nothing of either wall (unlike an alcove's, `connect`), so the unseen stretch says
-    nothing of which wall runs on into it, and its middle is the least wrong. Returns `conn` with the
+    tie (a stretch with data on neither line), the step goes to the tie's end at the data of the wall
+    nearer the room's `interior`: the step hides the farther wall from the room, never the nearer one,
+    whose data run up to the corner (without `interior`, to the middle of the tie). Returns `conn` with the
     walls moved."""
     walls, parent = conn.segments.copy(), conn.parent
     L = lengths(walls)
-    cand = np.flatnonzero((parent < 0) & (L > 0) & (L < offset_tol_m))
+    cand = np.flatnonzero((parent < 0) & (L > 0) & (L < STEP_MAX_TOLS * offset_tol_m))
     if len(cand) == 0:
         return conn
     g = grid.size
@@ -1049,6 +1069,8 @@ def place_steps(
         nrm = step / h
         far_b = walls[b, 2:] if eb == 0 else walls[b, :2]
         t_far_a, t_far_b = float((far_a - qa) @ u), float((far_b - qb) @ u)
+        if t_far_b <= 0:
+            continue  # both walls run back from the join: a thin partition's end cap, no step
         obs_a = float(max((lines[parent[a], :2] - qa) @ u, (lines[parent[a], 2:] - qa) @ u))
         obs_b = float(min((lines[parent[b], :2] - qb) @ u, (lines[parent[b], 2:] - qb) @ u))
         lo = max(min(obs_a, obs_b) - h, t_far_a + g)
@@ -1077,7 +1099,13 @@ def place_steps(
         )
         gain = np.concatenate([[0.0], np.cumsum(diff)])  # the first wall's data left of each cut, net
         best = np.flatnonzero(gain >= gain.max() - 1e-9)
-        cut = 0.5 * (best.min() + best.max())
+        if interior is None:
+            cut = 0.5 * (best.min() + best.max())
+        else:
+            # the step hides the farther wall from the room, not the nearer one: the nearer wall's data run
+            # up to the corner, and the stretch with data on neither line is the farther wall's, unseen
+            b_nearer = abs(float((interior - qb) @ nrm)) < abs(float((interior - qa) @ nrm))
+            cut = float(best.max() if b_nearer else best.min())
         t_step = lo + cut * g
         if abs(t_step) <= 1e-9:
             continue
