@@ -318,3 +318,19 @@ def test_a_short_wall_from_a_seen_corner_runs_on_unseen_to_the_next():
     box = np.concatenate([walls, [[5.5, 0.3, 6, 0.3]]])
     origin = np.full(len(box), "observed")
     assert pinned_corners(box, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True) is None
+
+
+def test_a_wall_run_on_to_one_corner_runs_on_to_the_next_in_a_second_round():
+    """The east wall seen over 0.8 m only, away from its corners: it may run 1.1 m to the north-east corner
+    (less than twice its seen length), which the north wall, seen from the north-west corner, reaches too.
+    That corner closed, the east wall is one seen from a corner of the room, and runs on 2.4 m to the
+    south-east one in a second round. One round leaves the room open."""
+    walls = np.array([[0, 0, 0, 4], [0, 0, 4.2, 0], [0, 4, 3.0, 4], [6, 2.4, 6, 3.2]], float)
+    origin = np.full(len(walls), "observed")
+    closed = pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True)
+    assert closed is not None
+    out, _, polygon, longest = closed
+    assert polygon.area == pytest.approx(24.0, abs=0.01) and longest == pytest.approx(3.0)
+    assert evaluate_walls(out, RECT)["correctness"] == 1.0
+    once = pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True, rounds=1)
+    assert once is None

@@ -619,6 +619,7 @@ def pinned_corners(
     across_unseen: bool = False,
     points: NDArray | None = None,
     thin_m: float = 0.0,
+    rounds: int = 2,
 ) -> tuple[NDArray, NDArray, Any, float] | None:
     """An open room's unseen corners closed where the data pin them (None when that does not close it).
 
@@ -653,7 +654,11 @@ def pinned_corners(
 
     A wall's end where a thin partition (two faces within `thin_m`, `_at_a_stub`) stands on its line counts
     as free too: the wall runs on past the partition (the pocket behind a partition stub whose wall the
-    capture never saw). `thin_m` 0 leaves such ends joined."""
+    capture never saw). `thin_m` 0 leaves such ends joined.
+
+    Across unseen spans, when the corners closed leave the room open, it is looked at again with them, up to
+    `rounds` times in all: a wall run on to one corner is then one seen from a corner of the room (its pieces
+    in line followed to the corner), and may run on to the next."""
     n = len(walls)
     if n < 3:
         return None
@@ -682,14 +687,32 @@ def pinned_corners(
 
     # ends at a seen corner of the room: joined to a wall across that ends there too (within `tol_m`) and
     # whose line is seen over `UNSEEN_RUN_FREE_SPAN_M` or more (a step's few cm, a box's side, are no wall)
+    # (through the pieces run on from it along its line: a corner closed in an earlier round)
+    across_k = np.abs(np.sin(th[:, None] - th[None, :])) >= math.sin(math.radians(45.0))
     at_corner = np.zeros(2 * n, dtype=bool)
-    for e in np.flatnonzero(d.min(axis=1) <= tol_m):
-        k = e % n
-        near = np.flatnonzero((d[e] <= tol_m) & (np.abs(np.sin(th - th[k])) >= math.sin(math.radians(45.0))))
-        ending = np.minimum(
-            np.hypot(*(walls[near, :2] - ends[e]).T), np.hypot(*(walls[near, 2:] - ends[e]).T)
-        )
-        at_corner[e] = any(span(int(j)) >= UNSEEN_RUN_FREE_SPAN_M for j in near[ending <= tol_m])
+    for e0 in np.flatnonzero(d.min(axis=1) <= tol_m):
+        e, seen = int(e0), {int(e0) % n}
+        while True:
+            k = e % n
+            near = np.flatnonzero((d[e] <= tol_m) & across_k[k])
+            ending = np.minimum(
+                np.hypot(*(walls[near, :2] - ends[e]).T), np.hypot(*(walls[near, 2:] - ends[e]).T)
+            )
+            if any(span(int(j)) >= UNSEEN_RUN_FREE_SPAN_M for j in near[ending <= tol_m]):
+                at_corner[e0] = True
+                break
+            # a piece in line starting at this end (run on in an earlier round): on to its other end
+            on = [
+                int(j)
+                for j in np.flatnonzero((d[e] <= tol_m) & ~across_k[k])
+                if int(j) not in seen
+                and min(np.hypot(*(walls[j, :2] - ends[e])), np.hypot(*(walls[j, 2:] - ends[e]))) <= tol_m
+            ]
+            if not on:
+                break
+            j = on[0]
+            seen.add(j)
+            e = j + n * int(np.hypot(*(walls[j, :2] - ends[e])) <= tol_m)  # its other end
 
     cands = []
     for x, y in itertools.combinations(free, 2):
@@ -790,10 +813,17 @@ def pinned_corners(
         return None
     out = np.concatenate([walls, np.array(added)])
     out_origin = np.concatenate([origin, np.full(len(added), EXTENDED, dtype=origin.dtype)])
-    polygon, out, out_origin, _ = _room_polygon(out, out_origin, tol_m)
+    polygon, closed, closed_origin, _ = _room_polygon(out, out_origin, tol_m)
     if polygon is None:
+        if across_unseen and rounds > 1:
+            # the corners closed make walls seen from a corner of the room that were not before: once more
+            again = pinned_corners(
+                out, out_origin, reach_m, tol_m, offset_m, True, points, thin_m, rounds - 1
+            )
+            if again is not None:
+                return (*again[:3], max(longest, again[3]))
         return None
-    return out, out_origin, polygon, longest
+    return closed, closed_origin, polygon, longest
 
 
 def _at_a_stub(
