@@ -71,7 +71,7 @@ def test_a_room_closed_across_unseen_spans_must_hold_the_points_seen():
 
 def test_a_wall_may_not_run_on_unseen_further_than_its_line_is_seen():
     walls = _open_rectangle()
-    walls[1] = [6, 0.5, 6, 1.2]  # the east wall seen over 0.7 m, 2.8 m short of the corner
+    walls[1] = [6, 1.5, 6, 2.2]  # the east wall seen over 0.7 m, 1.5 and 1.8 m short of its corners
     walls[0] = [0, 0, 5.5, 0]
     origin = np.full(len(walls), "observed")
     assert pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True) is None
@@ -301,7 +301,7 @@ def test_a_free_end_seen_over_a_metre_runs_on_to_the_wall_its_line_meets():
 def test_a_short_wall_from_a_seen_corner_runs_on_unseen_to_the_next():
     """The east wall seen over 0.6 m only, but from the south-east corner, where the south wall ends too:
     a wall of the room, no furniture face, so it runs 3.4 m on to the north-east corner. The same 0.6 m
-    seen away from any corner (0.5 m up the wall, the south wall stopping short of it) does not, nor does
+    seen away from any corner (1.5 m up the wall, the south wall stopping short of it) does not, nor does
     a box's 0.6 m side at its corner with the box's 0.5 m front: a corner with no wall of the room."""
     walls = _open_rectangle()
     walls[1] = [6, 0, 6, 0.6]
@@ -311,7 +311,7 @@ def test_a_short_wall_from_a_seen_corner_runs_on_unseen_to_the_next():
     out, _, polygon, longest = closed
     assert polygon.area == pytest.approx(24.0, abs=0.01) and longest == pytest.approx(3.4)
     assert evaluate_walls(out, RECT)["correctness"] == 1.0
-    walls[1] = [6, 0.5, 6, 1.1]
+    walls[1] = [6, 1.5, 6, 2.1]
     walls[0] = [0, 0, 5.5, 0]
     assert pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True) is None
     walls[1] = [6, 0.3, 6, 0.9]
