@@ -4,6 +4,8 @@ where the walls' lines say how and nothing seen stands against it (`topology.pin
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -334,3 +336,17 @@ def test_a_wall_run_on_to_one_corner_runs_on_to_the_next_in_a_second_round():
     assert evaluate_walls(out, RECT)["correctness"] == 1.0
     once = pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True, rounds=1)
     assert once is None
+
+
+def test_a_short_wall_at_a_corner_runs_on_only_in_a_direction_a_long_wall_confirms():
+    """The north wall seen over 0.8 m from the north-west corner, but drawn 4° off the west wall's
+    perpendicular (a short piece's direction, its cluster all short pieces): run 3.6 m to the east wall it
+    would end 25 cm off. It runs on only in a direction an observed wall of 1 m or more has, or its
+    perpendicular."""
+    tilt = math.tan(math.radians(4.0))
+    walls = np.array([[0, 0, 0, 4], [0, 4, 0.8, 4 - 0.8 * tilt], [0, 0, 4.2, 0], [6, 0.3, 6, 2.9]], float)
+    origin = np.full(len(walls), "observed")
+    assert pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True) is None
+    walls[1] = [0, 4, 0.8, 4]
+    closed = pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True)
+    assert closed is not None and closed[2].area == pytest.approx(24.0, abs=0.01)

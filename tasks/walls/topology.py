@@ -114,6 +114,7 @@ def close_at_corners(
             True,
             points=xy,
             thin_m=cfg.thin_wall_max_m,
+            angle_tol_deg=cfg.lines.angle_tol_deg,
         )
         if closed is not None and _points_held(closed[2], xy, UNSEEN_HELD_BUFFER_M) >= UNSEEN_HELD_MIN_SHARE:
             return (*closed, "across unseen spans")
@@ -620,6 +621,7 @@ def pinned_corners(
     points: NDArray | None = None,
     thin_m: float = 0.0,
     rounds: int = 2,
+    angle_tol_deg: float = 3.0,
 ) -> tuple[NDArray, NDArray, Any, float] | None:
     """An open room's unseen corners closed where the data pin them (None when that does not close it).
 
@@ -640,7 +642,9 @@ def pinned_corners(
     `UNSEEN_RUN_RATIO` times the length its line is seen over, or as far as the corner when that length is
     `UNSEEN_RUN_FREE_SPAN_M` or more (`_unseen_run_limit`) or when its other end is a seen corner of the room
     (joined to a wall across that ends there too, whose line is seen over `UNSEEN_RUN_FREE_SPAN_M` or more: a
-    wall the capture saw only at its corner, no furniture face), no other wall lies inside the parallelogram
+    wall the capture saw only at its corner, no furniture face) and an observed wall that long runs in its
+    direction or across it (within `angle_tol_deg`: a short piece's own direction may be degrees off), no
+    other wall lies inside the parallelogram
     the corner and the two free ends span (an L-room's notch, the room's own walls across it) and nothing
     lies behind either added piece (`_nothing_behind`: a partition stub's face run across the room has the
     room's far walls behind it); joins two pieces of one wall across a gap of any length when each lies on
@@ -689,6 +693,13 @@ def pinned_corners(
     # whose line is seen over `UNSEEN_RUN_FREE_SPAN_M` or more (a step's few cm, a box's side, are no wall)
     # (through the pieces run on from it along its line: a corner closed in an earlier round)
     across_k = np.abs(np.sin(th[:, None] - th[None, :])) >= math.sin(math.radians(45.0))
+    # ...and whose direction an observed wall that long has too, or its perpendicular (within
+    # `angle_tol_deg`): a short piece's own direction may be degrees off, which a long run would carry metres
+    # across the room (short pieces in line far apart span a long line, but their directions are as short
+    # pieces', and a piece run on along one in an earlier round has its direction)
+    sin_tol = math.sin(math.radians(angle_tol_deg))
+    turn = th[:, None] - th[None, (L >= UNSEEN_RUN_FREE_SPAN_M) & (origin == OBSERVED)]
+    confirmed = ((np.abs(np.sin(turn)) <= sin_tol) | (np.abs(np.cos(turn)) <= sin_tol)).any(axis=1)
     at_corner = np.zeros(2 * n, dtype=bool)
     for e0 in np.flatnonzero(d.min(axis=1) <= tol_m):
         e, seen = int(e0), {int(e0) % n}
@@ -699,7 +710,7 @@ def pinned_corners(
                 np.hypot(*(walls[near, :2] - ends[e]).T), np.hypot(*(walls[near, 2:] - ends[e]).T)
             )
             if any(span(int(j)) >= UNSEEN_RUN_FREE_SPAN_M for j in near[ending <= tol_m]):
-                at_corner[e0] = True
+                at_corner[e0] = bool(confirmed[e0 % n])
                 break
             # a piece in line starting at this end (run on in an earlier round): on to its other end
             on = [
@@ -818,7 +829,7 @@ def pinned_corners(
         if across_unseen and rounds > 1:
             # the corners closed make walls seen from a corner of the room that were not before: once more
             again = pinned_corners(
-                out, out_origin, reach_m, tol_m, offset_m, True, points, thin_m, rounds - 1
+                out, out_origin, reach_m, tol_m, offset_m, True, points, thin_m, rounds - 1, angle_tol_deg
             )
             if again is not None:
                 return (*again[:3], max(longest, again[3]))
