@@ -37,6 +37,21 @@ def _open_rectangle() -> np.ndarray:
     )
 
 
+def _across_unseen(walls: np.ndarray, rounds: int = 2):
+    """`pinned_corners` across unseen spans on observed `walls`, with the walls stage's reaches."""
+    origin = np.full(len(walls), "observed")
+    return pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True, rounds=rounds)
+
+
+def _closes_on_the_rectangle(walls: np.ndarray, longest_m: float) -> None:
+    """The walls close across unseen spans on RECT exactly, the longest piece added `longest_m` long."""
+    closed = _across_unseen(walls)
+    assert closed is not None
+    out, _, polygon, longest = closed
+    assert polygon.area == pytest.approx(24.0, abs=0.01) and longest == pytest.approx(longest_m)
+    assert evaluate_walls(out, RECT)["correctness"] == 1.0
+
+
 def test_an_unseen_corner_and_gap_close_along_the_walls_lines_only_across_unseen():
     walls = _open_rectangle()
     origin = np.full(len(walls), "observed")
@@ -85,12 +100,7 @@ def test_a_wall_seen_over_a_metre_runs_on_unseen_to_its_corner():
     walls = _open_rectangle()
     walls[1] = [6, 0.2, 6, 1.4]
     walls[0] = [0, 0, 5.5, 0]
-    origin = np.full(len(walls), "observed")
-    closed = pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True)
-    assert closed is not None
-    out, _, polygon, longest = closed
-    assert polygon.area == pytest.approx(24.0, abs=0.01) and longest == pytest.approx(2.6)
-    assert evaluate_walls(out, RECT)["correctness"] == 1.0
+    _closes_on_the_rectangle(walls, 2.6)
 
 
 def test_an_alcove_mouth_is_not_bridged_when_its_back_wall_was_seen():
@@ -307,19 +317,12 @@ def test_a_short_wall_from_a_seen_corner_runs_on_unseen_to_the_next():
     a box's 0.6 m side at its corner with the box's 0.5 m front: a corner with no wall of the room."""
     walls = _open_rectangle()
     walls[1] = [6, 0, 6, 0.6]
-    origin = np.full(len(walls), "observed")
-    closed = pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True)
-    assert closed is not None
-    out, _, polygon, longest = closed
-    assert polygon.area == pytest.approx(24.0, abs=0.01) and longest == pytest.approx(3.4)
-    assert evaluate_walls(out, RECT)["correctness"] == 1.0
+    _closes_on_the_rectangle(walls, 3.4)
     walls[1] = [6, 1.5, 6, 2.1]
     walls[0] = [0, 0, 5.5, 0]
-    assert pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True) is None
+    assert _across_unseen(walls) is None
     walls[1] = [6, 0.3, 6, 0.9]
-    box = np.concatenate([walls, [[5.5, 0.3, 6, 0.3]]])
-    origin = np.full(len(box), "observed")
-    assert pinned_corners(box, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True) is None
+    assert _across_unseen(np.concatenate([walls, [[5.5, 0.3, 6, 0.3]]])) is None
 
 
 def test_a_wall_run_on_to_one_corner_runs_on_to_the_next_in_a_second_round():
@@ -328,14 +331,8 @@ def test_a_wall_run_on_to_one_corner_runs_on_to_the_next_in_a_second_round():
     That corner closed, the east wall is one seen from a corner of the room, and runs on 2.4 m to the
     south-east one in a second round. One round leaves the room open."""
     walls = np.array([[0, 0, 0, 4], [0, 0, 4.2, 0], [0, 4, 3.0, 4], [6, 2.4, 6, 3.2]], float)
-    origin = np.full(len(walls), "observed")
-    closed = pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True)
-    assert closed is not None
-    out, _, polygon, longest = closed
-    assert polygon.area == pytest.approx(24.0, abs=0.01) and longest == pytest.approx(3.0)
-    assert evaluate_walls(out, RECT)["correctness"] == 1.0
-    once = pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True, rounds=1)
-    assert once is None
+    _closes_on_the_rectangle(walls, 3.0)
+    assert _across_unseen(walls, rounds=1) is None
 
 
 def test_a_short_wall_at_a_corner_runs_on_only_in_a_direction_a_long_wall_confirms():
@@ -345,8 +342,7 @@ def test_a_short_wall_at_a_corner_runs_on_only_in_a_direction_a_long_wall_confir
     perpendicular."""
     tilt = math.tan(math.radians(4.0))
     walls = np.array([[0, 0, 0, 4], [0, 4, 0.8, 4 - 0.8 * tilt], [0, 0, 4.2, 0], [6, 0.3, 6, 2.9]], float)
-    origin = np.full(len(walls), "observed")
-    assert pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True) is None
+    assert _across_unseen(walls) is None
     walls[1] = [0, 4, 0.8, 4]
-    closed = pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True)
+    closed = _across_unseen(walls)
     assert closed is not None and closed[2].area == pytest.approx(24.0, abs=0.01)
