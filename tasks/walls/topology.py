@@ -689,17 +689,18 @@ def pinned_corners(
         t = np.concatenate([(walls[inline, :2] - walls[k, :2]) @ u, (walls[inline, 2:] - walls[k, :2]) @ u])
         return float(t.max() - t.min())
 
-    # ends at a seen corner of the room: joined to a wall across that ends there too (within `tol_m`) and
-    # whose line is seen over `UNSEEN_RUN_FREE_SPAN_M` or more (a step's few cm, a box's side, are no wall)
-    # (through the pieces run on from it along its line: a corner closed in an earlier round)
-    across_k = np.abs(np.sin(th[:, None] - th[None, :])) >= math.sin(math.radians(45.0))
-    # ...and whose direction an observed wall that long has too, or its perpendicular (within
-    # `angle_tol_deg`): a short piece's own direction may be degrees off, which a long run would carry metres
-    # across the room (short pieces in line far apart span a long line, but their directions are as short
-    # pieces', and a piece run on along one in an earlier round has its direction)
+    # the walls whose direction an observed wall of `UNSEEN_RUN_FREE_SPAN_M` or more has too, or its
+    # perpendicular (within `angle_tol_deg`): a short piece's own direction may be degrees off, which a long
+    # run would carry metres across the room (short pieces in line far apart span a long line, but their
+    # directions are short pieces', and a piece run on along one in an earlier round has its direction)
     sin_tol = math.sin(math.radians(angle_tol_deg))
     turn = th[:, None] - th[None, (L >= UNSEEN_RUN_FREE_SPAN_M) & (origin == OBSERVED)]
     confirmed = ((np.abs(np.sin(turn)) <= sin_tol) | (np.abs(np.cos(turn)) <= sin_tol)).any(axis=1)
+    # the ends of those walls at a seen corner of the room: joined to a wall across that ends there too
+    # (within `tol_m`) and whose line is seen over `UNSEEN_RUN_FREE_SPAN_M` or more (a step's few cm, a box's
+    # side, are no wall of the room), directly or through the pieces run on from the end along its line (a
+    # corner closed in an earlier round)
+    across_k = np.abs(np.sin(th[:, None] - th[None, :])) >= math.sin(math.radians(45.0))
     at_corner = np.zeros(2 * n, dtype=bool)
     for e0 in np.flatnonzero(d.min(axis=1) <= tol_m):
         e, seen = int(e0), {int(e0) % n}
@@ -1062,9 +1063,10 @@ def place_steps(
     interior: NDArray | None = None,
 ) -> Connected:
     """Each step of the connected walls (a perpendicular join shorter than `STEP_MAX_TOLS` times
-    `offset_tol_m` between the ends of two parallel walls, a jog of a few cm) moved along them to where the data changes from one wall to
-    the other. Connect places a join at a wall's end, and where neither wall was found across an unseen
-    or sparsely seen stretch (a Hough line needs dense cells) that end can lie a metre from the step.
+    `offset_tol_m` between the ends of two parallel walls running on to either side, a jog of a few cm)
+    moved along them to where the data changes from one wall to the other. Connect places a join at a
+    wall's end, and where neither wall was found across an unseen or sparsely seen stretch (a Hough line
+    needs dense cells) that end can lie a metre from the step.
 
     Between the two walls' observed ends (`lines`, connect's input, by `conn.parent`), widened by the
     step, every grid column along the walls counts the occupied voxels (`counts`) nearer each wall's line
