@@ -337,9 +337,8 @@ def test_a_wall_run_on_to_one_corner_runs_on_to_the_next_in_a_second_round():
 
 def test_a_short_wall_at_a_corner_runs_on_only_in_a_direction_a_long_wall_confirms():
     """The north wall seen over 0.8 m from the north-west corner, but drawn 4° off the west wall's
-    perpendicular (a short piece's direction, its cluster all short pieces): run 3.6 m to the east wall it
-    would end 25 cm off. It runs on only in a direction an observed wall of 1 m or more has, or its
-    perpendicular."""
+    perpendicular (a short piece's own direction): run 5.2 m on to the east wall, it would end 42 cm off. It
+    runs on only in a direction an observed wall of 1 m or more has, or its perpendicular."""
     tilt = math.tan(math.radians(4.0))
     walls = np.array([[0, 0, 0, 4], [0, 4, 0.8, 4 - 0.8 * tilt], [0, 0, 4.2, 0], [6, 0.3, 6, 2.9]], float)
     assert _across_unseen(walls) is None
