@@ -672,14 +672,15 @@ def pinned_corners(
     d[np.arange(2 * n), np.tile(np.arange(n), 2)] = np.inf
     th = angles(walls)
     nrm = np.column_stack([-np.sin(th), np.cos(th)])
+    crossing = np.abs(np.sin(th[:, None] - th[None, :])) >= math.sin(math.radians(45.0))  # (M, M) at > 45°
     free = np.union1d(
-        np.flatnonzero(d.min(axis=1) > tol_m), _at_a_stub(walls, ends, d, th, nrm, tol_m, thin_m)
+        np.flatnonzero(d.min(axis=1) > tol_m), _at_a_stub(walls, ends, d, crossing, nrm, tol_m, thin_m)
     )
     centre = _centre(walls)
 
-    def span(k: int) -> float:
+    def seen_over(k: int) -> float:
         """The length wall k's line is seen over: the extent of k and the walls in line with it."""
-        inline = (np.abs(np.sin(th - th[k])) < math.sin(math.radians(45.0))) & (
+        inline = ~crossing[k] & (
             np.abs(
                 np.stack([(walls[:, :2] - walls[k, :2]) @ nrm[k], (walls[:, 2:] - walls[k, :2]) @ nrm[k]])
             ).max(axis=0)
@@ -689,6 +690,7 @@ def pinned_corners(
         t = np.concatenate([(walls[inline, :2] - walls[k, :2]) @ u, (walls[inline, 2:] - walls[k, :2]) @ u])
         return float(t.max() - t.min())
 
+    span = np.array([seen_over(k) for k in range(n)])
     # the walls whose direction an observed wall of `UNSEEN_RUN_FREE_SPAN_M` or more has too, or its
     # perpendicular (within `angle_tol_deg`): a short piece's own direction may be degrees off, which a long
     # run would carry metres across the room (short pieces in line far apart span a long line, but their
@@ -700,38 +702,31 @@ def pinned_corners(
     # (within `tol_m`) and whose line is seen over `UNSEEN_RUN_FREE_SPAN_M` or more (a step's few cm, a box's
     # side, are no wall of the room), directly or through the pieces run on from the end along its line (a
     # corner closed in an earlier round)
-    across_k = np.abs(np.sin(th[:, None] - th[None, :])) >= math.sin(math.radians(45.0))
+    meets = np.hypot(*(ends[:, None, :] - ends[None, :, :]).transpose(2, 0, 1)) <= tol_m  # (2M, 2M) ends
+    ends_at = meets[:, :n] | meets[:, n:]  # (2M, M): a wall with an end at this end
     at_corner = np.zeros(2 * n, dtype=bool)
     for e0 in np.flatnonzero(d.min(axis=1) <= tol_m):
         e, seen = int(e0), {int(e0) % n}
         while True:
             k = e % n
-            near = np.flatnonzero((d[e] <= tol_m) & across_k[k])
-            ending = np.minimum(
-                np.hypot(*(walls[near, :2] - ends[e]).T), np.hypot(*(walls[near, 2:] - ends[e]).T)
-            )
-            if any(span(int(j)) >= UNSEEN_RUN_FREE_SPAN_M for j in near[ending <= tol_m]):
+            joined = (d[e] <= tol_m) & ends_at[e]
+            if (joined & crossing[k] & (span >= UNSEEN_RUN_FREE_SPAN_M)).any():
                 at_corner[e0] = bool(confirmed[e0 % n])
                 break
             # a piece in line starting at this end (run on in an earlier round): on to its other end
-            on = [
-                int(j)
-                for j in np.flatnonzero((d[e] <= tol_m) & ~across_k[k])
-                if int(j) not in seen
-                and min(np.hypot(*(walls[j, :2] - ends[e])), np.hypot(*(walls[j, 2:] - ends[e]))) <= tol_m
-            ]
+            on = [int(j) for j in np.flatnonzero(joined & ~crossing[k]) if int(j) not in seen]
             if not on:
                 break
             j = on[0]
             seen.add(j)
-            e = j + n * int(np.hypot(*(walls[j, :2] - ends[e])) <= tol_m)  # its other end
+            e = j + n * int(meets[e, j])  # its other end
 
     cands = []
     for x, y in itertools.combinations(free, 2):
         i, j = x % n, y % n
         if i == j:
             continue
-        if abs(math.sin(th[i] - th[j])) < math.sin(math.radians(45.0)):
+        if not crossing[i, j]:
             # two pieces of one wall facing each other across a short gap (a door's jamb took the corner
             # connect would have joined them at): joined, by a step where their lines are apart
             p, q = ends[x], ends[y]
@@ -760,11 +755,11 @@ def pinned_corners(
         if len(ext) < 2:
             continue
         far = int(np.argmax(ext))
-        pinned = min(ext) <= reach_m and ext[far] <= span((i, j)[far])
+        pinned = min(ext) <= reach_m and ext[far] <= span[(i, j)[far]]
         if not pinned and not (
             across_unseen
-            and (ext[0] <= _unseen_run_limit(span(i)) or at_corner[(x + n) % (2 * n)])
-            and (ext[1] <= _unseen_run_limit(span(j)) or at_corner[(y + n) % (2 * n)])
+            and (ext[0] <= _unseen_run_limit(span[i]) or at_corner[(x + n) % (2 * n)])
+            and (ext[1] <= _unseen_run_limit(span[j]) or at_corner[(y + n) % (2 * n)])
             and _open_corner(walls, ends[x], ends[y], corner, (i, j), tol_m, points)
         ):
             continue
@@ -778,9 +773,9 @@ def pinned_corners(
         best = None
         # across unseen spans, as far as the wall's line is seen over (any distance when that is
         # `UNSEEN_RUN_FREE_SPAN_M` or more), when no wall lies behind the piece
-        limit = max(reach_m, _unseen_run_limit(span(i), 1.0)) if across_unseen else reach_m
+        limit = max(reach_m, _unseen_run_limit(span[i], 1.0)) if across_unseen else reach_m
         for j in range(n):
-            if j == i or abs(math.sin(th[i] - th[j])) < math.sin(math.radians(45.0)):
+            if j == i or not crossing[i, j]:
                 continue
             hit = line_intersection(np.array([*p, *(p + u)]), walls[j])
             # (across unseen spans the line may meet the wall's end within the tolerance, a cell off it)
@@ -839,17 +834,16 @@ def pinned_corners(
 
 
 def _at_a_stub(
-    walls: NDArray, ends: NDArray, d: NDArray, th: NDArray, nrm: NDArray, tol_m: float, thin_m: float
+    walls: NDArray, ends: NDArray, d: NDArray, across: NDArray, nrm: NDArray, tol_m: float, thin_m: float
 ) -> NDArray[np.int64]:
     """Rows of the walls' `ends` (2M, 2) (end k of wall i at row i + k M; `d` (2M, M) their distances to the
-    walls, `th` the walls' angles, `nrm` their unit normals) where a thin partition stands on the wall's
+    walls, `across` (M, M) the pairs more than 45° apart, `nrm` their unit normals) where a thin partition stands on the wall's
     line: the end is joined to a line across the wall (more than 45°) that has a parallel line within `thin_m`
     on the same side of the wall, the two overlapping along their direction and ending together (within
     `thin_m`) away from the wall: the partition's two faces and its free end. The wall is no corner there."""
     n = len(walls)
     if thin_m <= 0 or n < 3:
         return np.zeros(0, dtype=np.int64)
-    across = np.abs(np.sin(th[:, None] - th[None, :])) >= math.sin(math.radians(45.0))
 
     def second_face(a: int, k: int, p: NDArray) -> bool:
         ends_a = walls[a].reshape(2, 2)
