@@ -165,6 +165,23 @@ def test_a_stub_whose_second_face_was_never_seen_takes_it_from_its_end(rng):
     assert found == []
 
 
+def test_a_stub_whose_line_stops_short_of_its_end_face_still_takes_its_second_face_from_it(rng):
+    """The stub's line found 3.5 cm short of its end face (a Kinect's mixed pixels at the end pull the line's
+    end in: dev clean 715 r1's stub stopped 2 cm short): the end face is looked for that far past the line's
+    end, and gives the second face all the same."""
+    levelled, _ = stub_room(rng, north_top=0.0)
+    slice_points = in_band(levelled)
+    off, _ = room_model(slice_points, levelled, 0.0, 2.5, replace(CFG, end_cap_min_height_m=0))
+    ((i, k),) = _stubs(off.walls)
+    walls = off.walls.copy()
+    free = slice(2, 4) if k == 0 else slice(0, 2)
+    assert walls[i, free] == pytest.approx([1.5, 1.45], abs=0.03)  # found by the model near the end face
+    walls[i, free] = [1.465, 1.45]  # 3.5 cm short of the end face at x = 1.5
+    _, found = faces_below_slice(walls, levelled, slice_points, 0.0, CFG, 0.01)
+    assert len(found) == 1 and found[0]["kind"] == "end", found
+    assert found[0]["offset_m"] == pytest.approx(0.1, abs=0.015)
+
+
 def test_a_stub_face_modelled_only_near_the_end_is_run_on_to_the_host_wall(rng):
     """The north face seen only from x = 0.6 m to the stub's end: the model holds the stub's first face, its
     end and a second face that stops 0.6 m short of the west wall (a corner missing). The stretch the model

@@ -824,11 +824,16 @@ def _per_bin(t: NDArray, n_bins: int, bin_m: float) -> NDArray:
     return np.bincount(np.minimum((t / bin_m).astype(np.intp), n_bins - 1), minlength=n_bins)
 
 
+END_CAP_OUT_M = 0.04
+"""`_end_cap`: how far past a stub's line end its end face is looked for. A Kinect's mixed pixels at the end
+smear it inward and the line found stops a few centimetres short (dev clean 715 r1: 2 cm)."""
+
+
 def _end_cap(
     points: NDArray, a: NDArray, u: NDArray, n: NDArray, L: float, cfg: WallsConfig, grid_m: float
 ) -> tuple[float, float] | None:
     """The second face of a stub (from its foot `a` along `u`, `L` long) told by its free end's own face:
-    the points (N, 3) within 5 cm of the end (inward, 2 cm outward), binned by their offset along `n` (1 cm),
+    the points (N, 3) within 5 cm of the end (inward, `END_CAP_OUT_M` outward), binned by their offset along `n` (1 cm),
     occupy a run of bins from the stub's face (within 3 cm) out to the wall's thickness on one side
     (each bin at least a quarter of the fullest beyond the stub's own face), nothing stands beyond it for 10 cm (a corner's or a
     wall's run on would), the thickness lies between three grid cells and `thin_wall_max_m`, and the end's
@@ -836,7 +841,7 @@ def _end_cap(
     percentile of the run's points, the end's height span) or None."""
     rel = points[:, :2] - a
     t, d = rel @ u, rel @ n
-    at_end = (t >= L - 0.05) & (t <= L + 0.02) & (np.abs(d) <= cfg.thin_wall_max_m + 0.1)
+    at_end = (t >= L - 0.05) & (t <= L + END_CAP_OUT_M) & (np.abs(d) <= cfg.thin_wall_max_m + 0.1)
     if at_end.sum() < 20:
         return None
     best = None
