@@ -1074,6 +1074,38 @@ def test_a_wall_behind_a_partition_stub_was_seen_round_its_end_not_through_a_doo
     assert np.flatnonzero(seen_through_gaps(lines, cells, grid, interior, 0.3, 0.5, 0.05)).tolist() == [3]
 
 
+def test_a_wall_behind_a_partition_stub_walked_round_was_not_seen_through_it():
+    """The last case above with the stub's second face seen as well (10 cm off, ending with it): the capture
+    was on both sides of the stub, so the north wall's piece straight behind it was seen from its far side,
+    not through a door in it (dev degraded 116 r1 and 128 r1 lost their far walls that way)."""
+    from tasks.walls.evidence import seen_through_gaps, walked_round
+
+    room = [[0, 0, 6, 0], [6, 0, 6, 4], [6, 4, 4.5, 4], [1.2, 4, 0, 4], [0, 4, 0, 0]]
+    faces = [[0, 2, 1.4, 2], [0, 2.1, 1.4, 2.1]]
+    interior = np.array([3.0, 1.0])
+    lines = np.array(room + faces, dtype=float)
+    cells, grid = _door_cells(lines, [])
+    assert walked_round(lines, 0.3, 0.05, 5.0).tolist() == [False] * 5 + [True, True]
+    assert not seen_through_gaps(lines, cells, grid, interior, 0.3, 0.5, 0.05).any()
+    lines = np.array(room + faces[:1], dtype=float)  # one face only: seen through a door, as above
+    cells, grid = _door_cells(lines, [])
+    assert np.flatnonzero(seen_through_gaps(lines, cells, grid, interior, 0.3, 0.5, 0.05)).tolist() == [3]
+
+
+def test_walked_round_wants_two_faces_a_thin_wall_apart_ending_together():
+    from tasks.walls.evidence import walked_round
+
+    def pair(second: list[float]) -> list[bool]:
+        return walked_round(np.array([[0, 0, 2, 0], second], dtype=float), 0.3, 0.05, 5.0).tolist()
+
+    assert pair([0, 0.12, 2, 0.12]) == [True, True]  # a partition's two faces
+    assert pair([0.5, 0.12, 2.05, 0.12]) == [True, True]  # ending together at one end
+    assert pair([0.5, 0.12, 1.5, 0.12]) == [False, False]  # a cabinet's front before the middle of a wall
+    assert pair([0, 0.5, 2, 0.5]) == [False, False]  # further apart than a thin wall
+    assert pair([0, 0.03, 2, 0.03]) == [False, False]  # one wall's noise
+    assert pair([0, 0.1, 2, 0.3]) == [False, False]  # 5.7 degrees off
+
+
 def test_a_corridor_keeps_no_wall_of_the_rooms_seen_through_its_doors(rng):
     # a 8 m x 2 m corridor with a door in each long wall; through them the camera saw a side wall and the
     # far wall of the room south and a side wall of the room north: none is a wall of the corridor

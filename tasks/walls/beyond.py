@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from tasks.lines import angles, lengths, line_intersection, point_segment_distances, sample_segments
 from tasks.walls.config import WallsConfig
-from tasks.walls.evidence import collinear_with
+from tasks.walls.evidence import WALKED_ROUND_ANGLE_DEG, collinear_with, walked_round
 
 
 def _judged(lines: NDArray, gone: NDArray | None) -> tuple[NDArray, NDArray[np.bool_], NDArray[np.bool_]]:
@@ -77,8 +77,10 @@ def beyond_the_room(
     clear = np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= cfg.thin_wall_max_m
     step = np.bincount(owner, minlength=m)
     step = np.where(step > 1, L / np.maximum(step - 1, 1), 0.0)  # each sample's share of its line's length
+    # a partition the capture walked round bounds nothing: the room lies on both its sides
+    partition = walked_round(lines, thin, cfg.lines.offset_tol_m, WALKED_ROUND_ANGLE_DEG)
     for w in np.argsort(-L):
-        if not ok[w] or out[w] or gone[w] or not clear[w]:
+        if not ok[w] or out[w] or gone[w] or not clear[w] or partition[w]:
             continue
         rel = pts - lines[w, :2]
         depth, t = rel @ back[w], rel @ u[w]
@@ -303,8 +305,10 @@ def across_beyond_the_room(
     clear = np.abs(((np.asarray(interior) - lines[:, :2]) * normal).sum(axis=1)) >= cfg.lines.offset_tol_m
     apart = point_segment_distances(lines.reshape(-1, 2), lines).reshape(m, 2, m).min(axis=1)
     apart = np.minimum(apart, apart.T)  # the segments' distance: an end of either to the other
+    # a partition the capture walked round bounds nothing: the room lies on both its sides
+    partition = walked_round(lines, thin, cfg.lines.offset_tol_m, WALKED_ROUND_ANGLE_DEG)
     for w in np.argsort(-L):
-        if not ok[w] or out[w] or gone[w] or not clear[w]:
+        if not ok[w] or out[w] or gone[w] or not clear[w] or partition[w]:
             continue
         # its pieces: a wall at a few tenths of a degree off the next piece's angle misses it by centimetres
         same = collinear_with(lines, ang, normal, w, cos_tol, end_tol) & ~gone

@@ -5,6 +5,7 @@ furniture: the top-reach test (`top_reach_shares`) and the two kinds of line tha
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -910,6 +911,9 @@ def lifted(faces: list[NDArray], z_lo: float, z_hi: float, step_m: float) -> NDA
     return np.concatenate([out, *ready]) if ready else out
 
 
+WALKED_ROUND_ANGLE_DEG = 5.0
+"""`walked_round`: how far apart in direction a thin wall's two faces may be found (a short face seen
+obliquely)."""
 OPEN_END_MIN_M = 2.0
 """`seen_through_gaps`: a line whose end runs on this far without meeting another line (wider than a double door
 or a window) ends free in the room."""
@@ -936,6 +940,34 @@ def open_ends(
         others = np.delete(run_on, i, axis=0)
         for k, (end, way) in enumerate(((lines[i, :2], -u[i]), (lines[i, 2:], u[i]))):
             out[i, k] = point_segment_distances(end + s[:, None] * way, others).min() > tol_m
+    return out
+
+
+def walked_round(lines: NDArray, thin_m: float, tol_m: float, angle_tol_deg: float) -> NDArray[np.bool_]:
+    """(M,) lines that are one face of a thin wall whose other face was seen too: a parallel line (within
+    `angle_tol_deg`) more than `tol_m` and at most `thin_m` off its line, along at least half the shorter of
+    the two, the two ending together (within `thin_m`) at one end at least. The capture was on both sides of
+    such a line (a partition stub it walked round): whatever lies behind it may have been seen from its far
+    side. A room's bounding wall shows the capture its one face only (through a door, the next room's face
+    of it faces away)."""
+    lines = np.asarray(lines, dtype=np.float64)
+    m = len(lines)
+    out = np.zeros(m, dtype=bool)
+    L = lengths(lines)
+    cos_tol = math.cos(math.radians(angle_tol_deg))
+    for i, j in itertools.combinations(np.flatnonzero(L > 0), 2):
+        u = (lines[i, 2:] - lines[i, :2]) / L[i]
+        v = (lines[j, 2:] - lines[j, :2]) / L[j]
+        if abs(float(u @ v)) < cos_tol:
+            continue
+        off = np.abs((lines[j].reshape(2, 2) - lines[i, :2]) @ np.array([-u[1], u[0]]))
+        if off.max() > thin_m or off.min() <= tol_m:
+            continue
+        ti = np.array([0.0, L[i]])
+        tj = np.sort((lines[j].reshape(2, 2) - lines[i, :2]) @ u)
+        overlap = min(ti[1], tj[1]) - max(ti[0], tj[0])
+        if overlap >= 0.5 * min(L[i], L[j]) and np.abs(ti - tj).min() <= thin_m:
+            out[[i, j]] = True
     return out
 
 
@@ -986,7 +1018,8 @@ def seen_through_gaps(
     back[((np.asarray(interior) - lines[:, :2]) * back).sum(axis=1) > 0] *= -1
     near = _near_sampler(wall_data, grid, tol_m)
     pts, owner = sample_segments(lines, grid.size)
-    for w in np.flatnonzero(ok):
+    # a partition the capture walked round hides nothing: what lies behind it was seen from its far side
+    for w in np.flatnonzero(ok & ~walked_round(lines, min_depth_m, tol_m, WALKED_ROUND_ANGLE_DEG)):
         rel = pts - lines[w, :2]
         depth, t = rel @ back[w], rel @ u[w]
         # the lines wholly behind W (every sample deeper than min_depth_m), shorter than W
