@@ -181,3 +181,23 @@ def test_walls_seen_through_a_door_go_when_they_pull_the_lines_centre_near_the_d
     assert CFG.thin_wall_max_m < -centre[1] < CFG.beyond_room_min_depth_m
     _, across = across_beyond_the_room(lines, centre, CFG, TOL)
     assert beyond_the_room(lines, centre, CFG, TOL, across).tolist() == [False] * 5 + [True] * 3
+
+
+def test_the_building_wall_past_a_corner_the_end_wall_only_reaches_goes():
+    """A corridor 12 m x 2 m whose south wall went unseen from x = 8 to its east end; the east end wall's data
+    end on the south wall's line (a few centimetres either side) without running on past it. The building's
+    wall goes on in line with the end wall 1.5 m past the corner, seen through a door (held-out 241's
+    corridor): the end wall ending on the line is the room's corner, so the south wall's span runs on to it
+    and the line in line with the end wall, wholly behind, is the next room's (before: judged only when the
+    end wall's data ran on past the line)."""
+    room = [[0, 0, 3, 0], [4, 0, 8, 0], [0, 2, 12, 2], [0, 0, 0, 2]]
+    past = [12, -1.5, 12, -3]
+    for end_y in (0.0, -0.03, 0.04):
+        lines = np.array([*room, [12, 2, 12, end_y], past], dtype=float)
+        _, out = across_beyond_the_room(lines, np.array([6.0, 1.0]), CFG, TOL)
+        assert out.tolist() == [False] * 5 + [True], end_y
+    # the end wall running on 1 m behind the line instead: an L-room's outer wall, its wing behind W, may
+    # do that; the line in line with it is not judged
+    lines = np.array([*room, [12, 2, 12, -1.0], past], dtype=float)
+    _, out = across_beyond_the_room(lines, np.array([6.0, 1.0]), CFG, TOL)
+    assert not out[-1]

@@ -223,9 +223,10 @@ def _to_the_room_s_ends(
     deep: float,
 ) -> tuple[float, float]:
     """The span (`lo`, `hi`, along W's line) of a wall W seen in pieces, run on to the room's end walls: a
-    line across (`across`) through W's line (`depth` (M, 2) of its ends behind that line: more than `end_tol`
-    in front at one end, behind it at the other, but no more than `deep`: a wall running on further behind
-    may be an L-room's outer wall, its wing behind W) whose `foot` on W's line lies past the span, where
+    line across (`across`) that reaches W's line or runs through it (`depth` (M, 2) of its ends behind that
+    line: more than `end_tol` in front at one end, at most `end_tol` in front at the other, but no more than
+    `deep` behind: a wall running on further behind may be an L-room's outer wall, its wing behind W; one
+    ending on W's line is the room's corner, seen) whose `foot` on W's line lies past the span, where
     none of the room's lines in front (`live`, ends `along` W's line) goes further: the room's end, up to
     which W's wall ran unseen. Only for a W whose pieces span at least half of the room in front of it, and
     not past a line leaving W's line outward (`outward`) there: an L-room's wing starts where its inner wall
@@ -238,7 +239,10 @@ def _to_the_room_s_ends(
     if hi - lo < 0.5 * (r1 - r0):
         return lo, hi
     ends = (
-        across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) > end_tol) & (depth.max(axis=1) <= deep)
+        across
+        & (depth.min(axis=1) < -end_tol)
+        & (depth.max(axis=1) >= -end_tol)
+        & (depth.max(axis=1) <= deep)
     )
     turns = foot[outward]
     new_lo = foot[ends & (foot < lo - end_tol) & (foot <= r0 + end_tol)]
