@@ -811,6 +811,35 @@ def test_a_7_cm_step_goes_to_the_nearer_wall_s_data_edge_not_its_line_s_end(rng)
     assert ev["corner_f1"] == 1.0, ev
 
 
+def test_a_jog_at_an_acute_corner_s_tip_becomes_the_corner():
+    """A 70° wall and the wall it meets, neither reaching the sparse, noisy tip of their acute corner
+    (5 and 15 cm short), joined by a 14 cm piece drawn square to one of them (held-out 823 r2, corner F1
+    0.89): the piece goes and both walls run on to their lines' corner. A step between parallel walls, and
+    a longer piece, stay."""
+    from tasks.walls.topology import corner_jogs
+
+    d = np.array([math.cos(math.radians(70)), math.sin(math.radians(70))])
+    tip = np.array([5.0, 4.0])
+    b_end = tip - 0.15 * d
+    walls = np.array(
+        [
+            [0, 4, 4.95, 4],  # a: stops 5 cm short of the tip
+            [*(tip - 4.0 * d), *b_end],  # b: 70°, stops 15 cm short
+            [4.95, 4, *b_end],  # the jog, 14 cm, near square to a
+            [0, 4, *(tip - 4.0 * d)],
+        ]
+    )
+    jogs, out = corner_jogs(walls, 0.05)
+    assert jogs.tolist() == [False, False, True, False]
+    assert np.allclose(out[0, 2:], tip, atol=1e-9) and np.allclose(out[1, 2:], tip, atol=1e-9)
+    step = np.array([[0, 4, 5, 4], [5, 3.85, 9, 3.85], [5, 4, 5, 3.85], [0, 4, 0, 0]], float)
+    assert not corner_jogs(step, 0.05)[0].any()
+    far = walls.copy()
+    far[0, 2], far[2, 0] = 4.6, 4.6  # a 40 cm piece: a wall
+    far[2, 2:] = far[1, 2:] = tip - 0.45 * d
+    assert not corner_jogs(far, 0.05)[0].any()
+
+
 def test_a_thin_partition_s_end_cap_is_no_step_to_move(rng):
     # an 8 cm partition stub from the west wall to x = 2.5, its second face seen over its last 1.3 m only: the
     # cap joining the faces' ends is as short as a step, but both faces run back from it, so it stays at the

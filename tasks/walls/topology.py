@@ -550,6 +550,11 @@ def _topology(
     if stray.any():
         walls, origin = walls[~stray], origin[~stray]
         polygon, walls, origin, _ = _room_polygon(walls, origin, grid.size)
+    jogs, cornered = corner_jogs(walls, lcfg.offset_tol_m)
+    if jogs.any():
+        p2, w2, o2, _ = _room_polygon(cornered[~jogs], origin[~jogs], grid.size)
+        if p2 is not None or polygon is None:
+            polygon, walls, origin = p2, w2, o2
     return _Topology(
         merged,
         conn,
@@ -1028,6 +1033,55 @@ def acute_stubs(walls: NDArray, lcfg: LinesConfig) -> NDArray[np.bool_]:
                 out[i] = True
                 break
     return out
+
+
+CORNER_JOG_MAX_M = 0.25
+"""`corner_jogs`: the longest piece taken for a jog at a corner."""
+
+
+def corner_jogs(walls: NDArray, tol_m: float) -> tuple[NDArray[np.bool_], NDArray]:
+    """A short piece (up to `CORNER_JOG_MAX_M`) joining, end to end (within `tol_m`), two walls that cross
+    at more than 45° while it runs along neither (within 10°), where their lines meet within
+    `CORNER_JOG_MAX_M` of both joined ends: a jog that the noisy, sparsely seen tip of a corner (an acute
+    corner's, a Kinect's far one) left between walls that do not quite reach it, not a wall. Returns ((M,)
+    the jogs, the walls with the two walls of each run on to their lines' corner). A step between parallel
+    walls has no corner to meet at and stays; the model keeps the jog when the room does not close without
+    it."""
+    walls = np.asarray(walls, dtype=np.float64)
+    n = len(walls)
+    jogs = np.zeros(n, dtype=bool)
+    out = walls.copy()
+    if n < 3:
+        return jogs, out
+    L = lengths(walls)
+    th = angles(walls)
+    ends = walls.reshape(n, 2, 2)
+    used: set[int] = set()
+    for k in np.flatnonzero(L <= CORNER_JOG_MAX_M):
+        joined = []
+        for p in ends[k]:
+            d = np.hypot(*(ends - p).transpose(2, 0, 1))  # (M, 2) each wall end's distance to p
+            d[k] = np.inf
+            a, e = np.unravel_index(int(np.argmin(d)), d.shape)
+            joined.append((int(a), int(e)) if d[a, e] <= tol_m else None)
+        if None in joined or joined[0][0] == joined[1][0]:
+            continue
+        (a, ea), (b, eb) = joined
+        if {a, b, k} & used or abs(math.sin(th[a] - th[b])) < math.sin(math.radians(45.0)):
+            continue
+        if min(abs(math.sin(th[k] - th[a])), abs(math.sin(th[k] - th[b]))) < math.sin(math.radians(10.0)):
+            continue  # in line with one of them: a piece of that wall
+        hit = line_intersection(walls[a], walls[b])
+        if hit is None:
+            continue
+        corner = hit[0]
+        if max(np.hypot(*(corner - ends[a, ea])), np.hypot(*(corner - ends[b, eb]))) > CORNER_JOG_MAX_M:
+            continue
+        out[a, 2 * ea : 2 * ea + 2] = corner
+        out[b, 2 * eb : 2 * eb + 2] = corner
+        jogs[k] = True
+        used |= {a, b, k}
+    return jogs, out
 
 
 def dangling_extensions(walls: NDArray, origin: NDArray, tol_m: float) -> NDArray[np.bool_]:
