@@ -834,12 +834,12 @@ def _end_cap(
     points: NDArray, a: NDArray, u: NDArray, n: NDArray, L: float, cfg: WallsConfig, grid_m: float
 ) -> tuple[float, float] | None:
     """The second face of a stub (from its foot `a` along `u`, `L` long) told by its free end's own face:
-    the points (N, 3) within 5 cm of the end (inward, `END_CAP_OUT_M` outward), binned by their offset along `n` (1 cm),
-    occupy a run of bins from the stub's face (within 3 cm) out to the wall's thickness on one side
-    (each bin at least a quarter of the fullest beyond the stub's own face), nothing stands beyond it for 10 cm (a corner's or a
-    wall's run on would), the thickness lies between three grid cells and `thin_wall_max_m`, and the end's
-    face spans `end_cap_min_height_m` in height. Returns (the signed offset of the second face: the 95th
-    percentile of the run's points, the end's height span) or None."""
+    the points (N, 3) within 5 cm of the end (inward, `END_CAP_OUT_M` outward), binned by their offset
+    along `n` (1 cm), occupy a run of bins from the stub's face (within 3 cm) out to the wall's thickness on
+    one side (each bin at least a quarter of the fullest beyond the stub's own face), nothing stands beyond
+    it for 10 cm (a corner's or a wall's run on would), the thickness lies between three grid cells and
+    `thin_wall_max_m`, and the end's face spans `end_cap_min_height_m` in height. Returns (the signed offset
+    of the second face: the 95th percentile of the run's points, the end's height span) or None."""
     rel = points[:, :2] - a
     t, d = rel @ u, rel @ n
     at_end = (t >= L - 0.05) & (t <= L + END_CAP_OUT_M) & (np.abs(d) <= cfg.thin_wall_max_m + 0.1)
