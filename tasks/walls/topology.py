@@ -215,6 +215,7 @@ def model_for(
         "walls_seen_through_gaps": found.through,
         "walls_hung_from_ceiling": int(found.hung.sum()),
         "walls_stray": found.stray,
+        "corner_jogs": found.jogs,
         "bridged_gap_m": bridged,
         "bridged_refused_outside_m": held_refused,
         "bridged_refused_data_outside_m": unheld_refused,
@@ -255,6 +256,8 @@ class _Topology:
     """How many lines each of `furniture_in_front`'s rules took (before the top-reach test's own drops)."""
     frame_turn_deg: float = 0.0
     """The largest turn the fit of the frames to the points made (`evidence.refine_frames`), degrees."""
+    jogs: int = 0
+    """Jogs at a corner's tip dropped, their two walls run on to the corner (`corner_jogs`)."""
 
 
 def _along_lines(walls: NDArray, grid: Grid, shape: tuple[int, ...], tol_m: float) -> NDArray:
@@ -551,10 +554,11 @@ def _topology(
         walls, origin = walls[~stray], origin[~stray]
         polygon, walls, origin, _ = _room_polygon(walls, origin, grid.size)
     jogs, cornered = corner_jogs(walls, lcfg.offset_tol_m)
+    n_jogs = 0
     if jogs.any():
         p2, w2, o2, _ = _room_polygon(cornered[~jogs], origin[~jogs], grid.size)
         if p2 is not None or polygon is None:
-            polygon, walls, origin = p2, w2, o2
+            polygon, walls, origin, n_jogs = p2, w2, o2, int(jogs.sum())
     return _Topology(
         merged,
         conn,
@@ -573,6 +577,7 @@ def _topology(
         beyond_lines,
         why,
         round(math.degrees(float(np.abs(turn).max(initial=0.0))), 4),
+        n_jogs,
     )
 
 
