@@ -815,7 +815,7 @@ def test_a_jog_at_an_acute_corner_s_tip_becomes_the_corner():
     """A 70° wall and the wall it meets, neither reaching the sparse, noisy tip of their acute corner
     (5 and 15 cm short), joined by a 14 cm piece drawn square to one of them (held-out 823 r2, corner F1
     0.89): the piece goes and both walls run on to their lines' corner. A step between parallel walls, and
-    a longer piece, stay."""
+    a longer piece further from the tip, stay."""
     from tasks.walls.topology import corner_jogs
 
     d = np.array([math.cos(math.radians(70)), math.sin(math.radians(70))])
@@ -835,7 +835,7 @@ def test_a_jog_at_an_acute_corner_s_tip_becomes_the_corner():
     step = np.array([[0, 4, 5, 4], [5, 3.85, 9, 3.85], [5, 4, 5, 3.85], [0, 4, 0, 0]], float)
     assert not corner_jogs(step, 0.05)[0].any()
     far = walls.copy()
-    far[0, 2], far[2, 0] = 4.6, 4.6  # a 40 cm piece: a wall
+    far[0, 2], far[2, 0] = 4.6, 4.6  # a piece of half a metre, 40 and 45 cm short of the tip: a wall
     far[2, 2:] = far[1, 2:] = tip - 0.45 * d
     assert not corner_jogs(far, 0.05)[0].any()
 

@@ -188,8 +188,8 @@ def test_the_building_wall_past_a_corner_the_end_wall_only_reaches_goes():
     end on the south wall's line (a few centimetres either side) without running on past it. The building's
     wall goes on in line with the end wall 1.5 m past the corner, seen through a door (held-out 241's
     corridor): the end wall ending on the line is the room's corner, so the south wall's span runs on to it
-    and the line in line with the end wall, wholly behind, is the next room's (before: judged only when the
-    end wall's data ran on past the line)."""
+    and the line in line with the end wall, wholly behind, is the next room's (before: only when the end
+    wall's data ran on more than `thin_wall_end_tol_m` past the line)."""
     room = [[0, 0, 3, 0], [4, 0, 8, 0], [0, 2, 12, 2], [0, 0, 0, 2]]
     past = [12, -1.5, 12, -3]
     for end_y in (0.0, -0.03, 0.04):
