@@ -5,7 +5,6 @@ furniture: the top-reach test (`top_reach_shares`) and the two kinds of line tha
 
 from __future__ import annotations
 
-import itertools
 import math
 from typing import Any
 
@@ -952,23 +951,26 @@ def walked_round(lines: NDArray, thin_m: float, tol_m: float, angle_tol_deg: flo
     of it faces away)."""
     lines = np.asarray(lines, dtype=np.float64)
     m = len(lines)
-    out = np.zeros(m, dtype=bool)
     L = lengths(lines)
-    cos_tol = math.cos(math.radians(angle_tol_deg))
-    for i, j in itertools.combinations(np.flatnonzero(L > 0), 2):
-        u = (lines[i, 2:] - lines[i, :2]) / L[i]
-        v = (lines[j, 2:] - lines[j, :2]) / L[j]
-        if abs(float(u @ v)) < cos_tol:
-            continue
-        off = np.abs((lines[j].reshape(2, 2) - lines[i, :2]) @ np.array([-u[1], u[0]]))
-        if off.max() > thin_m or off.min() <= tol_m:
-            continue
-        ti = np.array([0.0, L[i]])
-        tj = np.sort((lines[j].reshape(2, 2) - lines[i, :2]) @ u)
-        overlap = min(ti[1], tj[1]) - max(ti[0], tj[0])
-        if overlap >= 0.5 * min(L[i], L[j]) and np.abs(ti - tj).min() <= thin_m:
-            out[[i, j]] = True
-    return out
+    ok = L > 0
+    u = np.zeros((m, 2))
+    u[ok] = (lines[ok, 2:] - lines[ok, :2]) / L[ok, None]
+    nrm = np.column_stack([-u[:, 1], u[:, 0]])
+    # [i, j]: line j's ends in line i's frame (from its start, along it and across it)
+    rel = np.stack([lines[None, :, :2] - lines[:, None, :2], lines[None, :, 2:] - lines[:, None, :2]])
+    off = np.abs(np.einsum("kijd,id->kij", rel, nrm))
+    t = np.einsum("kijd,id->kij", rel, u)
+    lo, hi = t.min(axis=0), t.max(axis=0)
+    overlap = np.minimum(L[:, None], hi) - np.maximum(0.0, lo)
+    pair = (
+        np.triu(ok[:, None] & ok[None, :], k=1)
+        & (np.abs(u @ u.T) >= math.cos(math.radians(angle_tol_deg)))
+        & (off.max(axis=0) <= thin_m)
+        & (off.min(axis=0) > tol_m)
+        & (overlap >= 0.5 * np.minimum(L[:, None], L[None, :]))
+        & (np.minimum(np.abs(lo), np.abs(L[:, None] - hi)) <= thin_m)
+    )
+    return pair.any(axis=1) | pair.any(axis=0)
 
 
 def _room_behind(lines: NDArray, w: int, u: NDArray, behind: NDArray[np.bool_]) -> bool:
