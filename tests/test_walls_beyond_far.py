@@ -201,3 +201,23 @@ def test_the_building_wall_past_a_corner_the_end_wall_only_reaches_goes():
     lines = np.array([*room, [12, 2, 12, -1.0], past], dtype=float)
     _, out = across_beyond_the_room(lines, np.array([6.0, 1.0]), CFG, TOL)
     assert not out[-1]
+
+
+def test_a_wall_seen_through_a_door_goes_when_the_corner_s_last_stretch_of_the_side_wall_is_unseen():
+    """The north wall seen only 0.8 m, up to 0.2 m short of the north-west corner; the west wall seen up to
+    0.7 m short of it (sparse TLS, held-out 247's r5). The next room's wall seen through a door 2.1 m beyond
+    is longer than the north wall's piece; the north wall ends at a corner (within a wall's thickness of
+    where the lines cross, the west wall within the largest occlusion, `lines.max_gap_m`), so it bounds the
+    room and the far line goes. The north wall's piece ending 0.6 m short of the crossing (an L-room's inner
+    wall, its wing beyond) or the west wall 0.9 m short make no corner: the far line stays."""
+    room = np.array(
+        [[0.2, 4, 1.0, 4], [0, 3.3, 0, 0], [0, 0, 5, 0], [5, 0, 5, 2.2], [-0.5, 6.1, 1.9, 6.1]], dtype=float
+    )
+    interior = np.array([2.5, 2.0])
+    assert beyond_the_room(room, interior, CFG, TOL).tolist() == [False] * 4 + [True]
+    inner = room.copy()
+    inner[0] = [0.6, 4, 1.4, 4]
+    assert not beyond_the_room(inner, interior, CFG, TOL).any()
+    short = room.copy()
+    short[1] = [0, 3.1, 0, 0]
+    assert not beyond_the_room(short, interior, CFG, TOL).any()

@@ -53,7 +53,9 @@ def beyond_the_room(
     rest by its side walls, which lie there. W must bound the room: no line of the room runs on from W's
     line to behind it (the room goes on there: an L-room's wing, the far side of a partition), and L is
     shorter than W or W's collinear pieces together (a wall with a door in it), or W ends at a corner (a
-    line across it at one of its ends, running into the room only: a free-standing counter has none).
+    line across it at one of its ends, running into the room only: a free-standing counter has none; the
+    two lines may cross up to `thin_wall_max_m` past W's end and `lines.max_gap_m` past the other's, the
+    corner's last stretch unseen, as a sparse capture leaves it).
     W bounds the room only when the lines across it reach behind its line (more than `thin_wall_max_m`)
     over less in all than W's collinear pieces span: a short line far out (a piece of the next room seen
     through a door) has the room's own walls behind it, and an L-room's inner wall has the wing's sides.
@@ -105,7 +107,9 @@ def beyond_the_room(
             continue  # the room's walls across W reach behind it as far as W runs: W does not bound the room
         across = (np.abs(np.cos(ang - ang[w])) <= sin_loose) & (deepest <= end_tol)
         across[w] = False
-        corner = bool(across.any()) and _meets_at_end(lines[w], lines[across], end_tol)
+        corner = bool(across.any()) and _meets_at_end(
+            lines[w], lines[across], end_tol, thin, cfg.lines.max_gap_m
+        )
         # where the lines across W that reach its line stand along it: the room's corners on W's line (the
         # room goes on behind W past none of them: a wing there would leave that wall's end inside it)
         ends_on_w = across & (deepest >= -end_tol)
@@ -191,10 +195,14 @@ def past_a_corner(
     return out
 
 
-def _meets_at_end(w: NDArray, others: NDArray, tol_m: float) -> bool:
+def _meets_at_end(
+    w: NDArray, others: NDArray, tol_m: float, w_reach_m: float | None = None, reach_m: float | None = None
+) -> bool:
     """Whether one of `others` (K, 4) meets segment `w` at one of w's ends: an end of w within `tol_m` of
-    the other segment, or the two lines crossing within `tol_m` of an end of each (a corner whose last
-    centimetres neither wall's data reached)."""
+    the other segment, or the two lines crossing within `w_reach_m` of an end of w and `reach_m` of an end
+    of the other (both `tol_m` by default: a corner whose last centimetres neither wall's data reached)."""
+    w_reach_m = tol_m if w_reach_m is None else w_reach_m
+    reach_m = tol_m if reach_m is None else reach_m
     if (point_segment_distances(w.reshape(2, 2), others) <= tol_m).any():
         return True
     for o in others:
@@ -203,8 +211,8 @@ def _meets_at_end(w: NDArray, others: NDArray, tol_m: float) -> bool:
             continue
         x = hit[0]
         if (
-            min(np.hypot(*(x - w[:2])), np.hypot(*(x - w[2:]))) <= tol_m
-            and min(np.hypot(*(x - o[:2])), np.hypot(*(x - o[2:]))) <= tol_m
+            min(np.hypot(*(x - w[:2])), np.hypot(*(x - w[2:]))) <= w_reach_m
+            and min(np.hypot(*(x - o[:2])), np.hypot(*(x - o[2:]))) <= reach_m
         ):
             return True
     return False
