@@ -296,6 +296,19 @@ def test_a_cabinet_s_short_side_drawn_some_degrees_off_is_still_its_side():
     assert np.flatnonzero(furniture_in_front(lines, np.array([3.0, 2.0]), CFG, 3.0)).tolist() == [4, 5]
 
 
+def test_a_wall_s_piece_at_a_corner_in_line_with_its_next_piece_past_a_door_is_no_side():
+    """A corridor's south wall seen 0.69 m from its west corner (its line drawn 1.7° off from the few points)
+    and again past a door from x = 1.7 on; the west end wall's line runs on past the corner (the building's
+    wall seen through the door). The corner piece stands on the end wall's line, short, its inner end free:
+    like a cabinet's side, but in line with the south wall's next piece a door's opening away (judged
+    along that piece's line, as the short line's own direction is good to a few degrees only), so it stays
+    (held-out 256's corridor). With the next piece 1.3 m away, further than a door opens, it goes."""
+    lines = np.array([[0, -1.5, 0, 2], [0, 2, 6, 2], [6, 2, 6, 0], [1.7, 0, 6, 0], [0, 0, 0.69, -0.02]])
+    assert not furniture_in_front(lines, np.array([3.0, 1.0]), CFG, 3.0).any()
+    lines[3] = [2.0, 0, 6, 0]
+    assert np.flatnonzero(furniture_in_front(lines, np.array([3.0, 1.0]), CFG, 3.0)).tolist() == [4]
+
+
 def test_a_plant_s_facets_are_lone_directions_and_a_wall_at_its_own_angle_is_not():
     """A plant's pot, a decagon 0.3 m in radius, in a room's corner gives short lines at directions no wall
     takes; the room's walls, its slanted wall (seen over 2 m in two pieces) and the facets that happen to

@@ -86,6 +86,24 @@ def test_a_cabinet_past_a_wall_s_seen_end_with_its_side_at_the_far_end_is_furnit
     assert not furniture_in_front(step, CENTRE, CFG, 3.0).any()
 
 
+def test_a_cabinet_wider_than_the_wall_seen_beside_it_is_furniture_when_its_far_side_is_seen():
+    """The west wall seen only 0.6 m down from the north corner; a cabinet 0.9 m wide (wider than that) stands
+    from there on, 0.46 m deep, its front and its far side seen. The wall seen is shorter than the front,
+    but the far side joins the front back to the wall's line: a box on the wall, both dropped. The front
+    alone, no side at its far end, standing free before the wall's unseen stretch, goes too; a step of the
+    outline (the room's wall running on from there to the south wall) stays."""
+    room = [[0, 4, 0, 3.4], [0, 4, 6, 4], [6, 4, 6, 0], [6, 0, 1.0, 0]]
+    box = [[0.46, 3.25, 0.46, 2.35], [0.08, 2.33, 0.47, 2.33]]
+    why: dict[str, int] = {}
+    lines = np.array([*room, *box], dtype=float)
+    assert np.flatnonzero(furniture_in_front(lines, CENTRE, CFG, 3.0, why)).tolist() == [4, 5]
+    assert why == {**dict.fromkeys(FURNITURE_RULES, 0), "front_at_seen_end": 1, "side": 1}
+    alone = np.array([*room, box[0]], dtype=float)
+    assert np.flatnonzero(furniture_in_front(alone, CENTRE, CFG, 3.0)).tolist() == [4]
+    step = np.array([*room[:3], [6, 0, 0.46, 0], [0.46, 3.25, 0.46, 0.1]], dtype=float)
+    assert not furniture_in_front(step, CENTRE, CFG, 3.0).any()
+
+
 def test_the_rest_of_a_front_s_band_and_a_side_drawn_across_the_wall_s_line_go_with_the_front():
     """A cabinet's front seen from afar is a band of data a decimetre deep: besides its front (1 m, 0.5 m in
     front of the south wall) the lines give a short piece across that band (23° off); it lies wholly within

@@ -1166,12 +1166,13 @@ def furniture_in_front(
       make no line), or with both its ends joined to the wall's line by sides (a box standing on the wall
       just past where the capture saw it: the wall behind and beyond it unseen), or with one
       end where the wall's seen part ends and the other free (`at_seen_end`: the wall seen up to the box
-      and not past it, or the box's side at its far end), or standing alone in front of the wall's unseen
-      stretch between the room's corners (`isolated`);
+      and not past it, or the box's side at its far end; a front longer than the wall's pieces, seen
+      beside a cabinet wider than the stretch of wall the capture saw, only with that far side), or
+      standing alone in front of the wall's unseen stretch between the room's corners (`isolated`);
     - a side: a line perpendicular to such a wall, `furniture_min_depth_m` to `furniture_max_depth_m` long,
       from the wall's line (at a front, it may reach across that line by `thin_wall_end_tol_m`; not at the
       wall's ends: a corner, unless a front ends it) into the room, in line with
-      no other line, whose
+      no other line (within a door's opening, `DOOR_OPENING_MAX_M`: the wall's next piece), whose
       inner end is free (within `thin_wall_end_tol_m` of no line but the wall and the fronts): a partition
       stub is longer than furniture is deep, and one shorter meets a wall.
     A pilaster of a furniture's size in front of a wall is dropped as well: without a ceiling nothing
@@ -1290,7 +1291,9 @@ def furniture_in_front(
         )
         return bool((other & (tt.max(axis=0) <= cfg.lines.offset_tol_m)).any())
 
-    def at_seen_end(i: int, j: int, dd: NDArray, t: NDArray, t0: float, t1: float) -> bool:
+    def at_seen_end(
+        i: int, j: int, dd: NDArray, t: NDArray, t0: float, t1: float, boxed_only: bool = False
+    ) -> bool:
         """Is line i (standing dd in front of line j, spanning t along j's line, whose pieces span t0..t1) a
         box standing where j's seen part ends: one end at j's end (joined to j's line by a side, or its foot
         on j's line within twice `thin_wall_end_tol_m` of where j's data stop: the skeleton rounds both
@@ -1302,7 +1305,9 @@ def furniture_in_front(
         runs on to a corner (a wall of the room meeting i's line at its free end: not taken); the back of an
         alcove (j) beside a short stretch of the room's wall (i) has the alcove's other side at its other end,
         as deep as i stands and in line with nothing, and an alcove's side beside the room's corner has a
-        wall of the room in line with the box's side: not taken."""
+        wall of the room in line with the box's side: not taken. `boxed_only` (an i longer than j's pieces
+        together: a cabinet wider than the stretch of wall seen beside it) wants the far side: with a free far
+        end, i may be the room's wall running on past a short recess whose back is j."""
         if L[i] < dd.max():
             return False  # narrower than deep: a wall's piece at a corner and a stub may look so as well
         # in line with a piece of the same wall: one within a door's width (`lines.max_gap_m`) of it
@@ -1320,10 +1325,9 @@ def furniture_in_front(
         reach = 2 * end_tol  # each of the two ends may stop short of the box's corner by end_tol
         for e in range(2):
             o = 1 - e
-            if gaps[o] <= end_tol and not any(
-                is_side(k, i, j, o, dd) for k in np.flatnonzero(across_j[:, j]) if k not in (i, j)
-            ):
-                continue  # the other end meets a line (other than a side back to j's line: a box)
+            far_side = any(is_side(k, i, j, o, dd) for k in np.flatnonzero(across_j[:, j]) if k not in (i, j))
+            if (gaps[o] <= end_tol or boxed_only) and not far_side:
+                continue  # the other end meets a line, or is free with `boxed_only`: no side back to j's line
             # the whole of i beyond j's start (its other end before it) or beyond j's end
             before = t[o] < t[e] and t[o] <= t0 + tol
             after = t[o] > t[e] and t[o] >= t1 - tol
@@ -1468,6 +1472,8 @@ def furniture_in_front(
                     rule = "front_boxed"
                 elif at_seen_end(i, j, dd, t, t0, t1):
                     rule = "front_at_seen_end"
+            elif at_seen_end(i, j, dd, t, t0, t1, boxed_only=True):
+                rule = "front_at_seen_end"
             if rule is None and seen_behind(i, j, dd, t):
                 rule = "front_before_data"
             if rule is None and isolated(i, j, t, t0, t1):
@@ -1485,12 +1491,18 @@ def furniture_in_front(
     front = out.copy()
     corner_tol = math.sqrt(2.0) * end_tol
     for k in np.flatnonzero((L >= d_lo) & (L <= d_hi + tol) & ~front):
-        inline = collinear_with(lines, ang, n, k, cos_tol, cfg.lines.offset_tol_m) & ~front
+        # in line with another line, judged along either's line (a short line's own direction is good to
+        # a few degrees only: 2 cm over its 0.7 m put a wall's piece a door further on 10 cm off it)
+        on_theirs = np.abs(((0.5 * (lines[k, :2] + lines[k, 2:]) - lines[:, :2]) * n).sum(axis=1))
+        inline = collinear_with(lines, ang, n, k, cos_tol, cfg.lines.offset_tol_m) | (
+            (np.abs(np.cos(ang - ang[k])) >= cos_tol) & (on_theirs <= cfg.lines.offset_tol_m)
+        )
+        inline &= ~front
         inline[k] = False
         if inline.any():
             gap = point_segment_distances(lines[k].reshape(2, 2), lines[inline]).min()
-            if gap <= cfg.lines.max_gap_m:
-                continue  # a piece of a wall, in line with another
+            if gap <= max(cfg.lines.max_gap_m, DOOR_OPENING_MAX_M):
+                continue  # a piece of a wall, in line with another (across a door, say)
         # a side is short: each of its ends is good to `support_tol_m`, so its direction to about
         # 2 support_tol_m / its length (0.4 m: 14°), looser than a long line's
         sin_side = max(sin_loose, math.sin(math.atan2(2 * tol, L[k])))
@@ -1526,6 +1538,11 @@ def furniture_in_front(
     if why is not None:
         why.update(decided)
     return out
+
+
+DOOR_OPENING_MAX_M = 1.1
+"""The widest door opening in a wall (a 1 m leaf and its frame): two pieces of a wall either side of a door
+lie up to this far apart, further than the largest occlusion (`lines.max_gap_m`) may be."""
 
 
 SEEN_THROUGH_MIN_SHARE = 0.5
