@@ -221,14 +221,3 @@ def test_a_wall_seen_through_a_door_goes_when_the_corner_s_last_stretch_of_the_s
     short = room.copy()
     short[1] = [0, 3.1, 0, 0]
     assert not beyond_the_room(short, interior, CFG, TOL).any()
-
-
-def test_a_line_no_longer_than_furniture_is_deep_makes_no_corner_to_judge_the_room_s_far_wall_by():
-    """The north wall seen up to x = 3, where a short line 0.37 m long runs from its end into the room (a
-    door's leaf, a furniture's side: no longer than furniture is deep); the east wall seen 1.8 m, 1.2 m
-    behind that short line's line (dev 127's r1 and 139's r3 lost it so). The short line meets the north
-    wall at its end, but it is no wall to judge a longer one by: the east wall stays."""
-    room = np.array(
-        [[0, 5, 3.0, 5], [3.0, 5, 3.0, 4.63], [0, 0, 0, 5], [0, 0, 1.3, 0], [4.2, 1.5, 4.2, 3.3]], dtype=float
-    )
-    assert not beyond_the_room(room, np.array([2.0, 2.5]), CFG, TOL).any()

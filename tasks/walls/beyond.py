@@ -55,8 +55,7 @@ def beyond_the_room(
     shorter than W or W's collinear pieces together (a wall with a door in it), or W ends at a corner (a
     line across it at one of its ends, running into the room only: a free-standing counter has none; the
     two lines may cross up to `thin_wall_max_m` past W's end and `lines.max_gap_m` past the other's, the
-    corner's last stretch unseen, as a sparse capture leaves it), W longer than furniture is deep
-    (`furniture_max_depth_m`: a furniture's side or a door's leaf meeting a wall's end makes no corner).
+    corner's last stretch unseen, as a sparse capture leaves it).
     W bounds the room only when the lines across it reach behind its line (more than `thin_wall_max_m`)
     over less in all than W's collinear pieces span: a short line far out (a piece of the next room seen
     through a door) has the room's own walls behind it, and an L-room's inner wall has the wing's sides.
@@ -108,10 +107,8 @@ def beyond_the_room(
             continue  # the room's walls across W reach behind it as far as W runs: W does not bound the room
         across = (np.abs(np.cos(ang - ang[w])) <= sin_loose) & (deepest <= end_tol)
         across[w] = False
-        corner = (
-            L[w] > cfg.furniture_max_depth_m
-            and bool(across.any())
-            and _meets_at_end(lines[w], lines[across], end_tol, thin, cfg.lines.max_gap_m)
+        corner = bool(across.any()) and _meets_at_end(
+            lines[w], lines[across], end_tol, thin, cfg.lines.max_gap_m
         )
         # where the lines across W that reach its line stand along it: the room's corners on W's line (the
         # room goes on behind W past none of them: a wing there would leave that wall's end inside it)
