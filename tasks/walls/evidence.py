@@ -1130,6 +1130,11 @@ def collinear_with(
     return par & (np.abs((mid - lines[j, :2]) @ normal[j]) <= offset_tol_m)
 
 
+DOOR_OPENING_MAX_M = 1.1
+"""The widest door opening in a wall (a 1 m leaf and its frame): two pieces of a wall either side of a door
+lie up to this far apart, further than the largest occlusion (`lines.max_gap_m`) may be."""
+
+
 FURNITURE_RULES = (
     "front_along_wall",
     "front_boxed",
@@ -1325,8 +1330,9 @@ def furniture_in_front(
         reach = 2 * end_tol  # each of the two ends may stop short of the box's corner by end_tol
         for e in range(2):
             o = 1 - e
-            far_side = any(is_side(k, i, j, o, dd) for k in np.flatnonzero(across_j[:, j]) if k not in (i, j))
-            if (gaps[o] <= end_tol or boxed_only) and not far_side:
+            if (gaps[o] <= end_tol or boxed_only) and not any(
+                is_side(k, i, j, o, dd) for k in np.flatnonzero(across_j[:, j]) if k not in (i, j)
+            ):
                 continue  # the other end meets a line, or is free with `boxed_only`: no side back to j's line
             # the whole of i beyond j's start (its other end before it) or beyond j's end
             before = t[o] < t[e] and t[o] <= t0 + tol
@@ -1538,11 +1544,6 @@ def furniture_in_front(
     if why is not None:
         why.update(decided)
     return out
-
-
-DOOR_OPENING_MAX_M = 1.1
-"""The widest door opening in a wall (a 1 m leaf and its frame): two pieces of a wall either side of a door
-lie up to this far apart, further than the largest occlusion (`lines.max_gap_m`) may be."""
 
 
 SEEN_THROUGH_MIN_SHARE = 0.5
