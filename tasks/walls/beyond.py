@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from tasks.lines import angles, lengths, line_intersection, point_segment_distances, sample_segments
 from tasks.walls.config import WallsConfig
-from tasks.walls.evidence import WALKED_ROUND_ANGLE_DEG, collinear_with, walked_round
+from tasks.walls.evidence import collinear_with, walked_round
 
 
 def _judged(lines: NDArray, gone: NDArray | None) -> tuple[NDArray, NDArray[np.bool_], NDArray[np.bool_]]:
@@ -80,7 +80,7 @@ def beyond_the_room(
     step = np.bincount(owner, minlength=m)
     step = np.where(step > 1, L / np.maximum(step - 1, 1), 0.0)  # each sample's share of its line's length
     # a partition the capture walked round bounds nothing: the room lies on both its sides
-    partition = walked_round(lines, thin, cfg.lines.offset_tol_m, WALKED_ROUND_ANGLE_DEG)
+    partition = walked_round(lines, thin, cfg.lines.offset_tol_m)
     for w in np.argsort(-L):
         if not ok[w] or out[w] or gone[w] or not clear[w] or partition[w]:
             continue
@@ -195,14 +195,10 @@ def past_a_corner(
     return out
 
 
-def _meets_at_end(
-    w: NDArray, others: NDArray, tol_m: float, w_reach_m: float | None = None, reach_m: float | None = None
-) -> bool:
+def _meets_at_end(w: NDArray, others: NDArray, tol_m: float, w_reach_m: float, reach_m: float) -> bool:
     """Whether one of `others` (K, 4) meets segment `w` at one of w's ends: an end of w within `tol_m` of
     the other segment, or the two lines crossing within `w_reach_m` of an end of w and `reach_m` of an end
-    of the other (both `tol_m` by default: a corner whose last centimetres neither wall's data reached)."""
-    w_reach_m = tol_m if w_reach_m is None else w_reach_m
-    reach_m = tol_m if reach_m is None else reach_m
+    of the other (a corner whose last stretch neither wall's data reached)."""
     if (point_segment_distances(w.reshape(2, 2), others) <= tol_m).any():
         return True
     for o in others:
@@ -318,7 +314,7 @@ def across_beyond_the_room(
     apart = point_segment_distances(lines.reshape(-1, 2), lines).reshape(m, 2, m).min(axis=1)
     apart = np.minimum(apart, apart.T)  # the segments' distance: an end of either to the other
     # a partition the capture walked round bounds nothing: the room lies on both its sides
-    partition = walked_round(lines, thin, cfg.lines.offset_tol_m, WALKED_ROUND_ANGLE_DEG)
+    partition = walked_round(lines, thin, cfg.lines.offset_tol_m)
     for w in np.argsort(-L):
         if not ok[w] or out[w] or gone[w] or not clear[w] or partition[w]:
             continue

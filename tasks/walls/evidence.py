@@ -942,7 +942,9 @@ def open_ends(
     return out
 
 
-def walked_round(lines: NDArray, thin_m: float, tol_m: float, angle_tol_deg: float) -> NDArray[np.bool_]:
+def walked_round(
+    lines: NDArray, thin_m: float, tol_m: float, angle_tol_deg: float = WALKED_ROUND_ANGLE_DEG
+) -> NDArray[np.bool_]:
     """(M,) lines that are one face of a thin wall whose other face was seen too: a parallel line (within
     `angle_tol_deg`) more than `tol_m` and at most `thin_m` off its line, along at least half the shorter of
     the two, the two ending together (within `thin_m`) at one end at least. The capture was on both sides of
@@ -1021,7 +1023,7 @@ def seen_through_gaps(
     near = _near_sampler(wall_data, grid, tol_m)
     pts, owner = sample_segments(lines, grid.size)
     # a partition the capture walked round hides nothing: what lies behind it was seen from its far side
-    for w in np.flatnonzero(ok & ~walked_round(lines, min_depth_m, tol_m, WALKED_ROUND_ANGLE_DEG)):
+    for w in np.flatnonzero(ok & ~walked_round(lines, min_depth_m, tol_m)):
         rel = pts - lines[w, :2]
         depth, t = rel @ back[w], rel @ u[w]
         # the lines wholly behind W (every sample deeper than min_depth_m), shorter than W
