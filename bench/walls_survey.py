@@ -3,6 +3,7 @@
     python -m bench.walls_survey --split tune          # tuning buildings
     python -m bench.walls_survey --split heldout       # held-out buildings (report only, never tune on)
     python -m bench.walls_survey --split handheld      # the same rooms degraded like handheld scans
+    python -m bench.walls_survey --split handheld --wall-tops 1.2 2.7   # ...each wall seen up to its own height
     python -m bench.walls_survey --seeds 0 3 --rooms r4 --set walls.lines.extend_m=1.0
     python -m bench.walls_survey --seeds 541 542 543 544 545 546 --rooms hall   # the hallways
 
@@ -43,7 +44,10 @@ room refused, labelled completeness >= 0.85 (the seen walls only, by constructio
 truth walls >= 0.95 (a model wall bridging an unseen span is right when it lies on the true wall), mean
 accuracy against the truth walls <= 20 mm. A room can be closed where every truth wall was seen (seen10) over
 at least 0.5 m (`CLOSABLE_SEEN_M`; per wall in the JSON's `wall_seen_m`): the summary gives how many of those
-rooms were closed.
+rooms were closed. With `--wall-tops LOW HIGH` each wall is seen up to its own height, drawn in that range
+(the issue's real handheld rooms: 1.2-2.7 m), every point up to the height of the wall nearest it, and the
+ceiling unseen; the rest of the degradation is drawn as before. `seen` is then measured in a band as thick
+as the slice under the lowest of those heights.
 
 Rendered clouds are cached (`--cache`, default /tmp/indoor-survey-bench/walls_survey) by seed, room,
 size and the fusion settings, so re-running the method costs only preprocess and walls.
@@ -240,20 +244,26 @@ def run_room(
     cfg: PipelineConfig,
     cache: Path | None,
     degrade: bool = False,
+    wall_tops_m: tuple[float, float] | None = None,
 ) -> RoomResult:
     room = building.room(room_id)
     truth = np.array([w[:4] for w in building.truth_walls if w[4] == room_id], dtype=np.float64)
     points, sensor = room_cloud(building, seed, room_id, size, cfg, cache)
     extra: dict = {}
     labels = None
+    lowest_top = None
     if degrade:
         from tasks.synth.rooms import degrade_handheld, wall_labels
 
         rng = np.random.default_rng([seed, ROOMS.index(room_id) if room_id in ROOMS else 9, 14])
-        points, d = degrade_handheld(points, truth, rng)
+        points, d = degrade_handheld(points, truth, rng, wall_tops_m=wall_tops_m)
         labels = wall_labels(points, truth)
         seen_truth = d.seen
-        extra["degraded"] = f"sp{100 * d.spacing_m:.1f}cm cut{d.cut_m:.2f}m unseen{d.unseen_share:.2f}"
+        cut = (
+            f"cut{d.cut_m:.2f}m" if d.wall_tops_m is None else f"tops{d.cut_m:.2f}-{d.wall_tops_m.max():.2f}m"
+        )
+        extra["degraded"] = f"sp{100 * d.spacing_m:.1f}cm {cut} unseen{d.unseen_share:.2f}"
+        lowest_top = None if d.wall_tops_m is None else d.cut_m
     base = dict(seed=seed, room=room_id, shape=room.shape, sensor=sensor, points=len(points), **extra)
     t, cpu = time.perf_counter(), time.process_time()
     try:
@@ -296,8 +306,11 @@ def run_room(
             compl_seen=evaluate_walls(walls, seen_truth)["completeness"] if len(seen_truth) else math.nan,
         )
         base.update(extra)
-    # the slice's height band, in the plan frame (levelling moves heights by well under a centimetre)
+    # the slice's height band, in the plan frame (levelling moves heights by well under a centimetre); with
+    # walls seen up to their own heights, the band as thick under the lowest of them (every wall seen there)
     band = (pre.metrics["slice_low_z_m"], pre.metrics["slice_high_z_m"])
+    if lowest_top is not None:
+        band = (lowest_top - (band[1] - band[0]), lowest_top)
     seen, _ = seen_share(points, truth, band)
     seen_surface, per_wall = seen_share(points, truth, band, SEEN_SURFACE_POINTS)
     unseen = [
@@ -419,6 +432,14 @@ def main() -> None:
         action="store_true",
         help="degrade every cloud like a handheld scan (the handheld split's way)",
     )
+    ap.add_argument(
+        "--wall-tops",
+        type=float,
+        nargs=2,
+        metavar=("LOW", "HIGH"),
+        help="with --degrade: each wall seen up to its own height drawn in LOW-HIGH m (e.g. 1.2 2.7, the "
+        "issue's real handheld rooms) instead of one cut per room",
+    )
     args = ap.parse_args()
     if args.seeds:
         seeds = args.seeds
@@ -429,19 +450,23 @@ def main() -> None:
     cfg = load_config(args.config, args.sets)
     cache = None if args.no_cache else args.cache
     degrade = args.degrade or args.split in DEGRADED_SPLITS
+    if args.wall_tops and not degrade:
+        ap.error("--wall-tops needs --degrade (or a degraded split)")
+    tops = tuple(args.wall_tops) if args.wall_tops else None
 
     from tasks.synth.building import generate_building
 
     print(
         f"seeds {seeds}, rooms {args.rooms}, size {args.size}, overrides {args.sets or 'none'}"
         + (", degraded like handheld scans" if degrade else "")
+        + (f", each wall seen up to {tops[0]}-{tops[1]} m" if tops else "")
     )
     print(HEADER, flush=True)
     results = []
     for seed in seeds:
         building = generate_building(seed)
         for room_id in args.rooms:
-            r = run_room(building, seed, room_id, args.size, cfg, cache, degrade)
+            r = run_room(building, seed, room_id, args.size, cfg, cache, degrade, tops)
             results.append(r)
             print(row(r), flush=True)
     print()

@@ -573,6 +573,9 @@ class HandheldDegradation:
     """(U, 4) the unseen pieces of the walls (x0 y0 x1 y1)."""
     seen: NDArray[np.float64]
     """(S, 4) the seen pieces of the walls."""
+    wall_tops_m: NDArray[np.float64] | None = None
+    """(M,) with `wall_tops_m` given: the height over the floor each wall was seen up to (`cut_m` is then
+    the lowest of them)."""
 
 
 def _perimeter_pieces(walls: NDArray, spans: list[tuple[float, float]]) -> tuple[NDArray, NDArray]:
@@ -597,13 +600,25 @@ def _perimeter_pieces(walls: NDArray, spans: list[tuple[float, float]]) -> tuple
 
 
 def degrade_handheld(
-    points: NDArray[np.float64], walls: NDArray[np.float64], rng: np.random.Generator, floor_z: float = 0.0
+    points: NDArray[np.float64],
+    walls: NDArray[np.float64],
+    rng: np.random.Generator,
+    floor_z: float = 0.0,
+    wall_tops_m: tuple[float, float] | None = None,
 ) -> tuple[NDArray[np.float64], HandheldDegradation]:
     """A room cloud (N, 3, z up, metres) degraded the way handheld and phone scans are: nothing above a
     random cut between 1.3 and 2.0 m over `floor_z` (no ceiling), 20-30 % of the wall length (`walls`
     (M, 4), the room's inner faces in order round the room) unseen in two spans (everything within 0.5 m
     of them in plan view removed), the floor seen only on one side of a random line (30-70 % of it),
-    then randomly subsampled to one point per 3-5 cm cube. Returns (points, what was done)."""
+    then randomly subsampled to one point per 3-5 cm cube. Returns (points, what was done).
+
+    With `wall_tops_m` (low, high), each wall is seen up to its own height, drawn in that range, instead
+    (a handheld capture's coverage: the issue's real rooms show 1.2-2.7 m), and every point up to the
+    height of the wall nearest it in plan view; the ceiling stays unseen (nothing within 0.15 m under the
+    cloud's top). The other draws are those of the single cut, so the unseen spans and the floor are the
+    same."""
+    from tasks.lines import point_segment_distances
+
     walls = np.asarray(walls, dtype=np.float64).reshape(-1, 4)
     spacing = float(rng.uniform(0.03, 0.05))
     cut = float(rng.uniform(1.3, 2.0))
@@ -626,10 +641,8 @@ def degrade_handheld(
 
     pts = np.asarray(points, dtype=np.float64)
     h = pts[:, 2] - floor_z
-    keep = h <= cut
+    keep = h <= cut if wall_tops_m is None else np.ones(len(pts), dtype=bool)
     if len(unseen):
-        from tasks.lines import point_segment_distances
-
         near = np.zeros(len(pts), dtype=bool)
         for k in range(0, len(pts), 20000):
             near[k : k + 20000] = point_segment_distances(pts[k : k + 20000, :2], unseen).min(axis=1) < 0.5
@@ -639,8 +652,19 @@ def degrade_handheld(
     along = pts[:, :2] @ np.array([math.cos(phi), math.sin(phi)])
     if floor.any():
         keep &= ~floor | (along <= np.quantile(along[floor], floor_share))
+    tops = None
+    if wall_tops_m is not None:
+        tops = np.minimum(rng.uniform(*wall_tops_m, len(walls)), float(np.quantile(h, 0.999)) - 0.15)
+        nearest = np.concatenate(
+            [
+                point_segment_distances(pts[k : k + 20000, :2], walls).argmin(axis=1)
+                for k in range(0, len(pts), 20000)
+            ]
+        )
+        keep &= h <= tops[nearest]
+        cut = float(tops.min())
     out = random_subsample(pts[keep], spacing, rng)
-    return out, HandheldDegradation(spacing, cut, unseen_share, floor_share, unseen, seen)
+    return out, HandheldDegradation(spacing, cut, unseen_share, floor_share, unseen, seen, tops)
 
 
 def random_subsample(

@@ -117,6 +117,12 @@ class WallsConfig:
     not hold takes it from the levelled cloud under the slice (`evidence.faces_below_slice`: a face seen only
     from close range, below the camera's view of the slice) when that face's points cover at least this
     share of the stub's length; 0 switches that off."""
+    low_top_min_m: float = 1.0
+    """Without a ceiling, a wall whose data stop this high above the floor or higher, but under the slice's
+    top (a handheld capture sees each wall up to its own height), has its columns draped into the slice
+    (`lowtop.low_topped_walls`: a filled column whose top is an edge, not a furniture top surface); 0
+    switches that off. The issue's real handheld rooms saw their walls up to 1.2-2.7 m; the data of a wall
+    seen to 1.2 m stop a few cm under it, and tables, desks, counters and sofa backs stay under 1 m."""
     below_slice_min_z_m: float = 0.3
     """...looking from this height above the floor (skirting boards and what lies on the floor stay out)."""
     below_slice_sparse_ratio: float = 0.5

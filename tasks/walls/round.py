@@ -43,7 +43,9 @@ def _arc_deg(angle_deg: NDArray) -> float:
     return float(best * 360 / ARC_BINS)
 
 
-def _ransac(pts: NDArray, model: type, samples: int, tol_m: float, seed: int) -> tuple[Any, NDArray | None]:
+def ransac_fit(
+    pts: NDArray, model: type, samples: int, tol_m: float, seed: int
+) -> tuple[Any, NDArray | None]:
     """skimage's RANSAC fit of `model` to `pts` within `tol_m`: (the model, its inliers), stopping once an
     all-inlier sample has been drawn with 99.9 % confidence (at most 200 draws), from a fixed `seed`."""
     from skimage.measure import ransac
@@ -68,7 +70,7 @@ def _lines_share(pts: NDArray, tol_m: float) -> float:
     for seed in range(LINES):
         if left.sum() < 2:
             break
-        _, inliers = _ransac(pts[left], LineModelND, 2, tol_m, seed)
+        _, inliers = ransac_fit(pts[left], LineModelND, 2, tol_m, seed)
         if inliers is None:
             break
         left[np.flatnonzero(left)[inliers]] = False
@@ -139,7 +141,7 @@ def round_objects(
             continue  # not even the transform's circle, two cells wide, is covered so far: a wall's tangent
         # the circle most of the band's points lie on, within a cell: a wall the round thing stands by
         # would pull a least-squares fit towards it
-        fit, _ = _ransac(p[band], CircleModel, 3, grid_m, 0)
+        fit, _ = ransac_fit(p[band], CircleModel, 3, grid_m, 0)
         if fit is None or not fit:
             continue
         centre, radius = np.asarray(fit.center, dtype=np.float64), float(fit.radius)

@@ -17,7 +17,8 @@ from tasks.context import StageContext
 from tasks.preview import retitle
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import faces_below_slice, lifted
-from tasks.walls.model import WallModel, model_walls
+from tasks.walls.lowtop import low_topped_walls
+from tasks.walls.model import WallModel, model_walls, point_spacing
 from tasks.walls.round import on_round_objects
 
 
@@ -97,7 +98,14 @@ def room_model(
       under the slice (`evidence.faces_below_slice`), that face is stood up in the slice and the model
       made again.
 
-    Each costs a second model only when it applies. Returns the model and those choices (metrics)."""
+    Before them, without a ceiling, the columns of walls seen only up to under the slice's top are draped
+    into the slice (`lowtop.low_topped_walls`). Each costs a second model only when it applies. Returns
+    the model and those choices (metrics)."""
+    draped: dict[str, Any] = {}
+    if cfg.low_top_min_m > 0 and len(slice_points) > cfg.min_points:
+        slice_points, draped = low_topped_walls(
+            levelled, slice_points, floor_z_m, ceiling_z_m, point_spacing(slice_points), cfg
+        )
     model = model_walls(slice_points, floor_z_m, ceiling_z_m, cfg)
     grid = float(model.metrics["grid_size_m"])
     first, round_things = model, model.metrics["round_objects"]
@@ -106,7 +114,7 @@ def room_model(
         # from below the slice, the same pot might not be found again
         slice_points = slice_points[~on_round_objects(slice_points[:, :2], round_things, grid)]
     noise = wall_noise(slice_points, model.walls, cfg.noise_band_m)
-    choices: dict[str, Any] = {"wall_noise_m": round(noise, 4), "grid_from_noise": False}
+    choices: dict[str, Any] = {**draped, "wall_noise_m": round(noise, 4), "grid_from_noise": False}
     if cfg.grid_noise_ratio > 0 and noise > cfg.grid_noise_ratio * grid:
         cfg = replace(cfg, grid_size_m=round(noise, 3))
         model = model_walls(slice_points, floor_z_m, ceiling_z_m, cfg)
