@@ -68,7 +68,7 @@ def test_the_draped_columns_are_the_wall_s_not_the_cabinet_s_whose_top_is_a_surf
     while the north wall's columns are moved up by their shortfall, 0.65 m, into the slice's band."""
     levelled = room(rng, north_top=1.35)
     slice_points = the_slice(levelled)
-    out, found = low_topped_walls(levelled, slice_points, 0.0, 2.0, STEP, CFG)
+    out, found = low_topped_walls(levelled, slice_points, 0.0, 2.0, CFG, STEP)
     added = out[len(slice_points) - found["low_top_slice_points_replaced"] :]
     assert found["low_top_columns"] > 0 and found["low_top_surfaces"] > 0, found
     assert np.all(np.abs(added[:, 1] - 4.0) < 0.1), "only the north wall's columns are draped"
@@ -81,10 +81,10 @@ def test_nothing_is_draped_under_a_ceiling_nor_below_the_lowest_wall_top(rng):
     stops under `low_top_min_m` (a counter's or a sideboard's front, 0.95 m) is no wall's seen part way up."""
     levelled = room(rng, north_top=1.35)
     slice_points = the_slice(levelled)
-    out, found = low_topped_walls(levelled, slice_points, 0.0, 2.6, STEP, CFG)
+    out, found = low_topped_walls(levelled, slice_points, 0.0, 2.6, CFG, STEP)
     assert found == {"low_top_columns": 0} and out is slice_points
     low = room(rng, north_top=0.95)
-    out, found = low_topped_walls(low, the_slice(low), 0.0, 2.0, STEP, CFG)
+    out, found = low_topped_walls(low, the_slice(low), 0.0, 2.0, CFG, STEP)
     assert found.get("low_top_columns", 0) == 0 and len(out) == len(the_slice(low))
 
 
@@ -106,7 +106,7 @@ def test_a_plant_s_rim_is_an_edge_but_not_a_straight_one_and_stays_out(rng):
     for arc in (180.0, 100.0):
         levelled = np.concatenate([room(rng, north_top=1.35), rim((2.5, 3.55), 0.25, 0.4, 1.3, arc, rng)])
         slice_points = the_slice(levelled)
-        out, found = low_topped_walls(levelled, slice_points, 0.0, 2.0, STEP, CFG)
+        out, found = low_topped_walls(levelled, slice_points, 0.0, 2.0, CFG, STEP)
         added = out[len(slice_points) - found["low_top_slice_points_replaced"] :]
         assert found["low_top_columns"] > 0, found
         assert np.all(np.abs(added[:, 1] - 4.0) < 0.1), (arc, found)

@@ -26,6 +26,7 @@ from scipy.spatial import cKDTree
 from skimage.measure import LineModelND
 
 from tasks.walls.config import WallsConfig
+from tasks.walls.model import point_spacing
 from tasks.walls.round import ransac_fit, round_objects
 
 LOW_TOP_EDGE_RADIUS_M = 0.3
@@ -47,15 +48,16 @@ def low_topped_walls(
     slice_points: NDArray,
     floor_z_m: float,
     ceiling_z_m: float,
-    spacing_m: float,
     cfg: WallsConfig,
+    spacing_m: float | None = None,
 ) -> tuple[NDArray, dict[str, Any]]:
     """The slice (N, 3) with the columns of walls seen only up to under its top draped into it, and what was
     found (for the metrics).
 
     Looked for only without a ceiling (the slice's top within `top_clear_m` of `ceiling_z_m`, which is then
     the top of the data) and with `low_top_min_m` above 0. The levelled cloud (L, 3) is binned in columns
-    of twice the point spacing `spacing_m`, from `below_slice_min_z_m` above the floor to the slice's top.
+    of twice the point spacing `spacing_m` (by default the slice's, `model.point_spacing`), from
+    `below_slice_min_z_m` above the floor to the slice's top.
     A column is a low-topped wall's when:
     - its top lies at least `low_top_min_m` above the floor, and more than `top_reach_m` under the slice's
       top (or the top-reach test would take it already);
@@ -83,6 +85,8 @@ def low_topped_walls(
     pts = levelled[(z >= floor_z_m + cfg.below_slice_min_z_m) & (z <= z_hi)]
     if len(pts) == 0:
         return slice_points, found
+    if spacing_m is None:
+        spacing_m = point_spacing(slice_points)
     cell_m = 2.0 * spacing_m
     band = z_hi - z_lo
 

@@ -18,7 +18,7 @@ from tasks.preview import retitle
 from tasks.walls.config import WallsConfig
 from tasks.walls.evidence import faces_below_slice, lifted
 from tasks.walls.lowtop import low_topped_walls
-from tasks.walls.model import WallModel, model_walls, point_spacing
+from tasks.walls.model import WallModel, model_walls
 from tasks.walls.round import on_round_objects
 
 
@@ -103,9 +103,7 @@ def room_model(
     the model and those choices (metrics)."""
     draped: dict[str, Any] = {}
     if cfg.low_top_min_m > 0 and len(slice_points) > cfg.min_points:
-        slice_points, draped = low_topped_walls(
-            levelled, slice_points, floor_z_m, ceiling_z_m, point_spacing(slice_points), cfg
-        )
+        slice_points, draped = low_topped_walls(levelled, slice_points, floor_z_m, ceiling_z_m, cfg)
     model = model_walls(slice_points, floor_z_m, ceiling_z_m, cfg)
     grid = float(model.metrics["grid_size_m"])
     first, round_things = model, model.metrics["round_objects"]
