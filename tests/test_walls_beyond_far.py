@@ -221,3 +221,31 @@ def test_a_wall_seen_through_a_door_goes_when_the_corner_s_last_stretch_of_the_s
     short = room.copy()
     short[1] = [0, 3.1, 0, 0]
     assert not beyond_the_room(short, interior, CFG, TOL).any()
+
+
+def test_an_l_room_s_far_wing_stays_when_its_side_wall_is_seen_only_near_both_ends():
+    """An L-room (held-out 267 r3): the wing's inner walls never seen but for a piece of the one across
+    (W, y = -9.9, 0.6 m), the far wing's wall (y = -8.4) seen in two pieces 1.5 m behind W's line. The
+    room's west wall was seen only near its ends, on both sides of W's line, and crosses it 4.6 m from W:
+    its pieces in line run on behind W, so W does not bound the room there, and the wing's wall stays (it
+    went as a wall of the next room seen through a door). Crossing W's line at W's end, the pieces would
+    meet W's wall at a corner, the one behind a wall of the next room (`test_walls_furniture`); and the
+    room goes on behind W only as deep as they reach."""
+    lines = np.array(
+        [
+            [7.35, -9.9, 7.36, -13.11],  # east wall
+            [1.96, -12.79, 1.96, -13.15],  # west wall, its south piece
+            [1.95, -8.35, 1.95, -8.65],  # ...and its north piece, behind W's line
+            [3.42, -8.4, 5.01, -8.39],  # the wing's wall, in two pieces
+            [1.93, -8.4, 2.49, -8.4],
+            [6.57, -9.9, 7.21, -9.9],  # W: the inner wall's piece at the east wall
+            [6.19, -13.12, 7.41, -13.12],  # south wall, in two pieces
+            [1.95, -13.13, 4.48, -13.12],
+        ]
+    )
+    assert not beyond_the_room(lines, np.array([5.16, -11.31]), CFG, TOL).any()
+    # a wall deeper than the side wall's pieces reach (a piece of the next room seen past the wing) goes
+    deeper = np.concatenate([lines, [[6.0, -7.85, 6.4, -7.85]]])
+    assert beyond_the_room(deeper, np.array([5.16, -11.31]), CFG, TOL).tolist() == [False] * 8 + [True]
+    # without the west wall's north piece nothing tells the wing from a room beyond W's line
+    assert beyond_the_room(np.delete(lines, 2, axis=0), np.array([5.16, -11.31]), CFG, TOL)[2:4].all()

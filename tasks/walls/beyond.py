@@ -50,7 +50,9 @@ def beyond_the_room(
     whole of L (to within `lines.max_gap_m`: the next room's wall goes on past this room's by the partition's
     thickness and as far as the door's view reaches; a wing further out has side walls), and no line of the room lies between W's line and L's (more than `thin_wall_max_m` from
     either) within `lines.max_gap_m` of L's span: an L-shaped room's far wing or an alcove is joined to the
-    rest by its side walls, which lie there. W must bound the room: no line of the room runs on from W's
+    rest by its side walls, which lie there; and no wall across W's line, seen only in pieces in line with
+    each other, crosses it away from W and reaches behind it as deep as L (`_pieces_cross`: the wing's side
+    wall seen near its ends). W must bound the room: no line of the room runs on from W's
     line to behind it (the room goes on there: an L-room's wing, the far side of a partition), and L is
     shorter than W or W's collinear pieces together (a wall with a door in it), or W ends at a corner (a
     line across it at one of its ends, running into the room only: a free-standing counter has none; the
@@ -94,6 +96,9 @@ def beyond_the_room(
         crossing[w] = False
         if crossing.any():
             continue  # a line of the room runs on from W's line behind it: the room goes on there
+        # ...or a wall's pieces in line do, the stretch between them unseen: the room goes on behind W as
+        # deep as they reach
+        wing = _pieces_cross(lines, ang, normal, w, nearest, deepest, ~gone, end_tol, thin, cfg)
         shallow = np.bincount(owner, depth <= cfg.beyond_room_min_depth_m, m) > 0
         # W is the room's boundary, not a free-standing thing in it, when it is longer than L, its collinear
         # pieces (a wall with a door in it) together are, or it ends at a corner: a line across it at one of
@@ -135,6 +140,8 @@ def beyond_the_room(
             ):
                 continue  # beyond the end of the room's lines, where no corner ends them: an L-room's wing
             far = float(depth[mine].min())
+            if far <= wing + thin:
+                continue  # a wing's wall: its side wall's pieces reach it from in front of W's line
             # a line joining L to the room (a wing's side wall) starts within furniture's depth and the
             # largest occlusion (`lines.max_gap_m`) of W's line: one that stays deeper behind it (the next
             # room's wall across, seen through the same door) joins nothing of this room to L
@@ -150,6 +157,43 @@ def beyond_the_room(
             if not between.any():
                 out[c] = True
     return out | past_a_corner(lines, interior, cfg, out | gone)
+
+
+def _pieces_cross(
+    lines: NDArray,
+    ang: NDArray,
+    normal: NDArray,
+    w: int,
+    nearest: NDArray,
+    deepest: NDArray,
+    live: NDArray,
+    end_tol: float,
+    thin: float,
+    cfg: WallsConfig,
+) -> float:
+    """How deep behind line w a wall across it reaches, seen in pieces in line with each other (`live`
+    lines only) from w's line (`nearest`: a piece's least depth behind it, at most `end_tol`) to behind it
+    (`deepest`: more than `thin`), crossing it further than the largest occlusion (`lines.max_gap_m`) from
+    w and its pieces in line: an L-room's side wall seen near both its ends, running on past the line of the
+    wing's inner wall w as far as the wing's far wall (-inf when none does). Where it crosses w's line by
+    w, it meets w's wall at a corner: its piece behind is the next room's wall, in line with this one's
+    (seen through a door in w's wall)."""
+    cos_tol = math.cos(math.radians(cfg.lines.angle_tol_deg))
+    same = collinear_with(lines, ang, normal, w, cos_tol, cfg.lines.offset_tol_m)
+    length = float(np.hypot(*(lines[w, 2:] - lines[w, :2])))
+    ends = np.concatenate([lines[same, :2], lines[same, 2:]])
+    span = (ends - lines[w, :2]) @ (lines[w, 2:] - lines[w, :2]) / length
+    reach = cfg.lines.max_gap_m
+    across = np.flatnonzero(live & (np.abs(np.cos(ang - ang[w])) < math.sqrt(0.5)))
+    wing = -math.inf
+    for k in across:
+        group = collinear_with(lines, ang, normal, k, cos_tol, cfg.lines.offset_tol_m) & live
+        if nearest[group].min() > end_tol or deepest[group].max() <= thin:
+            continue
+        hit = line_intersection(lines[w], lines[k])
+        if hit is not None and not span.min() - reach <= hit[1] * length <= span.max() + reach:
+            wing = max(wing, float(deepest[group].max()))
+    return wing
 
 
 def past_a_corner(
