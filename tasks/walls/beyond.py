@@ -98,7 +98,7 @@ def beyond_the_room(
             continue  # a line of the room runs on from W's line behind it: the room goes on there
         # ...or a wall's pieces in line do, the stretch between them unseen: the room goes on behind W as
         # deep as they reach
-        wing = _pieces_cross(lines, ang, normal, w, nearest, deepest, ~gone, end_tol, thin, cfg)
+        wing = _pieces_cross(lines, ang, normal, w, nearest, deepest, ~gone, cos_tol, end_tol, thin, cfg)
         shallow = np.bincount(owner, depth <= cfg.beyond_room_min_depth_m, m) > 0
         # W is the room's boundary, not a free-standing thing in it, when it is longer than L, its collinear
         # pieces (a wall with a door in it) together are, or it ends at a corner: a line across it at one of
@@ -167,6 +167,7 @@ def _pieces_cross(
     nearest: NDArray,
     deepest: NDArray,
     live: NDArray,
+    cos_tol: float,
     end_tol: float,
     thin: float,
     cfg: WallsConfig,
@@ -177,8 +178,7 @@ def _pieces_cross(
     w and its pieces in line: an L-room's side wall seen near both its ends, running on past the line of the
     wing's inner wall w as far as the wing's far wall (-inf when none does). Where it crosses w's line by
     w, it meets w's wall at a corner: its piece behind is the next room's wall, in line with this one's
-    (seen through a door in w's wall)."""
-    cos_tol = math.cos(math.radians(cfg.lines.angle_tol_deg))
+    (seen through a door in w's wall). Lines within acos(`cos_tol`) of parallel are in line."""
     same = collinear_with(lines, ang, normal, w, cos_tol, cfg.lines.offset_tol_m)
     length = float(np.hypot(*(lines[w, 2:] - lines[w, :2])))
     ends = np.concatenate([lines[same, :2], lines[same, 2:]])
