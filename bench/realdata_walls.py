@@ -83,7 +83,14 @@ def model_cloud(points: NDArray[np.float64], cfg: PipelineConfig) -> Modelled:
     """preprocess, then the walls stage's model (`room_model`), walls carried back into the cloud's frame."""
     t = time.process_time()
     pre = preprocess(Cloud(points), cfg.preprocess)
-    model, choices = room_model(pre.slice.points, pre.cloud.points, pre.floor_z_m, pre.ceiling_z_m, cfg.walls)
+    model, choices = room_model(
+        pre.slice.points,
+        pre.cloud.points,
+        pre.floor_z_m,
+        pre.ceiling_z_m,
+        cfg.walls,
+        pre.metrics["ceiling_captured"],
+    )
     back, z = levelled_to_input(
         {"transform": pre.levelling.tolist(), "pivot_m": pre.metrics["levelling_pivot_m"]}
     )

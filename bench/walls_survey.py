@@ -268,7 +268,14 @@ def run_room(
     t, cpu = time.perf_counter(), time.process_time()
     try:
         pre = preprocess(Cloud(points), cfg.preprocess)
-        model, _ = room_model(pre.slice.points, pre.cloud.points, pre.floor_z_m, pre.ceiling_z_m, cfg.walls)
+        model, _ = room_model(
+            pre.slice.points,
+            pre.cloud.points,
+            pre.floor_z_m,
+            pre.ceiling_z_m,
+            cfg.walls,
+            pre.metrics["ceiling_captured"],
+        )
     except Exception as exc:  # a benchmark reports a failing room and goes on
         nan = math.nan
         return RoomResult(

@@ -110,3 +110,25 @@ def test_a_plant_s_rim_is_an_edge_but_not_a_straight_one_and_stays_out(rng):
         added = out[len(slice_points) - found["low_top_slice_points_replaced"] :]
         assert found["low_top_columns"] > 0, found
         assert np.all(np.abs(added[:, 1] - 4.0) < 0.1), (arc, found)
+
+
+def test_a_slice_capped_under_walls_seen_higher_is_no_ceiling_when_preprocess_found_none(rng):
+    """Walls seen up to 2.7 m but the slice capped at 2.5 m (`slice_max_m`): its top lies 0.2 m under the
+    top of the data, as under a ceiling. Preprocess's verdict (no ceiling captured) decides: the north
+    wall, seen to 1.35 m, is draped; judged from the slice alone it would not be."""
+    levelled = np.concatenate(
+        [
+            face((0, 0), (5, 0), 0, 2.7, rng),
+            face((5, 0), (5, 4), 0, 2.7, rng),
+            face((5, 4), (0, 4), 0, 1.35, rng),
+            face((0, 4), (0, 0), 0, 2.7, rng),
+        ]
+    )
+    slice_points = the_slice(levelled, 1.5, 2.5)
+    _, found = low_topped_walls(levelled, slice_points, 0.0, 2.7, CFG, STEP)
+    assert found == {"low_top_columns": 0}
+    _, found = low_topped_walls(levelled, slice_points, 0.0, 2.7, CFG, STEP, ceiling_captured=False)
+    assert found["low_top_columns"] > 0 and 1.3 <= found["low_top_heights_m"][1] <= 1.36, found
+    model, _ = room_model(slice_points, levelled, 0.0, 2.7, CFG, ceiling_captured=False)
+    ev = evaluate_walls(model.walls, TRUTH)
+    assert model.closed and ev["completeness"] >= 0.97 and ev["correctness"] >= 0.99, ev

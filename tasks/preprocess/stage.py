@@ -43,6 +43,7 @@ def run(ctx: StageContext, cfg: PreprocessConfig, out: Path) -> dict[str, Any]:
             "floor_z_m": result.floor_z_m,
             "ceiling_z_m": result.ceiling_z_m,
             "height_m": result.height_m,
+            "ceiling_captured": bool(result.metrics["ceiling_captured"]),
             "pivot_m": result.metrics.get("levelling_pivot_m"),
             "source": source,
         },

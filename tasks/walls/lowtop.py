@@ -50,12 +50,14 @@ def low_topped_walls(
     ceiling_z_m: float,
     cfg: WallsConfig,
     spacing_m: float | None = None,
+    ceiling_captured: bool | None = None,
 ) -> tuple[NDArray, dict[str, Any]]:
     """The slice (N, 3) with the columns of walls seen only up to under its top draped into it, and what was
     found (for the metrics).
 
-    Looked for only without a ceiling (the slice's top within `top_clear_m` of `ceiling_z_m`, which is then
-    the top of the data) and with `low_top_min_m` above 0. The levelled cloud (L, 3) is binned in columns
+    Looked for only without a ceiling (`ceiling_captured` False, preprocess's verdict; when not given, the
+    slice's top within `top_clear_m` of `ceiling_z_m`, which is then the top of the data: a slice capped at
+    `slice_max_m` under walls seen higher says nothing) and with `low_top_min_m` above 0. The levelled cloud (L, 3) is binned in columns
     of twice the point spacing `spacing_m` (by default the slice's, `model.point_spacing`), from
     `below_slice_min_z_m` above the floor to the slice's top.
     A column is a low-topped wall's when:
@@ -76,7 +78,9 @@ def low_topped_walls(
         return slice_points, found
     z_slice = slice_points[:, 2]
     z_lo, z_hi = float(z_slice.min()), float(z_slice.max())
-    if ceiling_z_m - float(np.quantile(z_slice, 0.999)) >= cfg.top_clear_m:
+    if ceiling_captured is None:
+        ceiling_captured = ceiling_z_m - float(np.quantile(z_slice, 0.999)) >= cfg.top_clear_m
+    if ceiling_captured:
         return slice_points, found  # a ceiling above the slice: the walls reach it
     lowest, highest = floor_z_m + cfg.low_top_min_m, z_hi - cfg.top_reach_m
     if lowest >= highest:

@@ -89,6 +89,7 @@ def room_model(
     floor_z_m: float,
     ceiling_z_m: float,
     cfg: WallsConfig,
+    ceiling_captured: bool | None = None,
 ) -> tuple[WallModel, dict[str, Any]]:
     """The wall model of the slice (N, 3), and what the stage chose beyond `model_walls`:
 
@@ -99,11 +100,14 @@ def room_model(
       made again.
 
     Before them, without a ceiling, the columns of walls seen only up to under the slice's top are draped
-    into the slice (`lowtop.low_topped_walls`). Each costs a second model only when it applies. Returns
+    into the slice (`lowtop.low_topped_walls`; `ceiling_captured` is preprocess's verdict, None: judged
+    from the slice). Each costs a second model only when it applies. Returns
     the model and those choices (metrics)."""
     draped: dict[str, Any] = {}
     if cfg.low_top_min_m > 0 and len(slice_points) > cfg.min_points:
-        slice_points, draped = low_topped_walls(levelled, slice_points, floor_z_m, ceiling_z_m, cfg)
+        slice_points, draped = low_topped_walls(
+            levelled, slice_points, floor_z_m, ceiling_z_m, cfg, ceiling_captured=ceiling_captured
+        )
     model = model_walls(slice_points, floor_z_m, ceiling_z_m, cfg)
     grid = float(model.metrics["grid_size_m"])
     first, round_things = model, model.metrics["round_objects"]
@@ -150,7 +154,12 @@ def run(ctx: StageContext, cfg: WallsConfig, out: Path) -> dict[str, Any]:
     # the levelled cloud: a partition's second face may have been seen only under the slice
     levelled = art.read_cloud(pre.file("levelled.ply"))
     model, choices = room_model(
-        slice_cloud.points, levelled.points, levelling["floor_z_m"], levelling["ceiling_z_m"], cfg
+        slice_cloud.points,
+        levelled.points,
+        levelling["floor_z_m"],
+        levelling["ceiling_z_m"],
+        cfg,
+        levelling.get("ceiling_captured"),
     )
     # A given cloud's frame means something (a TLS survey's, the user's): walls go back into it. A frame
     # made by registration is arbitrary and maybe tilted: walls stay in the levelled (z up) room frame.
