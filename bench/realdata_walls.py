@@ -29,6 +29,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
+from bench.walls_survey import walls_of  # noqa: E402
 from tasks.camera import Calibration, CameraModel  # noqa: E402
 from tasks.cloud import Cloud  # noqa: E402
 from tasks.config import PipelineConfig, load_config  # noqa: E402
@@ -37,7 +38,7 @@ from tasks.preprocess.pipeline import Preprocessed, preprocess  # noqa: E402
 from tasks.register.fusion import fuse_capture  # noqa: E402
 from tasks.synth.rooms import random_subsample  # noqa: E402
 from tasks.walls.model import WallModel  # noqa: E402
-from tasks.walls.stage import levelled_to_input, room_model, segments_to_input  # noqa: E402
+from tasks.walls.stage import levelled_to_input, segments_to_input  # noqa: E402
 
 UP_FROM_CAMERA = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 """The first camera's frame (x right, y down, z forward) to one with z up (x, z, -y)."""
@@ -83,14 +84,7 @@ def model_cloud(points: NDArray[np.float64], cfg: PipelineConfig) -> Modelled:
     """preprocess, then the walls stage's model (`room_model`), walls carried back into the cloud's frame."""
     t = time.process_time()
     pre = preprocess(Cloud(points), cfg.preprocess)
-    model, choices = room_model(
-        pre.slice.points,
-        pre.cloud.points,
-        pre.floor_z_m,
-        pre.ceiling_z_m,
-        cfg.walls,
-        pre.metrics["ceiling_captured"],
-    )
+    model, choices = walls_of(pre, cfg.walls)
     back, z = levelled_to_input(
         {"transform": pre.levelling.tolist(), "pivot_m": pre.metrics["levelling_pivot_m"]}
     )

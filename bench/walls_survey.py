@@ -78,8 +78,10 @@ from tasks.cloud import Cloud  # noqa: E402
 from tasks.config import PipelineConfig, load_config, load_sensor_profile  # noqa: E402
 from tasks.evaluate import evaluate_walls  # noqa: E402
 from tasks.lines import sample_segments  # noqa: E402
-from tasks.preprocess.pipeline import preprocess  # noqa: E402
+from tasks.preprocess.pipeline import Preprocessed, preprocess  # noqa: E402
 from tasks.register.fusion import fuse_capture  # noqa: E402
+from tasks.walls.config import WallsConfig  # noqa: E402
+from tasks.walls.model import WallModel  # noqa: E402
 from tasks.walls.stage import levelled_to_input, room_model, segments_to_input  # noqa: E402
 
 SPLITS = {
@@ -221,6 +223,19 @@ def room_cloud(
     return points, sensor
 
 
+def walls_of(pre: Preprocessed, cfg: WallsConfig) -> tuple[WallModel, dict]:
+    """The walls stage's model (`room_model`: its choices too) of a preprocessed room, as the stage makes
+    it from preprocess's artefacts."""
+    return room_model(
+        pre.slice.points,
+        pre.cloud.points,
+        pre.floor_z_m,
+        pre.ceiling_z_m,
+        cfg,
+        pre.metrics["ceiling_captured"],
+    )
+
+
 def seen_share(
     points: NDArray[np.float64], truth: NDArray[np.float64], z_band: tuple[float, float], min_points: int = 1
 ) -> tuple[float, NDArray[np.float64]]:
@@ -268,14 +283,7 @@ def run_room(
     t, cpu = time.perf_counter(), time.process_time()
     try:
         pre = preprocess(Cloud(points), cfg.preprocess)
-        model, _ = room_model(
-            pre.slice.points,
-            pre.cloud.points,
-            pre.floor_z_m,
-            pre.ceiling_z_m,
-            cfg.walls,
-            pre.metrics["ceiling_captured"],
-        )
+        model, _ = walls_of(pre, cfg.walls)
     except Exception as exc:  # a benchmark reports a failing room and goes on
         nan = math.nan
         return RoomResult(

@@ -26,7 +26,7 @@ def room_cloud(ctx: StageContext) -> tuple[art.Cloud, str]:
 
 def run(ctx: StageContext, cfg: PreprocessConfig, out: Path) -> dict[str, Any]:
     """The room's levelled cloud and furniture slice, the height histogram (table and picture) and the
-    levelling (transform, floor, ceiling, pivot, where the cloud came from)."""
+    levelling (transform, floor, ceiling and whether it was captured, pivot, where the cloud came from)."""
     cloud, source = room_cloud(ctx)
     result = preprocess(cloud, cfg)
     art.write_cloud(out / "levelled.ply", result.cloud)
