@@ -617,8 +617,6 @@ def degrade_handheld(
     height of the wall nearest it in plan view; the ceiling stays unseen (nothing within 0.15 m under the
     cloud's top). The other draws are those of the single cut, so the unseen spans and the floor are the
     same."""
-    from tasks.lines import point_segment_distances
-
     walls = np.asarray(walls, dtype=np.float64).reshape(-1, 4)
     spacing = float(rng.uniform(0.03, 0.05))
     cut = float(rng.uniform(1.3, 2.0))
@@ -643,10 +641,7 @@ def degrade_handheld(
     h = pts[:, 2] - floor_z
     keep = h <= cut if wall_tops_m is None else np.ones(len(pts), dtype=bool)
     if len(unseen):
-        near = np.zeros(len(pts), dtype=bool)
-        for k in range(0, len(pts), 20000):
-            near[k : k + 20000] = point_segment_distances(pts[k : k + 20000, :2], unseen).min(axis=1) < 0.5
-        keep &= ~near
+        keep &= _plan_distances(pts, unseen).min(axis=1) >= 0.5
     floor = h < 0.05
     phi = float(rng.uniform(0, 2 * np.pi))
     along = pts[:, :2] @ np.array([math.cos(phi), math.sin(phi)])
@@ -655,16 +650,19 @@ def degrade_handheld(
     tops = None
     if wall_tops_m is not None:
         tops = np.minimum(rng.uniform(*wall_tops_m, len(walls)), float(np.quantile(h, 0.999)) - 0.15)
-        nearest = np.concatenate(
-            [
-                point_segment_distances(pts[k : k + 20000, :2], walls).argmin(axis=1)
-                for k in range(0, len(pts), 20000)
-            ]
-        )
-        keep &= h <= tops[nearest]
+        keep &= h <= tops[_plan_distances(pts, walls).argmin(axis=1)]
         cut = float(tops.min())
     out = random_subsample(pts[keep], spacing, rng)
     return out, HandheldDegradation(spacing, cut, unseen_share, floor_share, unseen, seen, tops)
+
+
+def _plan_distances(points: NDArray[np.float64], segments: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, M) plan-view distances of the points (N, 3) to the segments (M, 4), 20 000 points at a time."""
+    from tasks.lines import point_segment_distances
+
+    return np.concatenate(
+        [point_segment_distances(points[k : k + 20000, :2], segments) for k in range(0, len(points), 20000)]
+    )
 
 
 def random_subsample(

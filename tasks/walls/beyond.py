@@ -98,15 +98,17 @@ def beyond_the_room(
             continue  # a line of the room runs on from W's line behind it: the room goes on there
         # ...or a wall's pieces in line do, the stretch between them unseen: the room goes on behind W as
         # deep as they reach
-        wing = _pieces_cross(lines, ang, normal, w, nearest, deepest, ~gone, cos_tol, end_tol, thin, cfg)
-        shallow = np.bincount(owner, depth <= cfg.beyond_room_min_depth_m, m) > 0
-        # W is the room's boundary, not a free-standing thing in it, when it is longer than L, its collinear
-        # pieces (a wall with a door in it) together are, or it ends at a corner: a line across it at one of
-        # its ends that runs into the room only
         same = collinear_with(lines, ang, normal, w, cos_tol, cfg.lines.offset_tol_m)
         span = np.concatenate(
             [(lines[same, :2] - lines[w, :2]) @ u[w], (lines[same, 2:] - lines[w, :2]) @ u[w]]
         )
+        wing = _pieces_cross(
+            lines, ang, normal, w, span, nearest, deepest, ~gone, cos_tol, end_tol, thin, cfg
+        )
+        shallow = np.bincount(owner, depth <= cfg.beyond_room_min_depth_m, m) > 0
+        # W is the room's boundary, not a free-standing thing in it, when it is longer than L, its collinear
+        # pieces (a wall with a door in it) together are, or it ends at a corner: a line across it at one of
+        # its ends that runs into the room only
         sides = (np.abs(np.cos(ang - ang[w])) < math.sqrt(0.5)) & ~gone & ~out
         if float(step[owner][(depth > thin) & sides[owner]].sum()) >= max(L[w], float(np.ptp(span))):
             continue  # the room's walls across W reach behind it as far as W runs: W does not bound the room
@@ -164,6 +166,7 @@ def _pieces_cross(
     ang: NDArray,
     normal: NDArray,
     w: int,
+    span: NDArray,
     nearest: NDArray,
     deepest: NDArray,
     live: NDArray,
@@ -178,16 +181,17 @@ def _pieces_cross(
     w and its pieces in line: an L-room's side wall seen near both its ends, running on past the line of the
     wing's inner wall w as far as the wing's far wall (-inf when none does). Where it crosses w's line by
     w, it meets w's wall at a corner: its piece behind is the next room's wall, in line with this one's
-    (seen through a door in w's wall). Lines within acos(`cos_tol`) of parallel are in line."""
-    same = collinear_with(lines, ang, normal, w, cos_tol, cfg.lines.offset_tol_m)
+    (seen through a door in w's wall). `span`: where w and its pieces in line lie along w's line, from its
+    first end. Lines within acos(`cos_tol`) of parallel are in line."""
     length = float(np.hypot(*(lines[w, 2:] - lines[w, :2])))
-    ends = np.concatenate([lines[same, :2], lines[same, 2:]])
-    span = (ends - lines[w, :2]) @ (lines[w, 2:] - lines[w, :2]) / length
     reach = cfg.lines.max_gap_m
-    across = np.flatnonzero(live & (np.abs(np.cos(ang - ang[w])) < math.sqrt(0.5)))
+    across = live & (np.abs(np.cos(ang - ang[w])) < math.sqrt(0.5))
     wing = -math.inf
-    for k in across:
+    for k in np.flatnonzero(across):
+        if not across[k]:
+            continue  # in a group judged already
         group = collinear_with(lines, ang, normal, k, cos_tol, cfg.lines.offset_tol_m) & live
+        across &= ~group
         if nearest[group].min() > end_tol or deepest[group].max() <= thin:
             continue
         hit = line_intersection(lines[w], lines[k])
