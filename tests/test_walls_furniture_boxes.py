@@ -51,6 +51,21 @@ def test_a_cabinet_front_seen_shorter_than_furniture_is_deep_standing_alone_is_f
     assert not furniture_in_front(jog, CENTRE, CFG, 3.0)[4:].any()
 
 
+def test_a_lone_front_s_corners_are_walls_running_into_the_room_that_carry_to_the_wall_s_line():
+    """The cabinet's front standing alone as above, with a line across the west wall's line at its height
+    that does not bound the wall there: a door's jamb outside the room, or a 0.2 m stub 5 m across the room
+    whose direction, carried that far, is good to 2.5 m only. Neither is a corner of the room: still a
+    front. The room's own south-west corner, seen only as the south wall's line from 1 m on, still bounds
+    it (the same line past that corner stays)."""
+    room = [[0, 4, 0, 2.2], [0, 4, 6, 4], [6, 4, 6, 0], [1.0, 0, 6, 0]]
+    front = [0.5, 1.8, 0.5, 1.2]
+    for other in ([0, 1.5, -0.15, 1.5], [5.0, 1.5, 5.2, 1.5]):
+        lines = np.array([*room, front, other], dtype=float)
+        assert furniture_in_front(lines, CENTRE, CFG, 3.0)[4], other
+    past = np.array([*room, [0.5, -0.2, 0.5, -0.8], [5.0, -0.5, 5.2, -0.5]], dtype=float)
+    assert not furniture_in_front(past, CENTRE, CFG, 3.0)[4]
+
+
 def test_a_short_piece_of_the_room_s_wall_beside_an_alcove_is_no_front_standing_alone():
     """An alcove 0.6 m deep in the south wall, its back seen from x = 3.2 to 4.4 and its sides unseen, and
     0.4 m of the room's south wall seen west of it: that piece stands 0.6 m in front of the back's line,

@@ -1442,18 +1442,25 @@ def furniture_in_front(
         inline[i] = False
         if inline.any():
             return False
-        # where the lines across j's line meet it (beyond j's seen extent): the corners of the room
+        # where the lines across j's line meet it (beyond j's seen extent): the corners of the room, made by
+        # the lines running into the room from it (a door's jamb or the next room's wall stands outside). A
+        # line's direction is good to about 2 `support_tol_m` over its length, so a line ending g short of
+        # j's line puts its corner there within g 2 `support_tol_m` / its length (a 0.2 m stub 4 m across
+        # the room: 2 m), and the corner is taken as far out as that allows
         across = np.flatnonzero(np.abs(np.cos(ang - ang[j])) <= math.sqrt(0.5))
+        dk = np.array([depth(k, j) for k in across]).reshape(-1, 2)
+        inward = dk.max(axis=1) > end_tol
+        across, spread = across[inward], (np.maximum(dk.min(axis=1), 0.0) * 2 * tol / L[across])[inward]
         denom = u[across] @ n[j]  # along a crossing line, the rate of moving off j's line
         s = ((lines[j, :2] - lines[across, :2]) @ n[j]) / denom
         meet = lines[across, :2] + s[:, None] * u[across]
         tm = (meet - lines[j, :2]) @ u[j]
         lo, hi = float(t.min()), float(t.max())
-        after, before = tm[tm >= t1 - tol], tm[tm <= t0 + tol]
-        if not len(after) or not len(before):
+        after, before = tm >= t1 - tol, tm <= t0 + tol
+        if not after.any() or not before.any():
             return False  # no corner on one side: nothing bounds the wall j would be a piece of
         # past j's seen ends, up to the corners, and the wall between them longer than the front
-        c0, c1 = float(before.max()), float(after.min())
+        c0, c1 = float((tm - spread)[before].max()), float((tm + spread)[after].min())
         return c0 - tol <= lo and hi <= c1 + tol and c1 - c0 > L[i] + tol
 
     for i in np.flatnonzero(L <= cfg.furniture_max_length_m):
