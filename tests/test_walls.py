@@ -320,6 +320,29 @@ def test_alpha_choice_prefers_the_longest_stable_closed_run():
     assert same_walls(box, box[::-1] + 0.01, 0.05) and not same_walls(box, broken, 0.05)
 
 
+def test_alpha_choice_without_a_closed_model_skips_the_few_lines_the_highest_alphas_leave():
+    """No α closes the room (a handheld room seen in part): each low α's fuller model differs a little from
+    the next, and the two highest leave the same two short lines. Those alike are not the room (under half
+    the wall length the candidates typically find); the fullest model is chosen, not the stable remnant."""
+    from tasks.walls.topology import Candidate
+
+    l_room = np.array([[0, 0, 4, 0], [4, 0, 4, 1.6], [0, 3, 0, 0.0], [2.5, 3, 0, 3]])
+    remnant = np.array([[1, 2, 2, 2], [1, 2.4, 1.4, 2.4]])
+
+    def cand(alpha, walls):
+        return Candidate(alpha, walls, np.array(["observed"] * len(walls)), {}, None, None)
+
+    cands = [
+        cand(0.05, l_room),
+        cand(0.1, l_room[:3]),
+        cand(0.15, l_room[1:]),
+        cand(0.2, remnant),
+        cand(0.25, remnant + 0.003),
+    ]
+    i, reason = choose_alpha(cands, 0.05)
+    assert i == 0 and "unclosed" in reason and "stable over 1 of 5" in reason
+
+
 def test_extrusion_mesh_is_watertight_for_a_closed_room():
     from shapely.geometry import Polygon
 

@@ -345,3 +345,39 @@ def test_a_short_wall_at_a_corner_runs_on_only_in_a_direction_a_long_wall_confir
     walls[1] = [0, 4, 0.8, 4]
     closed = _across_unseen(walls)
     assert closed is not None and closed[2].area == pytest.approx(24.0, abs=0.01)
+
+
+def test_an_l_room_s_inner_corner_closes_across_unseen_spans():
+    """An L-room (its north-east quarter cut out: the inner corner at (3.5, 2.5)) whose two inner walls were
+    seen only 0.8 m and 0.6 m from their outer ends. The room's side of each piece run on to the inner corner
+    is away from the other wall's end there (the room's centre lies on the far side of both lines): the
+    walls behind those pieces are the room's own, and the room closes on its true walls."""
+    walls = np.array(
+        [[0, 0, 6, 0], [6, 0, 6, 2.5], [6, 2.5, 5.2, 2.5], [3.5, 3.4, 3.5, 4], [3.5, 4, 0, 4], [0, 4, 0, 0]],
+        float,
+    )
+    truth = np.array(
+        [[0, 0, 6, 0], [6, 0, 6, 2.5], [6, 2.5, 3.5, 2.5], [3.5, 2.5, 3.5, 4], [3.5, 4, 0, 4], [0, 4, 0, 0]],
+        float,
+    )
+    closed = _across_unseen(walls)
+    assert closed is not None
+    assert closed[2].area == pytest.approx(20.25, abs=0.01)
+    assert evaluate_walls(closed[0], truth)["correctness"] == 1.0
+
+
+def test_a_partition_s_face_run_on_to_a_door_s_jamb_is_no_inner_corner():
+    """A partition stub 1.4 m long on the west wall at y = 2.5, and a door's jamb 0.35 m down from the north
+    wall at x = 3, the room's north-west part unseen but for the west wall's data running on 0.8 m north of
+    the stub: the stub's face and the jamb would meet at an inner corner (3, 2.5) and cut that part off.
+    Without those data the lines alone allow it; with them the stub's end is a T on the room's wall, no
+    corner of the room, and the corner is not made."""
+    walls = np.array(
+        [[0, 0, 6, 0], [6, 0, 6, 4], [6, 4, 3, 4], [3, 4, 3, 3.65], [0, 2.5, 1.4, 2.5], [0, 2.5, 0, 0]], float
+    )
+    origin = np.full(len(walls), "observed")
+    args = (walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True)
+    closed = pinned_corners(*args)
+    assert closed is not None and closed[2].area == pytest.approx(24 - 3 * 1.5, abs=0.01)
+    west = np.column_stack([np.zeros(27), np.linspace(2.52, 3.3, 27)])
+    assert pinned_corners(*args, points=west) is None

@@ -770,7 +770,7 @@ def pinned_corners(
             across_unseen
             and (ext[0] <= _unseen_run_limit(span[i]) or at_corner[(x + n) % (2 * n)])
             and (ext[1] <= _unseen_run_limit(span[j]) or at_corner[(y + n) % (2 * n)])
-            and _open_corner(walls, ends[x], ends[y], corner, (i, j), tol_m, points)
+            and _open_corner(walls, ends[x], ends[y], corner, (i, j), tol_m, points, centre)
         ):
             continue
         cands.append((sum(ext), max(ext), x, y, corner, j))
@@ -952,11 +952,16 @@ def _open_corner(
     pair: tuple[int, int],
     tol_m: float,
     points: NDArray | None = None,
+    centre: NDArray | None = None,
 ) -> bool:
     """May the free ends `a` and `b` of the walls `pair` be run on to the `corner` their lines meet at,
     across a span nothing was seen on? No other wall lies inside the parallelogram the corner and the two
     ends span (more than `tol_m` inside it), and nothing behind either added piece (`_nothing_behind`, the
-    room's side being towards the other wall's end)."""
+    room's side being towards the other wall). At a reflex corner (an L-room's inner corner: the room's
+    `centre` lies on the far side of both walls' lines from the other wall) the room's side is away from the
+    other wall, no other wall lies in the part cut off (the parallelogram the corner and the walls' far ends
+    span) and the slice `points` do not run on past either far end into it (`_runs_on_past`: that end is a
+    partition's T on the room's wall, not a corner)."""
     ea, eb = a - corner, b - corner
     m = np.column_stack([ea, eb])
     if abs(float(np.linalg.det(m))) <= 1e-12:
@@ -967,9 +972,47 @@ def _open_corner(
     inside = (st > margin).all(axis=1) & (st < 1 - margin).all(axis=1)
     if inside.any():
         return False
-    return _nothing_behind(walls, a, corner, b, pair, tol_m, points) and _nothing_behind(
-        walls, b, corner, a, pair, tol_m, points
+    # the room's side of each added piece: towards the other wall (its end away from the corner: the free
+    # end may lie a few cm past the corner) at a convex corner; at a reflex one (an L-room's inner corner: the
+    # room's centre lies on the far side of both lines) away from it
+    far_a, far_b = (max(walls[k].reshape(2, 2), key=lambda e: float(np.hypot(*(e - corner)))) for k in pair)
+    inside_a, inside_b = far_b, far_a
+    if centre is not None:
+        na, nb = np.array([-ea[1], ea[0]]), np.array([-eb[1], eb[0]])
+        if (
+            float((centre - corner) @ na) * float((far_b - corner) @ na) < 0
+            and float((centre - corner) @ nb) * float((far_a - corner) @ nb) < 0
+        ):
+            # and the walls cut off are the room's own: no other wall inside the parallelogram the corner and
+            # the two walls' far ends span (a partition's face run on to a door's jamb would cut off the
+            # room's part beyond it, the partition's other face with it)
+            m = np.column_stack([far_a - corner, far_b - corner])
+            st = np.linalg.solve(m, rel.T).T
+            margin = tol_m / np.maximum(np.hypot(*m), 1e-12)
+            if ((st > margin).all(axis=1) & (st < 1 - margin).all(axis=1)).any():
+                return False
+            # each wall's far end is a corner of the room, the wall across it stopping there: one whose data
+            # run on past it into the part cut off makes that end a T (a partition standing on the room's wall)
+            if points is not None and (
+                _runs_on_past(far_a, far_b - corner, points) or _runs_on_past(far_b, far_a - corner, points)
+            ):
+                return False
+            inside_a, inside_b = 2 * corner - far_b, 2 * corner - far_a
+    return _nothing_behind(walls, a, corner, inside_a, pair, tol_m, points) and _nothing_behind(
+        walls, b, corner, inside_b, pair, tol_m, points
     )
+
+
+def _runs_on_past(end: NDArray, direction: NDArray, points: NDArray) -> bool:
+    """Do the slice `points` (N, 2) run on from a wall's `end` in `direction` (a wall across it carrying on
+    past it there): within `BEHIND_BAND_M` of that line, `BEHIND_BAND_M` to `BEHIND_DEPTH_M` from the end,
+    over `BEHIND_MAX_SHARE` or more of its 10 cm bins?"""
+    u = direction / max(float(np.hypot(*direction)), 1e-12)
+    rel = points - end
+    t, o = rel @ u, rel @ np.array([-u[1], u[0]])
+    sel = (t > BEHIND_BAND_M) & (t < BEHIND_DEPTH_M) & (np.abs(o) <= BEHIND_BAND_M)
+    bins = np.unique(np.floor(t[sel] / 0.1).astype(np.int64))
+    return len(bins) >= BEHIND_MAX_SHARE * math.ceil((BEHIND_DEPTH_M - BEHIND_BAND_M) / 0.1)
 
 
 def _crosses(pieces: NDArray, walls: NDArray, tol_m: float) -> bool:
@@ -1412,7 +1455,8 @@ def choose_alpha(cands: list[Candidate], tol_m: float, wall_max_m: float = 0.0) 
     a room but the two faces of one wall or a cabinet."""
     n = len(cands)
     # a closed model holding under half the wall length the candidates typically find is a piece of
-    # furniture or a closet the walls of a poorly seen room happen to enclose, not the room
+    # furniture or a closet the walls of a poorly seen room happen to enclose, not the room; an open one, the
+    # few lines the highest α leave (alike at neighbouring α, where the rooms' fuller models each differ)
     length = np.array([float(lengths(c.walls).sum()) for c in cands])
     typical = float(np.median(length)) if n else 0.0
     room_sized = (length >= CLOSED_MIN_LENGTH_SHARE * typical) & np.array(
@@ -1425,7 +1469,10 @@ def choose_alpha(cands: list[Candidate], tol_m: float, wall_max_m: float = 0.0) 
             lambda c: c.closed and c.counts.get("bridged_gap_m") is None and room_sized[cands.index(c)],
         ),
         ("closed (after bridging wider gaps)", lambda c: c.closed and room_sized[cands.index(c)]),
-        ("unclosed (no candidate gave a closed, room-sized wall graph)", lambda c: True),
+        (
+            "unclosed (no candidate gave a closed, room-sized wall graph)",
+            lambda c: room_sized[cands.index(c)],
+        ),
     )
     for what, ok in tiers:
         best, best_len = -1, 0
