@@ -350,8 +350,8 @@ def test_a_short_wall_at_a_corner_runs_on_only_in_a_direction_a_long_wall_confir
 def test_an_l_room_s_inner_corner_closes_across_unseen_spans():
     """An L-room (its north-east quarter cut out: the inner corner at (3.5, 2.5)) whose two inner walls were
     seen only 0.8 m and 0.6 m from their outer ends. The room's side of each piece run on to the inner corner
-    is away from the other wall's end there (the room's centre lies on the far side of both lines): the
-    walls behind those pieces are the room's own, and the room closes on its true walls."""
+    is away from the other wall there (the room's centre lies on the far side of both lines): the walls
+    behind those pieces are the room's own, and the room closes on its true walls."""
     walls = np.array(
         [[0, 0, 6, 0], [6, 0, 6, 2.5], [6, 2.5, 5.2, 2.5], [3.5, 3.4, 3.5, 4], [3.5, 4, 0, 4], [0, 4, 0, 0]],
         float,
