@@ -44,13 +44,13 @@ room refused, labelled completeness >= 0.85 (the seen walls only, by constructio
 truth walls >= 0.95 (a model wall bridging an unseen span is right when it lies on the true wall), mean
 accuracy against the truth walls <= 20 mm. A room can be closed where every truth wall was seen (seen10) over
 at least 0.5 m (`CLOSABLE_SEEN_M`; per wall in the JSON's `wall_seen_m`): the summary gives how many of those
-rooms were closed. Where a wall went wholly unseen (an alcove, an L-room's notch), a room closed along the seen
-walls' lines is a guess that may miss it; `corr_observed`, the correctness of the walls the data made (the
-extensions across unseen spans left out), tells those guesses from walls made of the wrong data (furniture,
-the next room's walls). With `--wall-tops LOW HIGH` each wall is seen up to its own height, drawn in that range
-(the issue's real handheld rooms: 1.2-2.7 m), every point up to the height of the wall nearest it, and the
-ceiling unseen; the rest of the degradation is drawn as before. `seen` is then measured in a band as thick
-as the slice under the lowest of those heights.
+rooms were closed. Where a wall went wholly unseen (an alcove, an L-room's notch), a room closed along the
+seen walls' lines is a guess that may miss it; `corr_observed`, the correctness of the walls the data made
+(the extensions across unseen spans left out), tells those guesses from walls made of the wrong data
+(furniture, the next room's walls). With `--wall-tops LOW HIGH` each wall is seen up to its own height, drawn
+in that range (the issue's real handheld rooms: 1.2-2.7 m), every point up to the height of the wall nearest
+it, and the ceiling unseen; the rest of the degradation is drawn as before. `seen` is then measured in a band
+as thick as the slice under the lowest of those heights.
 
 Rendered clouds are cached (`--cache`, default /tmp/indoor-survey-bench/walls_survey) by seed, room,
 size and the fusion settings, so re-running the method costs only preprocess and walls.

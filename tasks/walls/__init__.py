@@ -73,16 +73,16 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    Walls are turned to have the room on their left;
 8. extrusion (5.2.6, `model`) to a triangle mesh, and a preview picture.
 
-Choosing α (`topology.choose_alpha`): the thesis has a person raise α until the clutter disappears. Here
-every candidate α runs steps 2-7 (without the point-level offset refinement) and its model is summarised as
-its set of walls. Walls are stable over a wide range of α (their columns are full), clutter and noise are
-not (they fade out gradually), and too large an α breaks the walls apart. The chosen α is the smallest of
-the longest run of consecutive candidates that give a closed wall graph and the same walls (every wall end
-within `stable_tol_m` of a wall of the neighbour's model); without a closed model, the longest run of
-equal models. A model holding under half the candidates' median wall length does not count: closed, it is a
-closet the walls of a poorly seen room enclose; open, the few lines the highest α leave. The chosen α is run again with the refinement; when
-the refined walls do not close where the pixel model did (a sparse stretch it bridged), they are closed at
-the corners their data pin or across unseen spans first, and only then is the pixel model kept. Occupancy
-alone cannot tell a tall cabinet from the wall above a window (both fill part of the slice): the top-reach
-test does that, not α.
+Choosing α (`topology.choose_alpha`): the thesis has a person raise α until the clutter disappears. Here every
+candidate α runs steps 2-7 (without the point-level offset refinement) and its model is summarised as its set
+of walls. Walls are stable over a wide range of α (their columns are full), clutter and noise are not (they
+fade out gradually), and too large an α breaks the walls apart. The chosen α is the smallest of the longest
+run of consecutive candidates that give a closed wall graph and the same walls (every wall end within
+`stable_tol_m` of a wall of the neighbour's model); without a closed model, the longest run of equal models. A
+model holding under half the candidates' median wall length does not count: closed, it is a closet the walls
+of a poorly seen room enclose; open, the few lines the highest α leave. The chosen α is run again with the
+refinement; when the refined walls do not close where the pixel model did (a sparse stretch it bridged), they
+are closed at the corners their data pin or across unseen spans first, and only then is the pixel model kept.
+Occupancy alone cannot tell a tall cabinet from the wall above a window (both fill part of the slice): the
+top-reach test does that, not α.
 """

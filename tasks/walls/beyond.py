@@ -46,18 +46,18 @@ def beyond_the_room(
     wall's data in front of it). A line L is such a wall when it lies wholly more than
     `beyond_room_min_depth_m` behind the line of a line W of the room (on its side away from the room's
     `interior`: deeper than furniture stands before a wall) and runs along W (within 45°: a wall drawn from
-    the few points seen through a door may lie some degrees off), the room's other lines run along the
-    whole of L (to within `lines.max_gap_m`: the next room's wall goes on past this room's by the partition's
-    thickness and as far as the door's view reaches; a wing further out has side walls), and no line of the room lies between W's line and L's (more than `thin_wall_max_m` from
-    either) within `lines.max_gap_m` of L's span: an L-shaped room's far wing or an alcove is joined to the
-    rest by its side walls, which lie there; and no wall across W's line, seen only in pieces in line with
-    each other, crosses it away from W and reaches behind it as deep as L (`_pieces_cross`: the wing's side
-    wall seen near its ends). W must bound the room: no line of the room runs on from W's
-    line to behind it (the room goes on there: an L-room's wing, the far side of a partition), and L is
-    shorter than W or W's collinear pieces together (a wall with a door in it), or W ends at a corner (a
-    line across it at one of its ends, running into the room only: a free-standing counter has none; the
-    two lines may cross up to `thin_wall_max_m` past W's end and `lines.max_gap_m` past the other's, the
-    corner's last stretch unseen, as a sparse capture leaves it).
+    the few points seen through a door may lie some degrees off), the room's other lines run along the whole
+    of L (to within `lines.max_gap_m`: the next room's wall goes on past this room's by the partition's
+    thickness and as far as the door's view reaches; a wing further out has side walls), and no line of the
+    room lies between W's line and L's (more than `thin_wall_max_m` from either) within `lines.max_gap_m` of
+    L's span: an L-shaped room's far wing or an alcove is joined to the rest by its side walls, which lie
+    there; and no wall across W's line, seen only in pieces in line with each other, crosses it away from W
+    and reaches behind it as deep as L (`_pieces_cross`: the wing's side wall seen near its ends). W must
+    bound the room: no line of the room runs on from W's line to behind it (the room goes on there: an
+    L-room's wing, the far side of a partition), and L is shorter than W or W's collinear pieces together (a
+    wall with a door in it), or W ends at a corner (a line across it at one of its ends, running into the room
+    only: a free-standing counter has none; the two lines may cross up to `thin_wall_max_m` past W's end and
+    `lines.max_gap_m` past the other's, the corner's last stretch unseen, as a sparse capture leaves it).
     W bounds the room only when the lines across it reach behind its line (more than `thin_wall_max_m`)
     over less in all than W's collinear pieces span: a short line far out (a piece of the next room seen
     through a door) has the room's own walls behind it, and an L-room's inner wall has the wing's sides.

@@ -1450,7 +1450,8 @@ def furniture_in_front(
         across = np.flatnonzero(np.abs(np.cos(ang - ang[j])) <= math.sqrt(0.5))
         dk = np.array([depth(k, j) for k in across]).reshape(-1, 2)
         inward = dk.max(axis=1) > end_tol
-        across, spread = across[inward], (np.maximum(dk.min(axis=1), 0.0) * 2 * tol / L[across])[inward]
+        across = across[inward]
+        spread = np.maximum(dk[inward].min(axis=1), 0.0) * 2 * tol / L[across]
         denom = u[across] @ n[j]  # along a crossing line, the rate of moving off j's line
         s = ((lines[j, :2] - lines[across, :2]) @ n[j]) / denom
         meet = lines[across, :2] + s[:, None] * u[across]

@@ -57,9 +57,9 @@ def low_topped_walls(
 
     Looked for only without a ceiling (`ceiling_captured` False, preprocess's verdict; when not given, the
     slice's top within `top_clear_m` of `ceiling_z_m`, which is then the top of the data: a slice capped at
-    `slice_max_m` under walls seen higher says nothing) and with `low_top_min_m` above 0. The levelled cloud (L, 3) is binned in columns
-    of twice the point spacing `spacing_m` (by default the slice's, `model.point_spacing`), from
-    `below_slice_min_z_m` above the floor to the slice's top.
+    `slice_max_m` under walls seen higher says nothing) and with `low_top_min_m` above 0. The levelled cloud
+    (L, 3) is binned in columns of twice the point spacing `spacing_m` (by default the slice's,
+    `model.point_spacing`), from `below_slice_min_z_m` above the floor to the slice's top.
     A column is a low-topped wall's when:
     - its top lies at least `low_top_min_m` above the floor, and more than `top_reach_m` under the slice's
       top (or the top-reach test would take it already);

@@ -940,8 +940,7 @@ def _nothing_behind(
     rel = points - p
     t, o = rel @ u, rel @ nrm
     sel = (t > BEHIND_BAND_M) & (t < L - BEHIND_BAND_M) & (o < -BEHIND_BAND_M) & (o > -BEHIND_DEPTH_M)
-    bins = np.unique(np.floor(t[sel] / 0.1).astype(np.int64))
-    return len(bins) < BEHIND_MAX_SHARE * math.ceil(L / 0.1)
+    return not _held_bins(t[sel], L)
 
 
 def _open_corner(
@@ -963,14 +962,10 @@ def _open_corner(
     span) and the slice `points` do not run on past either far end into it (`_runs_on_past`: that end is a
     partition's T on the room's wall, not a corner)."""
     ea, eb = a - corner, b - corner
-    m = np.column_stack([ea, eb])
-    if abs(float(np.linalg.det(m))) <= 1e-12:
+    if abs(float(np.linalg.det(np.column_stack([ea, eb])))) <= 1e-12:
         return False
     rel = _samples(walls, pair) - corner
-    st = np.linalg.solve(m, rel.T).T  # each sample as corner + s ea + t eb
-    margin = tol_m / np.maximum(np.hypot(*np.stack([ea, eb]).T), 1e-12)
-    inside = (st > margin).all(axis=1) & (st < 1 - margin).all(axis=1)
-    if inside.any():
+    if _inside_parallelogram(rel, ea, eb, tol_m):
         return False
     # the room's side of each added piece: towards the other wall (its end away from the corner: the free
     # end may lie a few cm past the corner) at a convex corner; at a reflex one (an L-room's inner corner: the
@@ -986,10 +981,7 @@ def _open_corner(
             # and the walls cut off are the room's own: no other wall inside the parallelogram the corner and
             # the two walls' far ends span (a partition's face run on to a door's jamb would cut off the
             # room's part beyond it, the partition's other face with it)
-            m = np.column_stack([far_a - corner, far_b - corner])
-            st = np.linalg.solve(m, rel.T).T
-            margin = tol_m / np.maximum(np.hypot(*m), 1e-12)
-            if ((st > margin).all(axis=1) & (st < 1 - margin).all(axis=1)).any():
+            if _inside_parallelogram(rel, far_a - corner, far_b - corner, tol_m):
                 return False
             # each wall's far end is a corner of the room, the wall across it stopping there: one whose data
             # run on past it into the part cut off makes that end a T (a partition standing on the room's wall)
@@ -1003,6 +995,21 @@ def _open_corner(
     )
 
 
+def _inside_parallelogram(rel: NDArray, ea: NDArray, eb: NDArray, tol_m: float) -> bool:
+    """Does any of the points `rel` (S, 2, relative to a corner) lie more than `tol_m` inside the
+    parallelogram the corner and the two edge vectors `ea`, `eb` (not parallel) span?"""
+    st = np.linalg.solve(np.column_stack([ea, eb]), rel.T).T  # each point as corner + s ea + t eb
+    margin = tol_m / np.maximum(np.hypot(*np.stack([ea, eb]).T), 1e-12)
+    return bool(((st > margin).all(axis=1) & (st < 1 - margin).all(axis=1)).any())
+
+
+def _held_bins(t: NDArray, length_m: float) -> bool:
+    """Do the positions `t` (m, along a stretch `length_m` long from 0) fill `BEHIND_MAX_SHARE` or more of
+    its 10 cm bins?"""
+    bins = np.unique(np.floor(t / 0.1).astype(np.int64))
+    return len(bins) >= BEHIND_MAX_SHARE * math.ceil(length_m / 0.1)
+
+
 def _runs_on_past(end: NDArray, direction: NDArray, points: NDArray) -> bool:
     """Do the slice `points` (N, 2) run on from a wall's `end` in `direction` (a wall across it carrying on
     past it there): within `BEHIND_BAND_M` of that line, `BEHIND_BAND_M` to `BEHIND_DEPTH_M` from the end,
@@ -1011,8 +1018,7 @@ def _runs_on_past(end: NDArray, direction: NDArray, points: NDArray) -> bool:
     rel = points - end
     t, o = rel @ u, rel @ np.array([-u[1], u[0]])
     sel = (t > BEHIND_BAND_M) & (t < BEHIND_DEPTH_M) & (np.abs(o) <= BEHIND_BAND_M)
-    bins = np.unique(np.floor(t[sel] / 0.1).astype(np.int64))
-    return len(bins) >= BEHIND_MAX_SHARE * math.ceil((BEHIND_DEPTH_M - BEHIND_BAND_M) / 0.1)
+    return _held_bins(t[sel], BEHIND_DEPTH_M - BEHIND_BAND_M)
 
 
 def _crosses(pieces: NDArray, walls: NDArray, tol_m: float) -> bool:
