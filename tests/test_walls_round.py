@@ -11,7 +11,7 @@ import numpy as np
 
 from tasks.evaluate import evaluate_walls
 from tasks.walls.config import WallsConfig
-from tasks.walls.round import round_objects
+from tasks.walls.round import _walled_in, round_objects
 from tests.scenes import wall_points
 
 CFG = WallsConfig()
@@ -56,6 +56,40 @@ def test_a_pot_by_a_wall_is_round_and_its_points_go(rng):
     # switched off by a radius of 0
     off, none = round_objects(xy, GRID, replace(CFG, round_radius_m=(0.0, 0.0)))
     assert not off.any() and none == []
+
+
+def test_a_pot_seen_over_a_quarter_of_its_round_is_round_and_a_box_s_corner_is_not(rng):
+    # a handheld pass shows a pot by a wall over 100 degrees only: its facets (0.19 m, shorter than its
+    # radius) are no box's faces, which three lines would explain as well as its round
+    wall = wall_points((0, 0), (3, 0), 0.8, 1.3, rng, step=0.03, noise=0.008)
+    pot = _pot((1.5, 0.35), 0.3, 0.8, 1.3, rng, seen_deg=(40.0, 140.0))
+    # a cabinet's corner, its two 0.5 m faces seen, and a corner seen over 0.4 m of each wall
+    box = np.concatenate(
+        [
+            wall_points((4.0, 0.5), (4.5, 0.5), 0.8, 1.3, rng, step=0.03, noise=0.008),
+            wall_points((4.5, 0.5), (4.5, 0.0), 0.8, 1.3, rng, step=0.03, noise=0.008),
+            wall_points((6.0, 0.0), (6.4, 0.0), 0.8, 1.3, rng, step=0.03, noise=0.008),
+            wall_points((6.0, 0.0), (6.0, 0.4), 0.8, 1.3, rng, step=0.03, noise=0.008),
+        ]
+    )
+    xy = np.concatenate([wall, pot, box])[:, :2]
+    on, things = round_objects(xy, GRID, CFG)
+    assert len(things) == 1 and math.hypot(things[0]["centre"][0] - 1.5, things[0]["centre"][1] - 0.35) < 0.05
+    assert things[0]["arc_deg"] < 120 and things[0]["circle_share"] > things[0]["lines_share"], things
+    assert on[len(wall) : len(wall) + len(pot)].mean() > 0.95 and not on[len(wall) + len(pot) :].any()
+
+
+def test_no_round_thing_stands_where_walls_cut_its_circle():
+    r = 0.45
+    # a wall it stands by, touching it or a few cm into its round (a pot's leaves against the wall)
+    assert not _walled_in(np.array([[0.0, 0.45]]), r) and not _walled_in(np.array([[0.0, 0.40]]), r)
+    # one through its middle half, or two on opposite sides (an alcove 0.8 m wide round a pot in it)
+    assert _walled_in(np.array([[0.2, 0.0]]), r)
+    assert _walled_in(np.array([[-0.41, 0.0], [0.40, 0.0]]), r)
+    # two at a corner it stands in are no alcove; nor is a wall across the room beyond its round
+    assert not _walled_in(np.array([[0.40, 0.0], [0.0, 0.40]]), r)
+    assert not _walled_in(np.array([[-0.41, 0.0], [0.60, 0.0]]), r)
+    assert not _walled_in(np.zeros((0, 2)), r)
 
 
 def test_a_pot_across_the_transform_s_tiles_is_found_as_in_one(rng, monkeypatch):

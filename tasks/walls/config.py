@@ -102,11 +102,13 @@ class WallsConfig:
     explains at least `round_margin` more of the points near it than three straight lines do, is a round thing
     (a plant's pot, a bin, a round column; `round.round_objects`): its points go before the walls are looked
     for. A radius of 0 switches that off."""
-    round_min_arc_deg: float = 120.0
-    """...the arc its points must cover (a pot seen from the room shows half its round or more)."""
+    round_min_arc_deg: float = 90.0
+    """...the arc its points must cover (a pot by a wall, passed once by a handheld camera, shows the room a
+    quarter to a third of its round)."""
     round_margin: float = 0.0
     """...and how much more of the points within three grid cells of it the circle must explain (within a cell)
-    than the three lines that explain most of them (0: at least as many)."""
+    than the three lines that explain most of them (0: at least as many). A line whose points span less than
+    the circle's radius explains none: a facet of a many-sided pot, not a box's face."""
     beyond_room_min_depth_m: float = 0.75
     """In a slice with nothing seen above it, a line wholly this far behind the line of a wall of the room that
     bounds it, running along that wall, along which the room's lines run and between which and that wall

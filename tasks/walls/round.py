@@ -26,6 +26,15 @@ LINES = 3
 """The straight lines a round thing's points are compared with: a box's or an alcove's three faces, a circle
 touches all three (against two lines, at a margin of 0.1, a shelf in a room's corner came within 0.001 of
 being a round thing)."""
+MIN_CIRCLE_SHARE = 0.5
+"""A round thing's circle explains most of the points near it (within 3 cells, the walls it stands by left
+out): where lines explain few of them either (against faces longer than the radius only), a circle through
+chairs' and a table's corners explains a third to a half."""
+PAST_M = 0.5
+"""`_walls_past`: how far round a round thing its neighbourhood is searched for the walls it stands by."""
+PAST_BINS = 6
+"""...a line whose points, outside the thing, fill at least this many 5 cm bins along it runs on past the
+thing: a wall (or a long face) it stands by, not one of its own facets."""
 
 
 def _arc_deg(angle_deg: NDArray) -> float:
@@ -61,20 +70,74 @@ def ransac_fit(
     )
 
 
-def _lines_share(pts: NDArray, tol_m: float) -> float:
+def _lines_share(pts: NDArray, tol_m: float, min_face_m: float = 0.0) -> float:
     """Share of `pts` (K, 2) within `tol_m` of the `LINES` straight lines that explain most of them (RANSAC,
-    one line after the other; fixed seeds, so the same points give the same share)."""
+    one line after the other; fixed seeds, so the same points give the same share). A line whose points span
+    less than `min_face_m` along it explains none of them: a facet of a many-sided pot, not a box's face."""
     from skimage.measure import LineModelND
 
     left = np.ones(len(pts), dtype=bool)
+    explained = 0
     for seed in range(LINES):
         if left.sum() < 2:
             break
-        _, inliers = ransac_fit(pts[left], LineModelND, 2, tol_m, seed)
+        fit, inliers = ransac_fit(pts[left], LineModelND, 2, tol_m, seed)
         if inliers is None:
             break
-        left[np.flatnonzero(left)[inliers]] = False
-    return 1.0 - float(left.mean())
+        taken = np.flatnonzero(left)[inliers]
+        left[taken] = False
+        if float(np.ptp((pts[taken] - fit.origin) @ fit.direction)) >= min_face_m:
+            explained += len(taken)
+    return explained / max(len(pts), 1)
+
+
+def _walls_past(
+    xy: NDArray, tree: Any, centre: NDArray, radius: float, near: NDArray, grid_m: float
+) -> tuple[NDArray[np.bool_], NDArray]:
+    """Which of the points `near` (K, 2) lie within `grid_m` of a straight line that runs on past the circle
+    (`centre`, `radius`), and (L, 2) the offsets from the centre to the foot of each such line: of the
+    `LINES` lines that explain most of the slice points `xy` (N, 2; `tree` their KD-tree) within `PAST_M` of
+    the circle (RANSAC, one after the other, fixed seeds), those whose points further than 3 cells from the
+    circle fill `PAST_BINS` 5 cm bins along it. Those are the walls the thing stands by: a pot against a wall
+    has the wall's points near it, which one line explains better than the pot's round."""
+    from skimage.measure import LineModelND
+
+    wide = xy[np.asarray(tree.query_ball_point(centre, radius + PAST_M), dtype=np.int64)]
+    out = np.zeros(len(near), dtype=bool)
+    feet = []
+    left = np.ones(len(wide), dtype=bool)
+    outside = np.hypot(*(wide - centre).T) > radius + 3 * grid_m
+    for seed in range(LINES):
+        if left.sum() < 2:
+            break
+        _, inliers = ransac_fit(wide[left], LineModelND, 2, grid_m, seed)
+        if inliers is None:
+            break
+        # the line through all its inliers (their principal direction): the sample's two points may tilt it
+        # by degrees
+        q = wide[np.flatnonzero(left)[inliers]]
+        origin = q.mean(axis=0)
+        direction = np.linalg.svd(q - origin, full_matrices=False)[2][0]
+        across = np.array([-direction[1], direction[0]])
+        taken = np.flatnonzero(left & (np.abs((wide - origin) @ across) <= grid_m))
+        left[taken] = False
+        along = (wide[taken[outside[taken]]] - origin) @ direction
+        if len(np.unique(np.floor(along / 0.05))) >= PAST_BINS:
+            out |= np.abs((near - origin) @ across) <= grid_m
+            feet.append(-float((centre - origin) @ across) * across)
+    return out, np.array(feet).reshape(-1, 2)
+
+
+def _walled_in(feet: NDArray, radius: float) -> bool:
+    """Whether walls (the offsets (L, 2) from a circle's centre to the foot of each) cut the circle of
+    `radius` so that no thing of that round stands there: one through its middle half, or two on opposite
+    sides of its centre (an alcove or a corridor narrower than the thing, a pot in it and its walls making the
+    circle)."""
+    d = np.hypot(*feet.T) if len(feet) else np.zeros(0)
+    if (d < 0.5 * radius).any():
+        return True
+    cut = feet[d < radius]
+    return bool(len(cut) >= 2 and ((cut @ cut.T) < 0).any())
 
 
 def round_objects(
@@ -82,11 +145,14 @@ def round_objects(
 ) -> tuple[NDArray[np.bool_], list[dict[str, Any]]]:
     """(N,) the slice points `xy` (N, 2) on round things, and those things (centre, radius, arc) for the
     metrics. A round thing is a circle of radius `round_radius_m` whose points, within a grid cell (`grid_m`,
-    the data's scale) of it, cover an arc of at least `round_min_arc_deg` and which explains at least
-    `round_margin` more of the points near it (within 3 cells) than three straight lines do: a corner's two
-    walls or a box's three faces, however noisy, are explained better by lines. Candidates are the peaks of the
-    circle Hough transform of the points' occupancy at two cells. Its points are those inside the circle
-    or within 2 cells of it (`on_round_objects`)."""
+    the data's scale) of it, cover an arc of at least `round_min_arc_deg` and which explains most
+    (`MIN_CIRCLE_SHARE`) of the points near it (within 3 cells), and at least `round_margin` more of them than
+    three straight lines do, each over a face at least as long as the radius: a corner's two walls or a box's
+    three faces, however noisy, are explained better by lines; a many-sided pot's short facets are not a box's
+    faces. The walls it stands by (`_walls_past`) are left out of all three counts, and no wall may cut its
+    circle as no thing standing in the room lets one (`_walled_in`). Candidates are the peaks of the circle
+    Hough transform of the points' occupancy at two cells. Its points are those inside the circle or within 2
+    cells of it (`on_round_objects`)."""
     from scipy.spatial import cKDTree
     from skimage.measure import CircleModel
     from skimage.transform import hough_circle, hough_circle_peaks
@@ -148,14 +214,21 @@ def round_objects(
         if not r_min <= radius <= r_max:
             continue
         d = np.abs(np.hypot(*(p - centre).T) - radius)
-        on = d <= grid_m
+        # the walls it stands by are no part of it: their points count for neither the circle nor the lines
+        past, feet = _walls_past(xy, tree, centre, radius, p, grid_m)
+        if _walled_in(feet, radius):
+            continue
+        own = ~past
+        on = (d <= grid_m) & own
         arc = _arc_deg(np.degrees(np.arctan2(p[on, 1] - centre[1], p[on, 0] - centre[0])))
         if arc < cfg.round_min_arc_deg:
             continue
-        close = d <= 3 * grid_m
+        close = (d <= 3 * grid_m) & own
+        if close.sum() < 10:
+            continue
         circle_share = float(on[close].mean())
-        lines_share = _lines_share(p[close], grid_m)
-        if circle_share - lines_share < cfg.round_margin:
+        lines_share = _lines_share(p[close], grid_m, radius)
+        if circle_share < MIN_CIRCLE_SHARE or circle_share - lines_share < cfg.round_margin:
             continue
         if any(np.hypot(*(centre - f["centre"])) < max(radius, f["radius_m"]) for f in found):
             continue  # the same thing found again at a neighbouring radius
