@@ -5,6 +5,7 @@ stubs and false corners beside the walls it stands by (a handheld scan's low sli
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -70,21 +71,28 @@ def ransac_fit(
     )
 
 
+def _lines_in_turn(pts: NDArray, tol_m: float, left: NDArray[np.bool_]) -> Iterator[tuple[Any, NDArray]]:
+    """Up to `LINES` straight lines through the points `pts` (K, 2) still `left` (K,), one after the other
+    (RANSAC within `tol_m`, fixed seeds): (the line, the indices of its inliers). The caller takes from `left`
+    what each line explains before the next is looked for; it ends when fewer than 2 points are left."""
+    from skimage.measure import LineModelND
+
+    for seed in range(LINES):
+        if left.sum() < 2:
+            return
+        fit, inliers = ransac_fit(pts[left], LineModelND, 2, tol_m, seed)
+        if inliers is None:
+            return
+        yield fit, np.flatnonzero(left)[inliers]
+
+
 def _lines_share(pts: NDArray, tol_m: float, min_face_m: float = 0.0) -> float:
     """Share of `pts` (K, 2) within `tol_m` of the `LINES` straight lines that explain most of them (RANSAC,
     one line after the other; fixed seeds, so the same points give the same share). A line whose points span
     less than `min_face_m` along it explains none of them: a facet of a many-sided pot, not a box's face."""
-    from skimage.measure import LineModelND
-
     left = np.ones(len(pts), dtype=bool)
     explained = 0
-    for seed in range(LINES):
-        if left.sum() < 2:
-            break
-        fit, inliers = ransac_fit(pts[left], LineModelND, 2, tol_m, seed)
-        if inliers is None:
-            break
-        taken = np.flatnonzero(left)[inliers]
+    for fit, taken in _lines_in_turn(pts, tol_m, left):
         left[taken] = False
         if float(np.ptp((pts[taken] - fit.origin) @ fit.direction)) >= min_face_m:
             explained += len(taken)
@@ -100,22 +108,15 @@ def _walls_past(
     the circle (RANSAC, one after the other, fixed seeds), those whose points further than 3 cells from the
     circle fill `PAST_BINS` 5 cm bins along it. Those are the walls the thing stands by: a pot against a wall
     has the wall's points near it, which one line explains better than the pot's round."""
-    from skimage.measure import LineModelND
-
     wide = xy[np.asarray(tree.query_ball_point(centre, radius + PAST_M), dtype=np.int64)]
     out = np.zeros(len(near), dtype=bool)
     feet = []
     left = np.ones(len(wide), dtype=bool)
     outside = np.hypot(*(wide - centre).T) > radius + 3 * grid_m
-    for seed in range(LINES):
-        if left.sum() < 2:
-            break
-        _, inliers = ransac_fit(wide[left], LineModelND, 2, grid_m, seed)
-        if inliers is None:
-            break
+    for _, inliers in _lines_in_turn(wide, grid_m, left):
         # the line through all its inliers (their principal direction): the sample's two points may tilt it
         # by degrees
-        q = wide[np.flatnonzero(left)[inliers]]
+        q = wide[inliers]
         origin = q.mean(axis=0)
         direction = np.linalg.svd(q - origin, full_matrices=False)[2][0]
         across = np.array([-direction[1], direction[0]])
