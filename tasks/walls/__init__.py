@@ -4,9 +4,10 @@ correct 2D model of the inner wall faces, extruded from floor to ceiling.
 `tasks.walls.model.model_walls(slice_points, floor_z_m, ceiling_z_m, cfg) -> WallModel` is pure: it reads
 and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesis section in brackets):
 
-0. round things (`round`): a plant's pot, a bin or a round column, an arc of 120° or more of a circle of
-   0.15-0.6 m radius that three straight lines explain no better, loses its points first (its facets would
-   make stubs and false corners);
+0. round things (`round`): a plant's pot, a bin or a round column, an arc of 90° or more of a circle of
+   0.15-0.6 m radius that explains most of the points near it and that three straight lines (over faces as
+   long as its radius) explain no better, the walls it stands by left out, loses its points first (its
+   facets would make stubs and false corners);
 1. projection image (5.2.1, eq 5.3; `image`): the number of occupied voxels above each grid cell, so that
    the image measures wall height rather than point density (overlapping frames count once). The grid is
    `grid_size_m` or, on a sparse cloud, half its point spacing (`model.grid_from_data`, recorded in the
