@@ -38,12 +38,13 @@ PAST_BINS = 6
 thing: a wall (or a long face) it stands by, not one of its own facets."""
 
 
-def _arc_deg(angle_deg: NDArray) -> float:
-    """The longest run of covered 10-degree directions (circular) of points at `angle_deg` about a centre."""
+def _arc_deg(angle_deg: NDArray, share: float = BIN_MIN_SHARE) -> float:
+    """The longest run of covered 10-degree directions (circular) of points at `angle_deg` about a centre
+    (`share` 0: every direction holding 3 points counts, the most any subset of the points can cover)."""
     count = np.bincount((np.mod(angle_deg, 360.0) // (360 / ARC_BINS)).astype(np.int64), minlength=ARC_BINS)
     if not (count > 0).any():
         return 0.0
-    covered = count >= max(3.0, BIN_MIN_SHARE * float(np.median(count[count > 0])))
+    covered = count >= max(3.0, share * float(np.median(count[count > 0])))
     if covered.all():
         return 360.0
     run = best = 0
@@ -215,13 +216,16 @@ def round_objects(
         if not r_min <= radius <= r_max:
             continue
         d = np.abs(np.hypot(*(p - centre).T) - radius)
+        angle = np.degrees(np.arctan2(p[:, 1] - centre[1], p[:, 0] - centre[0]))
+        if _arc_deg(angle[d <= grid_m], 0.0) < cfg.round_min_arc_deg:
+            continue  # not even every point on the circle covers the arc (and the walls' points go below)
         # the walls it stands by are no part of it: their points count for neither the circle nor the lines
         past, feet = _walls_past(xy, tree, centre, radius, p, grid_m)
         if _walled_in(feet, radius):
             continue
         own = ~past
         on = (d <= grid_m) & own
-        arc = _arc_deg(np.degrees(np.arctan2(p[on, 1] - centre[1], p[on, 0] - centre[0])))
+        arc = _arc_deg(angle[on])
         if arc < cfg.round_min_arc_deg:
             continue
         close = (d <= 3 * grid_m) & own
