@@ -33,6 +33,8 @@ out): where lines explain few of them either (against faces longer than the radi
 chairs' and a table's corners explains a third to a half."""
 PAST_M = 0.5
 """`_walls_past`: how far round a round thing its neighbourhood is searched for the walls it stands by."""
+PAST_MAX_POINTS = 2000
+"""...searched among at most this many of the points there (every k-th)."""
 PAST_BINS = 6
 """...a line whose points, outside the thing, fill at least this many 5 cm bins along it runs on past the
 thing: a wall (or a long face) it stands by, not one of its own facets."""
@@ -110,6 +112,8 @@ def _walls_past(
     circle fill `PAST_BINS` 5 cm bins along it. Those are the walls the thing stands by: a pot against a wall
     has the wall's points near it, which one line explains better than the pot's round."""
     wide = xy[np.asarray(tree.query_ball_point(centre, radius + PAST_M), dtype=np.int64)]
+    # a dense scan's thousands of points there make each RANSAC draw slow, and add nothing to a wall's line
+    wide = wide[:: max(1, math.ceil(len(wide) / PAST_MAX_POINTS))]
     out = np.zeros(len(near), dtype=bool)
     feet = []
     left = np.ones(len(wide), dtype=bool)
