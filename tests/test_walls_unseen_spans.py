@@ -13,7 +13,7 @@ from tasks.evaluate import evaluate_walls
 from tasks.lines import lengths
 from tasks.walls.config import WallsConfig
 from tasks.walls.model import model_walls
-from tasks.walls.topology import _open_corner, close_at_corners, pinned_corners
+from tasks.walls.topology import _jambs, _open_corner, close_at_corners, pinned_corners
 from tests.scenes import wall_points
 
 CFG = WallsConfig()
@@ -74,16 +74,29 @@ def test_an_unseen_corner_and_gap_close_along_the_walls_lines_only_across_unseen
 
 
 def test_a_room_closed_across_unseen_spans_must_hold_the_points_seen():
-    """The open rectangle closes on the points of its seen walls, but not when a quarter of the slice points
-    lie 1-2 m north of it (a wing of the room whose walls the model dropped): closing would cut it off."""
+    """The open rectangle closes on the points of its seen walls, but not when a fifth of the slice points
+    lie on walls running on 2 m north of it from its north-west corner (a wing of the room whose walls the
+    model dropped): closing would cut it off. The same points on a wall 2 m north, apart from everything the
+    room holds (the next room's wall seen through a door), do not stop it."""
     walls = _open_rectangle()
     origin = np.full(len(walls), "observed")
     rng = np.random.default_rng(3)
-    seen = np.concatenate([wall_points(w[:2], w[2:], 0.0, 0.1, rng, step=0.02)[:, :2] for w in walls])
+
+    def seen_on(segments: list[list[float]]) -> np.ndarray:
+        return np.concatenate(
+            [wall_points(np.array(w[:2]), np.array(w[2:]), 0.0, 0.1, rng, step=0.02)[:, :2] for w in segments]
+        )
+
+    seen = seen_on(walls.tolist())
     got = close_at_corners(walls, origin, seen, CFG, G)
     assert got is not None and got[4] == "across unseen spans"
-    wing = np.column_stack([rng.uniform(0.5, 5.5, len(seen) // 3), rng.uniform(5.0, 6.0, len(seen) // 3)])
+    wing = seen_on([[0, 4, 0, 6], [0, 6, 3, 6]])
+    assert 0.1 < len(wing) / (len(wing) + len(seen)) < 0.3
     assert close_at_corners(walls, origin, np.concatenate([seen, wing]), CFG, G) is None
+    beyond = seen_on([[0.5, 6, 5.5, 6]])
+    assert len(beyond) >= len(wing)
+    got = close_at_corners(walls, origin, np.concatenate([seen, beyond]), CFG, G)
+    assert got is not None and got[2].area == pytest.approx(24.0, abs=0.01)
 
 
 def test_a_wall_may_not_run_on_unseen_further_than_its_line_is_seen():
@@ -381,3 +394,73 @@ def test_a_partition_s_face_run_on_to_a_door_s_jamb_is_no_inner_corner():
     assert closed is not None and closed[2].area == pytest.approx(24 - 3 * 1.5, abs=0.01)
     west = np.column_stack([np.zeros(27), np.linspace(2.52, 3.3, 27)])
     assert pinned_corners(*args, points=west) is None
+
+
+def test_a_slanted_wall_seen_only_at_its_corner_runs_on_in_its_own_direction():
+    """A trapezoid room whose east wall leans 20° off the north-south direction was seen over 0.6 m only,
+    from the south-east corner; the north wall stops 2.5 m short of it. No long wall has its direction, but
+    no short piece of a wall along the room's axes is 20° off either: it is a wall of its own direction and
+    runs on to the north wall's line, and the room closes on its true walls."""
+    run = 4.0 / math.tan(math.radians(70.0))
+    truth = np.array([[0, 0, 6, 0], [6, 0, 6 + run, 4], [6 + run, 4, 0, 4], [0, 4, 0, 0]], float)
+    piece = 0.6 / 4.0 * np.array([run, 4.0])
+    walls = np.array([[0, 0, 6, 0], [6, 0, 6 + piece[0], piece[1]], [5.0, 4, 0, 4], [0, 4, 0, 0]], float)
+    closed = _across_unseen(walls)
+    assert closed is not None
+    assert closed[2].area == pytest.approx(0.5 * (6 + 6 + run) * 4, abs=0.01)
+    assert evaluate_walls(closed[0], truth)["correctness"] == 1.0
+
+
+def _door_jamb_room() -> np.ndarray:
+    """RECT seen with its south wall stopping at a door 2.5-3.4 m along it, the door's east jamb (the
+    wall's end face, 25 cm across its line) seen, the rest of the south wall and the east wall's south 1.5 m
+    not."""
+    return np.array(
+        [[0, 0, 2.5, 0], [3.4, -0.15, 3.4, 0.1], [6, 1.5, 6, 4], [6, 4, 0, 4], [0, 4, 0, 0]], float
+    )
+
+
+def test_jambs_are_short_free_pieces_across_a_wall_s_line_off_the_wall():
+    walls = _door_jamb_room()
+    assert _jambs(walls, G, CFG.thin_wall_max_m).tolist() == [False, True, False, False, False]
+    # a short piece at a wall's end (a corner) or across a wall itself is no jamb
+    assert not _jambs(np.concatenate([walls[[0, 2, 3, 4]], [[2.5, 0, 2.5, 0.2]]]), G, 0.3)[-1]
+    assert not _jambs(np.concatenate([walls[[0, 2, 3, 4]], [[1.5, -0.1, 1.5, 0.1]]]), G, 0.3)[-1]
+
+
+def test_a_door_jamb_on_a_wall_s_line_does_not_stop_the_wall_running_on_past_the_door():
+    """The south wall runs on past its door to the unseen south-east corner: the jamb standing across its
+    line stopped it, and the room stayed open."""
+    walls = _door_jamb_room()
+    origin = np.full(len(walls), "observed")
+    assert _across_unseen(walls) is None
+    got = close_at_corners(walls, origin, np.zeros((0, 2)), CFG, G)
+    assert got is not None and got[4] == "across unseen spans"
+    assert got[2].area == pytest.approx(24.0, abs=0.01)
+    # the jamb stays a wall of the room, as far as it stands in it
+    assert any(np.allclose(w, [3.4, 0, 3.4, 0.1]) or np.allclose(w, [3.4, 0.1, 3.4, 0]) for w in got[0])
+
+
+def test_a_partition_s_end_cap_is_no_wall_the_partition_stands_on():
+    """A partition (faces 10 cm apart, 1.2 m from the west wall, its end seen) whose west wall was seen up
+    to it only, and the north wall from 2.6 m on. The cap across the partition's end is no wall whose corner
+    the partition takes: it may not run on up to the north wall, cutting the room's north-west part off. The
+    west wall runs on past the partition instead, and the room closes on its true walls."""
+    walls = np.array(
+        [
+            [0, 0, 2.3, 0],
+            [4, 1.5, 4, 4],
+            [2.6, 4, 4, 4],
+            [0, 0, 0, 2.2],
+            [0, 2.2, 1.2, 2.2],
+            [0, 2.1, 1.2, 2.1],
+            [1.2, 2.1, 1.2, 2.2],
+        ],
+        float,
+    )
+    origin = np.full(len(walls), "observed")
+    closed = pinned_corners(
+        walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True, thin_m=CFG.thin_wall_max_m
+    )
+    assert closed is not None
+    assert closed[2].area == pytest.approx(16.0 - 0.12, abs=0.01)
