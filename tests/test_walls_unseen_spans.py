@@ -464,3 +464,17 @@ def test_a_partition_s_end_cap_is_no_wall_the_partition_stands_on():
     )
     assert closed is not None
     assert closed[2].area == pytest.approx(16.0 - 0.12, abs=0.01)
+    # the west wall's piece between the faces, at the partition's root, lies on the west wall's line: it is
+    # a wall the partition stands on, and runs on past it
+    root = np.concatenate([walls[:3], [[0, 0, 0, 2.1], [0, 2.1, 0, 2.2]], walls[4:]])
+    closed = pinned_corners(
+        root,
+        np.full(len(root), "observed"),
+        CFG.lines.extend_m,
+        G,
+        CFG.lines.offset_tol_m,
+        True,
+        thin_m=CFG.thin_wall_max_m,
+    )
+    assert closed is not None
+    assert closed[2].area == pytest.approx(16.0 - 0.12, abs=0.01)
