@@ -37,10 +37,13 @@ def _open_rectangle() -> np.ndarray:
     )
 
 
-def _across_unseen(walls: np.ndarray, rounds: int = 2):
-    """`pinned_corners` across unseen spans on observed `walls`, with the walls stage's reaches."""
+def _across_unseen(walls: np.ndarray, rounds: int = 2, thin_m: float = 0.0):
+    """`pinned_corners` across unseen spans on observed `walls`, with the walls stage's reaches (and
+    `thin_m`, a thin partition's thickness, as the stage passes it)."""
     origin = np.full(len(walls), "observed")
-    return pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True, rounds=rounds)
+    return pinned_corners(
+        walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True, rounds=rounds, thin_m=thin_m
+    )
 
 
 def _closes_on_the_rectangle(walls: np.ndarray, longest_m: float) -> None:
@@ -458,23 +461,12 @@ def test_a_partition_s_end_cap_is_no_wall_the_partition_stands_on():
         ],
         float,
     )
-    origin = np.full(len(walls), "observed")
-    closed = pinned_corners(
-        walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True, thin_m=CFG.thin_wall_max_m
-    )
+    closed = _across_unseen(walls, thin_m=CFG.thin_wall_max_m)
     assert closed is not None
     assert closed[2].area == pytest.approx(16.0 - 0.12, abs=0.01)
     # the west wall's piece between the faces, at the partition's root, lies on the west wall's line: it is
     # a wall the partition stands on, and runs on past it
     root = np.concatenate([walls[:3], [[0, 0, 0, 2.1], [0, 2.1, 0, 2.2]], walls[4:]])
-    closed = pinned_corners(
-        root,
-        np.full(len(root), "observed"),
-        CFG.lines.extend_m,
-        G,
-        CFG.lines.offset_tol_m,
-        True,
-        thin_m=CFG.thin_wall_max_m,
-    )
+    closed = _across_unseen(root, thin_m=CFG.thin_wall_max_m)
     assert closed is not None
     assert closed[2].area == pytest.approx(16.0 - 0.12, abs=0.01)

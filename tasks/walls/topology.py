@@ -136,6 +136,16 @@ def close_at_corners(
     return None
 
 
+def _end_distances(walls: NDArray) -> tuple[NDArray, NDArray]:
+    """The walls' (M, 4) ends (2M, 2), end k of wall i at row i + k M, and their distances (2M, M) to the
+    walls, each to its own wall infinite."""
+    n = len(walls)
+    ends = np.concatenate([walls[:, :2], walls[:, 2:]])
+    d = point_segment_distances(ends, walls)
+    d[np.arange(2 * n), np.tile(np.arange(n), 2)] = np.inf
+    return ends, d
+
+
 def _jambs(walls: NDArray, tol_m: float, max_m: float) -> NDArray[np.bool_]:
     """(M,) the walls (M, 4) that are a door's jamb: no longer than `max_m` (a wall's thickness), joined to no
     other wall (both ends more than `tol_m` from every other), across (more than 45°) the line of another
@@ -145,9 +155,7 @@ def _jambs(walls: NDArray, tol_m: float, max_m: float) -> NDArray[np.bool_]:
     if n < 3 or max_m <= 0:
         return out
     L = lengths(walls)
-    ends = np.concatenate([walls[:, :2], walls[:, 2:]])
-    d = point_segment_distances(ends, walls)
-    d[np.arange(2 * n), np.tile(np.arange(n), 2)] = np.inf
+    _, d = _end_distances(walls)
     th = angles(walls)
     for k in np.flatnonzero((L <= max_m) & (np.minimum(d[:n], d[n:]).min(axis=1) > tol_m)):
         for j in range(n):
@@ -741,9 +749,7 @@ def pinned_corners(
     if n < 3:
         return None
     L = lengths(walls)
-    ends = np.concatenate([walls[:, :2], walls[:, 2:]])  # end k of wall i at row i + k n
-    d = point_segment_distances(ends, walls)
-    d[np.arange(2 * n), np.tile(np.arange(n), 2)] = np.inf
+    ends, d = _end_distances(walls)  # end k of wall i at row i + k n
     th = angles(walls)
     nrm = np.column_stack([-np.sin(th), np.cos(th)])
     crossing = np.abs(np.sin(th[:, None] - th[None, :])) >= math.sin(math.radians(45.0))  # (M, M) at > 45°
@@ -1462,10 +1468,8 @@ def _drop_short_stubs(walls: NDArray, origin: NDArray, min_length_m: float) -> t
     short = lengths(walls) < min_length_m
     if not short.any():
         return walls, origin
-    ends = np.concatenate([walls[:, :2], walls[:, 2:]])
-    d = point_segment_distances(ends, walls)
+    _, d = _end_distances(walls)
     n = len(walls)
-    d[np.arange(2 * n), np.tile(np.arange(n), 2)] = np.inf
     free = d.min(axis=1) > 1e-6 if n > 1 else np.ones(2 * n, dtype=bool)
     drop = short & (free[:n] | free[n:])
     return walls[~drop], origin[~drop]
