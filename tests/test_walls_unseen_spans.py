@@ -110,6 +110,28 @@ def test_a_wall_may_not_run_on_unseen_further_than_its_line_is_seen():
     assert pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True) is None
 
 
+def test_a_short_wall_with_nothing_seen_beyond_its_line_runs_on_to_its_corners():
+    """The east wall seen over 0.7 m only (a TLS station's sparse rings), 1.5 and 1.8 m short of its corners:
+    with the slice points all on the room's side of its line, it bounds what the capture saw and the room
+    closes on its true walls; with the next room seen through a door in it (points 1-2 m beyond it), it may
+    be a furniture front and runs on no further than twice its length, which leaves the room open."""
+    walls = _open_rectangle()
+    walls[1] = [6, 1.5, 6, 2.2]
+    walls[0] = [0, 0, 5.5, 0]
+    origin = np.full(len(walls), "observed")
+    rng = np.random.default_rng(5)
+    seen = np.concatenate(
+        [wall_points(w[:2], w[2:], 0.0, 0.1, rng, step=0.04)[:, :2] for w in walls.astype(float)]
+    )
+    got = close_at_corners(walls, origin, seen, CFG, G)
+    assert got is not None and got[4] == "across unseen spans"
+    assert got[2].area == pytest.approx(24.0, abs=0.01)
+    assert evaluate_walls(got[0], RECT)["correctness"] == 1.0
+    next_room = np.column_stack([rng.uniform(7.0, 8.0, 200), rng.uniform(2.5, 3.3, 200)])
+    assert len(next_room) > 0.01 * (len(seen) + len(next_room))
+    assert close_at_corners(walls, origin, np.concatenate([seen, next_room]), CFG, G) is None
+
+
 def test_a_wall_seen_over_a_metre_runs_on_unseen_to_its_corner():
     """The east wall seen over 1.2 m, 2.6 m short of the north-east corner: more than twice the length it is
     seen over, but a metre of wall is no furniture face, so the room closes on its true walls."""

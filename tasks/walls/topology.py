@@ -647,6 +647,27 @@ DISTINCT_DIRECTION_DEG = 10.0
 and its perpendicular is a wall of its own direction, run on from a seen corner like one that has it."""
 
 
+BOUNDING_MAX_SHARE = 0.01
+"""`pinned_corners` with `across_unseen`: a wall whose line has at most this share of the slice points beyond
+it (more than `BEHIND_BAND_M` off it, on its side away from the room) bounds everything the capture saw, and
+runs on to a corner however short its seen piece: the far wall of a room seen only over a few dm (a TLS
+station's sparse rings) where a furniture front would have the wall's own points, or the room's wing, behind
+it. A window's reveal or a few stray points stay below it; a door onto the next room does not."""
+
+
+def _bounding(
+    walls: NDArray, nrm: NDArray, centre: NDArray | None, points: NDArray | None
+) -> NDArray[np.bool_]:
+    """(M,) which walls (M, 4), unit normals `nrm` (M, 2), have at most `BOUNDING_MAX_SHARE` of the slice
+    `points` (N, 2) more than `BEHIND_BAND_M` beyond their lines, on the side away from the room's
+    `centre`."""
+    if centre is None or points is None or len(points) == 0:
+        return np.zeros(len(walls), dtype=bool)
+    inward = np.sign(np.einsum("ij,ij->i", centre - walls[:, :2], nrm))
+    off = (points @ nrm.T - np.einsum("ij,ij->i", walls[:, :2], nrm)) * inward  # (N, M), + towards the room
+    return (off < -BEHIND_BAND_M).mean(axis=0) <= BOUNDING_MAX_SHARE
+
+
 def _unseen_run_limit(span_m: float, ratio: float = UNSEEN_RUN_RATIO) -> float:
     """How far (m) a wall whose line is seen over `span_m` may run on across an unseen span: `ratio` times
     that, without limit from `UNSEEN_RUN_FREE_SPAN_M` on."""
@@ -725,7 +746,9 @@ def pinned_corners(
     `UNSEEN_RUN_FREE_SPAN_M` or more (`_unseen_run_limit`) or when its other end is a seen corner of the room
     (joined to a wall across that ends there too, whose line is seen over `UNSEEN_RUN_FREE_SPAN_M` or more: a
     wall the capture saw only at its corner, no furniture face) and an observed wall that long runs in its
-    direction or across it (within `angle_tol_deg`: a short piece's own direction may be degrees off), no
+    direction or across it (within `angle_tol_deg`: a short piece's own direction may be degrees off), or
+    when, in such a direction, its line has nothing the capture saw beyond it (`_bounding`: the far wall of
+    a sparse scan seen over a few dm), no
     other wall lies inside the parallelogram
     the corner and the two free ends span (an L-room's notch, the room's own walls across it) and nothing
     lies behind either added piece (`_nothing_behind`: a partition stub's face run across the room has the
@@ -807,6 +830,8 @@ def pinned_corners(
             seen.add(j)
             e = j + n * int(meets[e, j])  # its other end
 
+    # the walls with nothing the capture saw beyond their lines, in a direction a long wall confirms
+    bounding = confirmed & _bounding(walls, nrm, centre, points) if across_unseen else np.zeros(n, dtype=bool)
     cands = []
     for x, y in itertools.combinations(free, 2):
         i, j = x % n, y % n
@@ -844,8 +869,8 @@ def pinned_corners(
         pinned = min(ext) <= reach_m and ext[far] <= span[(i, j)[far]]
         if not pinned and not (
             across_unseen
-            and (ext[0] <= _unseen_run_limit(span[i]) or at_corner[(x + n) % (2 * n)])
-            and (ext[1] <= _unseen_run_limit(span[j]) or at_corner[(y + n) % (2 * n)])
+            and (ext[0] <= _unseen_run_limit(span[i]) or at_corner[(x + n) % (2 * n)] or bounding[i])
+            and (ext[1] <= _unseen_run_limit(span[j]) or at_corner[(y + n) % (2 * n)] or bounding[j])
             and _open_corner(walls, ends[x], ends[y], corner, (i, j), tol_m, points, centre)
         ):
             continue
