@@ -46,6 +46,11 @@ def _across_unseen(walls: np.ndarray, rounds: int = 2, thin_m: float = 0.0):
     )
 
 
+def _slice_points(segments: np.ndarray, rng: np.random.Generator, step_m: float) -> np.ndarray:
+    """(N, 2) slice points along the walls `segments` (M, 4), `step_m` apart (`tests.scenes.wall_points`)."""
+    return np.concatenate([wall_points(w[:2], w[2:], 0.0, 0.1, rng, step=step_m)[:, :2] for w in segments])
+
+
 def _closes_on_the_rectangle(walls: np.ndarray, longest_m: float) -> None:
     """The walls close across unseen spans on RECT exactly, the longest piece added `longest_m` long."""
     closed = _across_unseen(walls)
@@ -86,9 +91,7 @@ def test_a_room_closed_across_unseen_spans_must_hold_the_points_seen():
     rng = np.random.default_rng(3)
 
     def seen_on(segments: list[list[float]]) -> np.ndarray:
-        return np.concatenate(
-            [wall_points(np.array(w[:2]), np.array(w[2:]), 0.0, 0.1, rng, step=0.02)[:, :2] for w in segments]
-        )
+        return _slice_points(np.array(segments, float), rng, 0.02)
 
     seen = seen_on(walls.tolist())
     got = close_at_corners(walls, origin, seen, CFG, G)
@@ -120,9 +123,7 @@ def test_a_short_wall_with_nothing_seen_beyond_its_line_runs_on_to_its_corners()
     walls[0] = [0, 0, 5.5, 0]
     origin = np.full(len(walls), "observed")
     rng = np.random.default_rng(5)
-    seen = np.concatenate(
-        [wall_points(w[:2], w[2:], 0.0, 0.1, rng, step=0.04)[:, :2] for w in walls.astype(float)]
-    )
+    seen = _slice_points(walls.astype(float), rng, 0.04)
     got = close_at_corners(walls, origin, seen, CFG, G)
     assert got is not None and got[4] == "across unseen spans"
     assert got[2].area == pytest.approx(24.0, abs=0.01)
