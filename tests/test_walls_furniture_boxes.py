@@ -199,3 +199,31 @@ def test_a_shelf_lower_than_the_cut_with_the_wall_seen_over_it_is_furniture():
     assert not furniture_in_front(lines, np.array([1.0, 3.8]), CFG, 3.0, occupied=behind)[4]
     narrow = np.array([*room, [0.45, 3.68, 0.75, 3.68], side], dtype=float)
     assert not furniture_in_front(narrow, centre, CFG, 3.0, occupied=behind)[4]
+
+
+def test_a_cabinet_standing_in_an_alcove_whose_sides_run_on_past_it_is_furniture():
+    """An alcove 1.2 m wide and 0.6 m deep in the south wall, a cabinet 0.35 m deep filling it: its front
+    0.25 m behind the wall's line, the alcove's sides seen past it (above the cabinet) down to 0.55 m, the
+    alcove's back unseen. The front is the cabinet's (`front_in_recess`); the sides stay. A shallow alcove
+    whose sides end at its back, a piece of wall between two doors (its jambs crossing its line by the
+    wall's thickness, the wall's pieces in line beyond them), and an open shelf's front with the wall seen
+    behind it between its sides (left to `seen_through_fronts`) stay."""
+    room = [[0, 4, 6, 4], [6, 4, 6, 0], [0, 4, 0, 0], [0, 0, 2.5, 0], [3.7, 0, 6, 0]]
+    sides = [[2.5, 0, 2.5, -0.55], [3.7, 0, 3.7, -0.55]]
+    front = [2.6, -0.25, 3.6, -0.25]
+    why: dict[str, int] = {}
+    lines = np.array([*room, *sides, front], dtype=float)
+    assert np.flatnonzero(furniture_in_front(lines, CENTRE, CFG, 3.0, why)).tolist() == [7]
+    assert why == {**dict.fromkeys(FURNITURE_RULES, 0), "front_in_recess": 1}
+    behind = np.column_stack([np.arange(2.55, 3.65, 0.05), np.full(22, -0.55)])
+    assert not furniture_in_front(lines, CENTRE, CFG, 3.0, occupied=behind).any()
+    aside = behind + np.array(
+        [2.0, 0.0]
+    )  # the room's south wall east of the alcove: nothing behind the front
+    assert furniture_in_front(lines, CENTRE, CFG, 3.0, occupied=aside)[7]
+    shallow = np.array([*room, [2.5, 0, 2.5, -0.25], [3.7, 0, 3.7, -0.25], front], dtype=float)
+    assert not furniture_in_front(shallow, CENTRE, CFG, 3.0).any()
+    # doors at x 1.5-2.5 and 3.7-4.7, jambs 0.25 m (the wall's thickness), the piece between them at y = 0
+    doors = [[0, 4, 6, 4], [6, 4, 6, 0], [0, 4, 0, 0], [0, 0, 1.5, 0], [4.7, 0, 6, 0], [2.5, 0, 3.7, 0]]
+    jambs = [[2.5, 0, 2.5, -0.25], [3.7, 0, 3.7, -0.25], [1.5, 0, 1.5, -0.25], [4.7, 0, 4.7, -0.25]]
+    assert not furniture_in_front(np.array([*doors, *jambs], dtype=float), CENTRE, CFG, 3.0).any()

@@ -1143,12 +1143,14 @@ FURNITURE_RULES = (
     "front_at_seen_end",
     "front_before_data",
     "front_alone",
+    "front_in_recess",
     "front_band",
     "side",
 )
 """`furniture_in_front`'s rules, in the order they are tried: a front with the wall's line along it, on the
 wall's line between two sides (or a side and a corner), at the wall's seen end, with the wall's data seen
-behind it, standing alone in front of the wall's unseen stretch; a line of a front's band of data; a side."""
+behind it, standing alone in front of the wall's unseen stretch, standing in a recess whose sides run on past
+it; a line of a front's band of data; a side."""
 
 
 def furniture_in_front(
@@ -1176,6 +1178,9 @@ def furniture_in_front(
       and not past it, or the box's side at its far end; a front longer than the wall's pieces, seen
       beside a cabinet wider than the stretch of wall the capture saw, only with that far side), or
       standing alone in front of the wall's unseen stretch between the room's corners (`isolated`);
+    - a front in a recess (`in_recess`, no wall before it needed): a line that long, in line with no other,
+      each of whose ends has a line across it running on beyond it, away from the room, by furniture's depth
+      (a cabinet filling an alcove, the alcove's sides seen past it and its back unseen);
     - a side: a line perpendicular to such a wall, `furniture_min_depth_m` to `furniture_max_depth_m` long,
       from the wall's line (at a front, it may reach across that line by `thin_wall_end_tol_m`; not at the
       wall's ends: a corner, unless a front ends it) into the room, in line with
@@ -1464,6 +1469,53 @@ def furniture_in_front(
         c0, c1 = float((tm - spread)[before].max()), float((tm + spread)[after].min())
         return c0 - tol <= lo and hi <= c1 + tol and c1 - c0 > L[i] + tol
 
+    def in_recess(i: int) -> bool:
+        """Is line i a box's front standing in a recess: at each of its ends (within twice
+        `thin_wall_end_tol_m` of its line, as `at_seen_end` allows: each may stop short of the box's corner,
+        and nearer it than the other end) a line across it reaches i's line and runs on beyond it, away from
+        the room, by furniture's depth (`furniture_min_depth_m` to `furniture_max_depth_m` and
+        `support_tol_m`), i in line with no other line, the room's `interior` more than that on its other
+        side, and the slice data (`occupied`) between the sides, behind i, in under half its 10 cm bins? The
+        recess's sides were seen past the box (above it, or past its sides), its back not; a wall of the room
+        hides what lies beyond it, and the walls meeting it end there (a wall's piece between two doors has
+        the wall's other pieces in line). A centre close to the line, as an L-room's may lie, tells no recess
+        from a box's sides before a wall; an open shelf's front with the wall seen behind it goes onto that
+        wall (`seen_through_fronts`)."""
+        if abs(float((interior - lines[i, :2]) @ n[i])) <= d_hi + tol:
+            return False
+        inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
+        inline[i] = False
+        if inline.any():
+            return False
+        side = 1.0 if float((interior - lines[i, :2]) @ n[i]) >= 0 else -1.0
+        sin_side = max(sin_loose, math.sin(math.atan2(2 * tol, d_lo)))
+        mid = 0.5 * (lines[i, :2] + lines[i, 2:])
+        # how far each line reaches past i's line, away from the room
+        past = -side * np.stack([(lines[:, :2] - lines[i, :2]) @ n[i], (lines[:, 2:] - lines[i, :2]) @ n[i]])
+        past = past.max(axis=0)
+        sides = []
+        for e in range(2):
+            p = lines[i, 2 * e : 2 * e + 2]
+            for k in np.flatnonzero(np.abs(np.cos(ang - ang[i])) <= sin_side):
+                # k's line passes this end (within the reach), nearer it than i's other end
+                gap = float((p - lines[k, :2]) @ n[k])
+                if k == i or abs(gap) > 2 * end_tol or abs(float((mid - lines[k, :2]) @ n[k])) <= abs(gap):
+                    continue
+                reach = float((side * np.array([(lines[k, :2] - p) @ n[i], (lines[k, 2:] - p) @ n[i]])).max())
+                if reach >= -end_tol and d_lo <= past[k] <= d_hi + tol:
+                    sides.append(k)
+                    break
+            else:
+                return False
+        # nothing seen behind it between the sides
+        if occupied is None or len(occupied) == 0:
+            return True
+        rel = occupied - lines[i, :2]
+        t, back = rel @ u[i], -side * (rel @ n[i])
+        inside = (t > tol) & (t < L[i] - tol) & (back >= d_lo) & (back <= past[sides].max() + tol)
+        bins = max(1, math.ceil(L[i] / 0.1))
+        return len(np.unique(np.floor(t[inside] / 0.1))) < 0.5 * bins
+
     for i in np.flatnonzero(L <= cfg.furniture_max_length_m):
         # a short front's direction is good to about 2 support_tol_m / its length, as a side's is, and a
         # plant's facet shorter than furniture is deep as well as a longer one, up to what that gives at the
@@ -1498,6 +1550,9 @@ def furniture_in_front(
                 out[i] = True
                 decided[rule] += 1
                 break
+        if not out[i] and L[i] >= d_lo and in_recess(i):
+            out[i] = True
+            decided["front_in_recess"] += 1
     if out.any():
         # the rest of a front's face: a line lying wholly within `thin_wall_end_tol_m` of a front (a cabinet's
         # front seen from afar is a band of data a decimetre deep, and gives short lines across it too)
