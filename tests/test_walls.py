@@ -343,6 +343,34 @@ def test_alpha_choice_without_a_closed_model_skips_the_few_lines_the_highest_alp
     assert i == 0 and "unclosed" in reason and "stable over 1 of 5" in reason
 
 
+def test_alpha_choice_does_not_take_a_closet_holding_a_small_share_of_the_slice_points():
+    """A handheld room whose north wall and a cabinet before it close a 2.6 x 0.5 m closet at the highest α
+    (its walls as long as the open models'), while the room's other walls, seen apart from it, stay open at
+    every α. The slice points lie mostly along those other walls: the closet is not the room, and the open
+    models are chosen; without the points, the closet was."""
+    from shapely.geometry import Polygon
+
+    from tasks.walls.topology import Candidate
+
+    closet = np.array(
+        [[9, -9.4, 11.6, -9.4], [11.6, -9.4, 11.6, -9.9], [11.6, -9.9, 9, -9.9], [9, -9.9, 9, -9.4]]
+    )
+    seen = np.array([[9, -9.4, 11.6, -9.4], [11.6, -9.4, 11.6, -10.1], [11.6, -11.5, 11.6, -14.1]])
+    seen = np.concatenate([seen, [[9.2, -14.1, 9.8, -14.1], [9.9, -14.7, 11.1, -14.7]]])
+
+    def cand(alpha, walls, polygon=None):
+        return Candidate(alpha, walls, np.array(["observed"] * len(walls)), {}, None, polygon)
+
+    box = Polygon([(9, -9.4), (11.6, -9.4), (11.6, -9.9), (9, -9.9)])
+    cands = [cand(0.05, seen), cand(0.1, seen + 0.003), cand(0.15, seen), cand(0.5, closet, box)]
+    from tasks.lines import sample_segments
+
+    xy, _ = sample_segments(seen, 0.02)
+    assert choose_alpha(cands, 0.05, 0.3)[0] == 3
+    i, reason = choose_alpha(cands, 0.05, 0.3, xy)
+    assert i == 0 and "unclosed" in reason and "stable over 3 of 4" in reason
+
+
 def test_extrusion_mesh_is_watertight_for_a_closed_room():
     from shapely.geometry import Polygon
 

@@ -87,7 +87,9 @@ fade out gradually), and too large an α breaks the walls apart. The chosen α i
 run of consecutive candidates that give a closed wall graph and the same walls (every wall end within
 `stable_tol_m` of a wall of the neighbour's model); without a closed model, the longest run of equal models. A
 model holding under half the candidates' median wall length does not count: closed, it is a closet the walls
-of a poorly seen room enclose; open, the few lines the highest α leave. The chosen α is run again with the
+of a poorly seen room enclose; open, the few lines the highest α leave. Nor does a closed model holding under
+half the slice points (a cabinet's front closing a closet with the wall behind it, the room's other walls
+seen apart from it). The chosen α is run again with the
 refinement; when the refined walls do not close where the pixel model did (a sparse stretch it bridged), they
 are closed at the corners their data pin or across unseen spans first, and only then is the pixel model kept.
 Occupancy alone cannot tell a tall cabinet from the wall above a window (both fill part of the slice): the

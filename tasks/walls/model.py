@@ -299,7 +299,7 @@ def model_walls(slice_points: NDArray, floor_z_m: float, ceiling_z_m: float, cfg
             pinned = [with_corners(c, xy, cfg) for c in cands]
             if any(c.closed for c in pinned):
                 cands, corners = pinned, xy
-        chosen, reason = choose_alpha(cands, cfg.stable_tol_m, cfg.thin_wall_max_m)
+        chosen, reason = choose_alpha(cands, cfg.stable_tol_m, cfg.thin_wall_max_m, xy)
         if corners is not None:
             how = cands[chosen].counts.get("corners_closed")
             reason += (

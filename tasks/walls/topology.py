@@ -1566,11 +1566,20 @@ CLOSED_MIN_LENGTH_SHARE = 0.5
 median wall length."""
 
 
-def choose_alpha(cands: list[Candidate], tol_m: float, wall_max_m: float = 0.0) -> tuple[int, str]:
+CLOSED_MIN_POINTS_SHARE = 0.5
+"""`choose_alpha`: a closed candidate counts as closed only when it holds at least this share of the slice
+points (within `UNSEEN_HELD_BUFFER_M` of it): the capture stood in the room, and the walls of the next rooms
+seen through its doors are a small part of what it saw."""
+
+
+def choose_alpha(
+    cands: list[Candidate], tol_m: float, wall_max_m: float = 0.0, xy: NDArray | None = None
+) -> tuple[int, str]:
     """Index of the chosen candidate and the reason (see the module docstring). Models closed as they
     are rank before models closed only by bridging wider gaps, which rank before unclosed ones. A room
     whose mean width (2 area / perimeter) is no more than `wall_max_m` (the thickest thin wall) is not
-    a room but the two faces of one wall or a cabinet."""
+    a room but the two faces of one wall or a cabinet, nor one that holds under `CLOSED_MIN_POINTS_SHARE` of
+    the slice points `xy` (N, 2), when given."""
     n = len(cands)
     # a closed model holding under half the wall length the candidates typically find is a piece of
     # furniture or a closet the walls of a poorly seen room happen to enclose, not the room; an open one, the
@@ -1581,6 +1590,17 @@ def choose_alpha(cands: list[Candidate], tol_m: float, wall_max_m: float = 0.0) 
         [c.polygon is None or 2 * c.polygon.area / max(c.polygon.length, 1e-9) > wall_max_m for c in cands],
         dtype=bool,
     )
+    if xy is not None and len(xy):
+        import shapely
+
+        # ...and a closed one holding under half the slice points is a cabinet against a wall of a room whose
+        # other walls the capture saw apart from it, however long its walls run
+        for k, c in enumerate(cands):
+            if c.polygon is not None and room_sized[k]:
+                grown = c.polygon.buffer(UNSEEN_HELD_BUFFER_M, join_style="mitre")
+                room_sized[k] = (
+                    shapely.contains_xy(grown, xy[:, 0], xy[:, 1]).mean() >= CLOSED_MIN_POINTS_SHARE
+                )
     tiers = (
         (
             "closed",
