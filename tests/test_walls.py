@@ -350,6 +350,7 @@ def test_alpha_choice_does_not_take_a_closet_holding_a_small_share_of_the_slice_
     models are chosen; without the points, the closet was."""
     from shapely.geometry import Polygon
 
+    from tasks.lines import sample_segments
     from tasks.walls.topology import Candidate
 
     closet = np.array(
@@ -363,8 +364,6 @@ def test_alpha_choice_does_not_take_a_closet_holding_a_small_share_of_the_slice_
 
     box = Polygon([(9, -9.4), (11.6, -9.4), (11.6, -9.9), (9, -9.9)])
     cands = [cand(0.05, seen), cand(0.1, seen + 0.003), cand(0.15, seen), cand(0.5, closet, box)]
-    from tasks.lines import sample_segments
-
     xy, _ = sample_segments(seen, 0.02)
     assert choose_alpha(cands, 0.05, 0.3)[0] == 3
     i, reason = choose_alpha(cands, 0.05, 0.3, xy)

@@ -217,9 +217,8 @@ def test_a_cabinet_standing_in_an_alcove_whose_sides_run_on_past_it_is_furniture
     assert why == {**dict.fromkeys(FURNITURE_RULES, 0), "front_in_recess": 1}
     behind = np.column_stack([np.arange(2.55, 3.65, 0.05), np.full(22, -0.55)])
     assert not furniture_in_front(lines, CENTRE, CFG, 3.0, occupied=behind).any()
-    aside = behind + np.array(
-        [2.0, 0.0]
-    )  # the room's south wall east of the alcove: nothing behind the front
+    # the room's south wall east of the alcove seen, nothing behind the front
+    aside = behind + np.array([2.0, 0.0])
     assert furniture_in_front(lines, CENTRE, CFG, 3.0, occupied=aside)[7]
     shallow = np.array([*room, [2.5, 0, 2.5, -0.25], [3.7, 0, 3.7, -0.25], front], dtype=float)
     assert not furniture_in_front(shallow, CENTRE, CFG, 3.0).any()

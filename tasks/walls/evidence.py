@@ -1178,9 +1178,10 @@ def furniture_in_front(
       and not past it, or the box's side at its far end; a front longer than the wall's pieces, seen
       beside a cabinet wider than the stretch of wall the capture saw, only with that far side), or
       standing alone in front of the wall's unseen stretch between the room's corners (`isolated`);
-    - a front in a recess (`in_recess`, no wall before it needed): a line that long, in line with no other,
-      each of whose ends has a line across it running on beyond it, away from the room, by furniture's depth
-      (a cabinet filling an alcove, the alcove's sides seen past it and its back unseen);
+    - a front in a recess (`in_recess`, no wall before it needed): a line that long and at least
+      `furniture_min_depth_m`, in line with no other, each of whose ends has a line across it running on
+      beyond it, away from the room, by furniture's depth (a cabinet filling an alcove, the alcove's sides
+      seen past it and its back unseen);
     - a side: a line perpendicular to such a wall, `furniture_min_depth_m` to `furniture_max_depth_m` long,
       from the wall's line (at a front, it may reach across that line by `thin_wall_end_tol_m`; not at the
       wall's ends: a corner, unless a front ends it) into the room, in line with
