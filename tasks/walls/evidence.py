@@ -1482,13 +1482,14 @@ def furniture_in_front(
         the wall's other pieces in line). A centre close to the line, as an L-room's may lie, tells no recess
         from a box's sides before a wall; an open shelf's front with the wall seen behind it goes onto that
         wall (`seen_through_fronts`)."""
-        if abs(float((interior - lines[i, :2]) @ n[i])) <= d_hi + tol:
+        clear = float((interior - lines[i, :2]) @ n[i])
+        if abs(clear) <= d_hi + tol:
             return False
         inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
         inline[i] = False
         if inline.any():
             return False
-        side = 1.0 if float((interior - lines[i, :2]) @ n[i]) >= 0 else -1.0
+        side = 1.0 if clear >= 0 else -1.0
         sin_side = max(sin_loose, math.sin(math.atan2(2 * tol, d_lo)))
         mid = 0.5 * (lines[i, :2] + lines[i, 2:])
         # how far each line reaches past i's line, away from the room

@@ -692,17 +692,23 @@ def _occupied(proj: Projection) -> NDArray:
     return proj.grid.to_metres(np.column_stack([cols, rows]))
 
 
+def _within(polygon: Any, xy: NDArray, buffer_m: float) -> NDArray[np.bool_]:
+    """(N,) which points `xy` (N, 2) lie within `buffer_m` of the room `polygon` (grown with mitred corners)."""
+    import shapely
+
+    grown = polygon.buffer(buffer_m, join_style="mitre")
+    return shapely.contains_xy(grown, xy[:, 0], xy[:, 1])
+
+
 def _points_held(polygon: Any, xy: NDArray, buffer_m: float) -> float:
     """Share of the points `xy` (N, 2) within `buffer_m` of the room `polygon` (1 without points), of those
     and the points outside that hang together with them (8-connected cells `buffer_m` a side): a wall seen
     through a door across the next room, apart from everything the room holds, is none of its wings."""
     if len(xy) == 0:
         return 1.0
-    import shapely
     from scipy import ndimage
 
-    grown = polygon.buffer(buffer_m, join_style="mitre")
-    held = shapely.contains_xy(grown, xy[:, 0], xy[:, 1])
+    held = _within(polygon, xy, buffer_m)
     if held.all() or not held.any():
         return float(held.mean())
     ij = np.floor((xy - xy.min(axis=0)) / buffer_m).astype(np.int64)
@@ -1591,16 +1597,11 @@ def choose_alpha(
         dtype=bool,
     )
     if xy is not None and len(xy):
-        import shapely
-
         # ...and a closed one holding under half the slice points is a cabinet against a wall of a room whose
         # other walls the capture saw apart from it, however long its walls run
         for k, c in enumerate(cands):
             if c.polygon is not None and room_sized[k]:
-                grown = c.polygon.buffer(UNSEEN_HELD_BUFFER_M, join_style="mitre")
-                room_sized[k] = (
-                    shapely.contains_xy(grown, xy[:, 0], xy[:, 1]).mean() >= CLOSED_MIN_POINTS_SHARE
-                )
+                room_sized[k] = _within(c.polygon, xy, UNSEEN_HELD_BUFFER_M).mean() >= CLOSED_MIN_POINTS_SHARE
     tiers = (
         (
             "closed",
