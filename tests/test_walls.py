@@ -1161,6 +1161,17 @@ def test_a_thin_partition_taken_as_one_line_gives_its_two_faces(rng):
     ):
         pix = np.ravel_multi_index(np.rint(grid.to_pixels(pts)).astype(int).T[::-1], grid.shape)
         assert np.isnan(two_faces(walls, pts, pix, grid, 0.12, 0.06)).all()
+    # the line 6 mm off one face of a 9 cm partition: the other face's noisy tail fills the band's outermost
+    # bin, which is no face (clean 834 r1 made a third line inside the partition of it)
+    pts = np.concatenate(
+        [
+            face(0.006, 1200),
+            face(-0.081, 1200) + np.column_stack([np.zeros(1200), rng.normal(0, 0.012, 1200)]),
+        ]
+    )
+    assert (pts[1200:, 1] >= -0.06).sum() >= 15  # the tail in the band
+    pix = np.ravel_multi_index(np.rint(grid.to_pixels(pts)).astype(int).T[::-1], grid.shape)
+    assert np.isnan(two_faces(walls, pts, pix, grid, 0.06, 0.06)).all()
 
 
 def test_a_split_partition_drops_its_skeleton_pieces_and_a_face_found_already_is_not_split_again():

@@ -136,7 +136,9 @@ class WallsConfig:
     """A stub with no second face beside it in the cloud (the camera never saw that side) whose free end's own
     face shows the wall's thickness (`evidence._end_cap`: a run of points from the stub's face out to at most
     `thin_wall_max_m`, nothing beyond it, spanning this height) gets its second face at that thickness, at
-    the first face's density (a partition's faces are parallel); 0 switches that off."""
+    the first face's density (a partition's faces are parallel); not when a wall of the model stands in line
+    with it a door's width on (`evidence._door_beyond`: a door's jamb, the wall's other face in the next
+    room); 0 switches that off."""
     shadow_m: float = 1.0
     """A line below the slice top is still a wall when it is at least `open_min_length_m` long and data
     reaching the top lies within this distance beside it (further than `shadow_gap_m`) along less than half

@@ -84,7 +84,9 @@ def two_faces(
     (along its left normal, metres; NaN for the others): a thin partition whose faces, `min_gap_m` or more
     apart, one binarization took as one wall. Two faces are two peaks of the points' offsets (1 cm bins) at
     least `min_gap_m` apart, with at most a quarter of the smaller peak between them, each running along at
-    least half the wall (`bin_m` bins, at least `FACES_MIN_BINS` of them). A room's wall shows the room one
+    least half the wall (`bin_m` bins, at least `FACES_MIN_BINS` of them), neither in the band's outermost
+    bin (there the band cuts off the tail of a surface beyond it: the partition's other face, found already
+    when the line lies on one). A room's wall shows the room one
     face; a cabinet's front before it stands further off or along a part of it."""
     out = np.full((len(walls), 2), np.nan)
     if band_m <= 0 or min_gap_m <= 0 or len(xy) == 0:
@@ -103,7 +105,10 @@ def two_faces(
         t, d = t[inside], d[inside]
         h = np.histogram(d, edges)[0]
         p1 = int(np.argmax(h))
-        far = np.abs(centres - centres[p1]) >= min_gap_m
+        # a peak in the band's outermost bin is where the band cuts the tail of a surface beyond it off
+        far = (np.abs(centres - centres[p1]) >= min_gap_m) & (np.arange(len(h)) % (len(h) - 1) > 0)
+        if p1 in (0, len(h) - 1):
+            continue
         if not far.any() or h[far].max() == 0:
             continue
         p2 = int(np.flatnonzero(far)[np.argmax(h[far])])
@@ -638,7 +643,8 @@ def faces_below_slice(
     no data there (under a fifth of the bins: "below") or holds it at under `below_slice_sparse_ratio` of the
     stub's first face's points per bin ("sparse": then at least `thin_wall_min_m` from the first face, beyond
     its noise), no wall of the model lying there already. A stub with neither takes its second face from its
-    free end's own face (`_end_cap`, "end") when `end_cap_min_height_m` is on. A stub whose second face
+    free end's own face (`_end_cap`, "end") when `end_cap_min_height_m` is on, unless that end is a door's
+    jamb (`_door_beyond`). A stub whose second face
     the model holds in part (`_capped_stubs`: the face stops short of the host wall) gets the first face's
     points at that face's offset along the stretch the model lacks, where the slice holds it sparsely
     ("capped"; only those with `capped_only`: the second look, at the model the first one's faces made).
@@ -727,7 +733,11 @@ def faces_below_slice(
                 continue
             if best is None or cover > best[0]:
                 best = (cover, offset, on, height, kind, seen, ratio)
-        if best is None and cfg.end_cap_min_height_m > 0:
+        if (
+            best is None
+            and cfg.end_cap_min_height_m > 0
+            and not _door_beyond(walls, i, a, u, n, L, cfg.lines.offset_tol_m)
+        ):
             # no face along the stub: the end's face, as wide as the wall is thick, gives its second face
             cap = _end_cap(high, a, u, n, L, cfg, grid_m)
             if cap is not None and not _wall_along(walls, i, a, u, n, cap[0], L):
@@ -835,7 +845,7 @@ def _end_cap(
     """The second face of a stub (from its foot `a` along `u`, `L` long) told by its free end's own face:
     the points (N, 3) within 5 cm of the end (inward, `END_CAP_OUT_M` outward), binned by their offset
     along `n` (1 cm), occupy a run of bins from the stub's face (within 3 cm) out to the wall's thickness on
-    one side (each bin at least a quarter of the fullest beyond the stub's own face), nothing stands beyond
+    one side (each bin at least a tenth of the fullest beyond the stub's own face), nothing stands beyond
     it for 10 cm (a corner's or a wall's run on would), the thickness lies between three grid cells and
     `thin_wall_max_m`, and the end's face spans `end_cap_min_height_m` in height. Returns (the signed offset
     of the second face: the 95th percentile of the run's points, the end's height span) or None."""
@@ -849,9 +859,11 @@ def _end_cap(
         sd = side * d[at_end]
         k = math.ceil((cfg.thin_wall_max_m + 0.1) / 0.01)
         hist = np.bincount(np.clip(np.floor(sd / 0.01).astype(np.intp), -1, k) + 1, minlength=k + 2)[1:]
-        # the stub's own face (its first 2 cm) does not set the scale: it holds far more points
+        # the stub's own face (its first 2 cm) does not set the scale: it holds far more points. A bin holds
+        # data as the test beyond the face takes it: a 1 cm strip of an end face seen aslant holds a few
+        # times fewer points than the next (836 r1: 41 between 140 and 153)
         ref = float(hist[2:].max())
-        full = hist >= max(5.0, 0.25 * ref)
+        full = hist >= max(5.0, 0.1 * ref)
         if not full[:3].any():
             continue
         stop = int(np.argmax(full[:3]))
@@ -870,6 +882,25 @@ def _end_cap(
         if best is None or width < abs(best[0]):
             best = (offset, height)
     return best
+
+
+def _door_beyond(walls: NDArray, i: int, a: NDArray, u: NDArray, n: NDArray, L: float, tol_m: float) -> bool:
+    """Does a wall of the model other than i lie in line with the stub i (from `a` along `u`, `L` long; its
+    midpoint within `tol_m` of the line, parallel within 5 degrees) and start past the stub's free end within
+    `DOOR_OPENING_MAX_M`? Then the end is a door's jamb in a wall of the room, its thickness the wall's, whose
+    other face lies in the next room (a corridor's wall seen in pieces between doors), not a partition's."""
+    for j in range(len(walls)):
+        p, q = walls[j, :2] - a, walls[j, 2:] - a
+        dj = q - p
+        lj = float(np.hypot(*dj))
+        if j == i or lj <= 0 or abs(float(dj @ n)) > math.sin(math.radians(5)) * lj:
+            continue
+        if (
+            abs(0.5 * float(p @ n + q @ n)) <= tol_m
+            and L < min(float(p @ u), float(q @ u)) <= L + DOOR_OPENING_MAX_M
+        ):
+            return True
+    return False
 
 
 def _wall_along(walls: NDArray, i: int, a: NDArray, u: NDArray, n: NDArray, offset: float, L: float) -> bool:
