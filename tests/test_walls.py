@@ -623,6 +623,29 @@ def test_line_noise_is_the_spread_of_the_members_about_the_line():
     assert line_noise(hough[:0], np.zeros(0, dtype=np.intp), line, 0.01)[0] == 0.01
 
 
+def test_band_noise_is_the_spread_of_the_wall_cells_about_a_line_however_few_segments_made_it(rng):
+    from tasks.walls.topology import REFUSE_NOISE_SIGMAS, band_noise, line_noise
+
+    # a far wall's cells spread ±5 cm about y = 0 (uniform: RMS 2.9 cm), a near wall's ±1 cm about x = 3
+    far = np.column_stack([rng.uniform(0, 2, 4000), rng.uniform(-0.05, 0.05, 4000)])
+    near = np.column_stack([rng.uniform(3.0 - 0.01, 3.0 + 0.01, 2000), rng.uniform(-2, -0.2, 2000)])
+    cells = np.concatenate([far, near])
+    # a 0.4 m piece of the far wall drawn 14° off through its band (one skeleton segment), the far and near
+    # walls' own lines, and a line with nothing near it
+    a = math.radians(14.0)
+    piece = [0.6, -0.05, 0.6 + 0.4 * math.cos(a), -0.05 + 0.4 * math.sin(a)]
+    lines = np.array([piece, [0, 0, 2, 0], [3, -0.2, 3, -2], [5, 5, 6, 5]], float)
+    noise = band_noise(lines, cells, 0.05)
+    assert noise[1] == pytest.approx(0.1 / math.sqrt(12), rel=0.05)
+    assert noise[2] == pytest.approx(0.02 / math.sqrt(12), rel=0.1)
+    assert noise[3] == 0.0
+    # its Hough segment alone says nothing of the spread: the grid. Turning the piece onto 0° moves its ends
+    # 4.8 cm, beyond three grids but within three of the band's RMS
+    alone = line_noise(lines[:1], np.zeros(1, dtype=np.intp), lines[:1], 0.01)[0]
+    move = 0.2 * math.sin(a)
+    assert REFUSE_NOISE_SIGMAS * alone < move < REFUSE_NOISE_SIGMAS * noise[0]
+
+
 def _wall_angle_errors(room, model) -> list[float]:
     """Per truth wall, the angle error (degrees) of the model wall whose midpoint is nearest its own."""
     from tasks.lines import angle_difference

@@ -32,8 +32,9 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    own unbroken band of data, `evidence.own_band`, shadows nothing: an end wall smeared by frames levelled
    a few degrees apart is one sloping wall, its top behind its foot);
 6. regularization (5.2.5.1, eq 5.9, `tasks.lines.regularize`), refused for a line it would move by more
-   than three times its data's noise (`topology.line_noise`: a wall a few degrees off its neighbours keeps
-   its angle); each wall's offset is refined to the median
+   than three times its data's noise (the larger of `topology.line_noise`, its Hough segments' spread, and
+   `band_noise`, its wall cells' spread across it: a wall a few degrees off its neighbours keeps its angle,
+   a short piece of a wide, noisy band does not); each wall's offset is refined to the median
    of the slice points near it (the skeleton is only good to a pixel), and its ends are moved out along it
    as far as its data goes (`extend_to_data`: the skeleton stops short of a band's end). A line whose
    band holds two faces `thin_wall_min_m` or more apart is a thin partition one binarization took as one
