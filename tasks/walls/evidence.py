@@ -86,8 +86,8 @@ def two_faces(
     least `min_gap_m` apart, with at most a quarter of the smaller peak between them, each running along at
     least half the wall (`bin_m` bins, at least `FACES_MIN_BINS` of them), neither in the band's outermost
     bin (there the band cuts off the tail of a surface beyond it: the partition's other face, found already
-    when the line lies on one). A room's wall shows the room one
-    face; a cabinet's front before it stands further off or along a part of it."""
+    when the line lies on one). A room's wall shows the room one face; a cabinet's front before it stands
+    further off or along a part of it."""
     out = np.full((len(walls), 2), np.nan)
     if band_m <= 0 or min_gap_m <= 0 or len(xy) == 0:
         return out
@@ -106,9 +106,11 @@ def two_faces(
         h = np.histogram(d, edges)[0]
         p1 = int(np.argmax(h))
         # a peak in the band's outermost bin is where the band cuts the tail of a surface beyond it off
-        far = (np.abs(centres - centres[p1]) >= min_gap_m) & (np.arange(len(h)) % (len(h) - 1) > 0)
-        if p1 in (0, len(h) - 1):
+        inner = np.ones(len(h), dtype=bool)
+        inner[[0, -1]] = False
+        if not inner[p1]:
             continue
+        far = (np.abs(centres - centres[p1]) >= min_gap_m) & inner
         if not far.any() or h[far].max() == 0:
             continue
         p2 = int(np.flatnonzero(far)[np.argmax(h[far])])
@@ -644,10 +646,10 @@ def faces_below_slice(
     stub's first face's points per bin ("sparse": then at least `thin_wall_min_m` from the first face, beyond
     its noise), no wall of the model lying there already. A stub with neither takes its second face from its
     free end's own face (`_end_cap`, "end") when `end_cap_min_height_m` is on, unless that end is a door's
-    jamb (`_door_beyond`). A stub whose second face
-    the model holds in part (`_capped_stubs`: the face stops short of the host wall) gets the first face's
-    points at that face's offset along the stretch the model lacks, where the slice holds it sparsely
-    ("capped"; only those with `capped_only`: the second look, at the model the first one's faces made).
+    jamb (`_door_beyond`). A stub whose second face the model holds in part (`_capped_stubs`: the face stops
+    short of the host wall) gets the first face's points at that face's offset along the stretch the model
+    lacks, where the slice holds it sparsely ("capped"; only those with `capped_only`: the second look, at
+    the model the first one's faces made).
 
     Returns each face's points (K, 3): for a face below the slice its points (K, 2) under the slice (stood
     up as full columns by `lifted`); for a sparse, end or capped face, the stub's first face's slice points moved
