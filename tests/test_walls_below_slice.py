@@ -163,14 +163,16 @@ def test_a_stub_whose_second_face_was_never_seen_takes_it_from_its_end(rng):
     thin = np.concatenate([thin, face((1.5, 1.45), (1.5, 1.48), 0, 2.5, rng)])
     _, found = faces_below_slice(off.walls, thin, in_band(thin), 0.0, CFG, 0.01)
     assert found == []
-    # one 1 cm strip of the end face holding a sixth of its points (seen aslant; clean 836 r1): its face all the same
+    # one 1 cm strip of the end face holding a sixth of its points (seen aslant; clean 836 r1): its face
+    # all the same
     strip = (np.abs(levelled[:, 0] - 1.5) < 0.01) & (levelled[:, 1] >= 1.50) & (levelled[:, 1] < 1.51)
     sparse = levelled[~(strip & (rng.random(len(levelled)) > 1 / 6))]
     _, found = faces_below_slice(off.walls, sparse, in_band(sparse), 0.0, CFG, 0.01)
     assert len(found) == 1 and found[0]["kind"] == "end", found
     assert found[0]["offset_m"] == pytest.approx(0.1, abs=0.015)
     # a wall's piece in line past the end, a door's width on: the end is the door's jamb, the wall's other
-    # face in the next room (degraded 114 hall: a corridor's wall between doors); further on, a partition's end
+    # face in the next room (degraded 114 hall: a corridor's wall between doors); further on, a partition's
+    # end
     for start, faces in ((2.4, 0), (2.7, 1)):
         walls = np.vstack([off.walls, [start, 1.45, 4.0, 1.45]])
         _, found = faces_below_slice(walls, levelled, slice_points, 0.0, CFG, 0.01)
