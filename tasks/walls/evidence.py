@@ -886,42 +886,34 @@ def _end_cap(
     return best
 
 
+def _in_stub_frame(walls: NDArray, i: int, a: NDArray, u: NDArray, n: NDArray) -> tuple[NDArray, ...]:
+    """The walls of the model other than the stub i (from `a` along `u`, normal `n`) in its frame: (M,)
+    which run parallel to it (within 5 degrees), their midpoints' offsets along `n`, and their ends' least and
+    greatest positions along `u`."""
+    p, q = walls[:, :2] - a, walls[:, 2:] - a
+    dj = q - p
+    lj = np.hypot(dj[:, 0], dj[:, 1])
+    parallel = (lj > 0) & (np.abs(dj @ n) <= math.sin(math.radians(5)) * lj)
+    parallel[i] = False
+    ends = np.column_stack([p @ u, q @ u])
+    return parallel, 0.5 * (p @ n + q @ n), ends.min(axis=1), ends.max(axis=1)
+
+
 def _door_beyond(walls: NDArray, i: int, a: NDArray, u: NDArray, n: NDArray, L: float, tol_m: float) -> bool:
     """Does a wall of the model other than i lie in line with the stub i (from `a` along `u`, `L` long; its
     midpoint within `tol_m` of the line, parallel within 5 degrees) and start past the stub's free end within
     `DOOR_OPENING_MAX_M`? Then the end is a door's jamb in a wall of the room, its thickness the wall's, whose
     other face lies in the next room (a corridor's wall seen in pieces between doors), not a partition's."""
-    for j in range(len(walls)):
-        p, q = walls[j, :2] - a, walls[j, 2:] - a
-        dj = q - p
-        lj = float(np.hypot(*dj))
-        if j == i or lj <= 0 or abs(float(dj @ n)) > math.sin(math.radians(5)) * lj:
-            continue
-        if (
-            abs(0.5 * float(p @ n + q @ n)) <= tol_m
-            and L < min(float(p @ u), float(q @ u)) <= L + DOOR_OPENING_MAX_M
-        ):
-            return True
-    return False
+    parallel, offset, lo, _ = _in_stub_frame(walls, i, a, u, n)
+    return bool((parallel & (np.abs(offset) <= tol_m) & (lo > L) & (lo <= L + DOOR_OPENING_MAX_M)).any())
 
 
 def _wall_along(walls: NDArray, i: int, a: NDArray, u: NDArray, n: NDArray, offset: float, L: float) -> bool:
     """Does a wall of the model other than i run along the stub i's line at `offset` (within 2 cm, parallel
     within 5 degrees) over half its length `L` (from `a` along `u`)?"""
-    for j in range(len(walls)):
-        if j == i:
-            continue
-        p, q = walls[j, :2] - a, walls[j, 2:] - a
-        dj = q - p
-        lj = float(np.hypot(*dj))
-        if lj <= 0 or abs(float(dj @ n)) > math.sin(math.radians(5)) * lj:
-            continue
-        if abs(0.5 * float(p @ n + q @ n) - offset) > 0.02:
-            continue
-        lo, hi = sorted((float(p @ u), float(q @ u)))
-        if min(hi, L) - max(lo, 0.0) >= 0.5 * L:
-            return True
-    return False
+    parallel, off, lo, hi = _in_stub_frame(walls, i, a, u, n)
+    along = np.minimum(hi, L) - np.maximum(lo, 0.0) >= 0.5 * L
+    return bool((parallel & (np.abs(off - offset) <= 0.02) & along).any())
 
 
 def lifted(faces: list[NDArray], z_lo: float, z_hi: float, step_m: float) -> NDArray:
