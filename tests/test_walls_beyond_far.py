@@ -249,3 +249,32 @@ def test_an_l_room_s_far_wing_stays_when_its_side_wall_is_seen_only_near_both_en
     assert beyond_the_room(deeper, np.array([5.16, -11.31]), CFG, TOL).tolist() == [False] * 8 + [True]
     # without the west wall's north piece nothing tells the wing from a room beyond W's line
     assert beyond_the_room(np.delete(lines, 2, axis=0), np.array([5.16, -11.31]), CFG, TOL)[2:4].all()
+
+
+def test_the_next_room_s_partition_on_the_wall_s_back_face_beside_a_door_goes():
+    """A corridor 12 m x 2 m with a door at x = 3-4 in its south wall (0.2 m thick): the next room's
+    partition, seen through the door from the wall's back face on (0.2 m behind its line), stands at the
+    door's west jamb, held by nothing: it goes (before: only a line wholly more than `thin_wall_max_m` behind, or with
+    its foot on the wall's data). Held by an alcove's back within `lines.max_gap_m`, the same line stays."""
+    room = [[0, 0, 3, 0], [4, 0, 12, 0], [0, 2, 12, 2], [0, 0, 0, 2], [12, 0, 12, 2]]
+    partition = [3.0, -0.2, 3.0, -1.0]
+    _, out = across_beyond_the_room(np.array([*room, partition], dtype=float), np.array([6.0, 1.0]), CFG, TOL)
+    assert out.tolist() == [False] * 5 + [True]
+    back = [3.0, -1.0, 4.0, -1.0]
+    lines = np.array([*room, partition, back], dtype=float)
+    _, out = across_beyond_the_room(lines, np.array([6.0, 1.0]), CFG, TOL)
+    assert not out.any()
+
+
+def test_the_building_wall_in_line_with_an_end_wall_seen_only_at_its_far_corner_goes():
+    """A corridor 12 m x 2 m whose south wall was seen from x = 2 on and whose west end wall only near its
+    north corner (down to y = 1.6); in line with that end wall, 0.85 m behind the south wall's line, the
+    building's wall runs on past the corridor (the next room's wall, seen through a door). A wing's outer wall
+    goes on from a wall of the room near the line it opens through; this end wall stops 1.6 m short of it:
+    the line goes. Seen down to y = 0.4, the end wall may be a wing's outer wall going on: the line stays."""
+    room = [[2, 0, 12, 0], [0, 2, 12, 2], [12, 0, 12, 2]]
+    building = [0, -0.85, 0, -2.9]
+    for end_y, gone in ((1.6, True), (0.4, False)):
+        lines = np.array([*room, [0, 2, 0, end_y], building], dtype=float)
+        _, out = across_beyond_the_room(lines, np.array([6.0, 1.0]), CFG, TOL)
+        assert out.tolist() == [False] * 4 + [gone], end_y

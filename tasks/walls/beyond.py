@@ -332,17 +332,24 @@ def across_beyond_the_room(
     - it lies wholly more than `thin_wall_end_tol_m` behind W's line and its foot lies on W's data, that
       far inside one of the pieces: nothing of the room lies behind the room's seen wall (the next room's
       partition standing on W's back face);
-    - or it lies wholly more than `thin_wall_max_m` behind, in a gap of the pieces (a door), and no other
-      line comes within `lines.max_gap_m` of it (an alcove's back wall or a wing's far wall would hold it;
-      the partition's other face, parallel within `thin_wall_max_m` and behind W too, does not, nor do W's
-      pieces: the next room's wall seen beside a door's jamb comes within a door's width of it) nor leaves
-      W's line outward within that of the foot (an alcove's or a wing's side);
+    - or it lies wholly that far behind in a gap of the pieces (a door; the next room's partition standing
+      on W's back face at the door's jamb, or any deeper), and no other line comes within `lines.max_gap_m`
+      of it (an alcove's back wall or a wing's far wall would hold it; the partition's other face, parallel
+      within `thin_wall_max_m` and behind W too, does not, nor do W's pieces: the next room's wall seen
+      beside a door's jamb comes within a door's width of it) nor leaves W's line outward within that of the
+      foot (an alcove's or a wing's side);
     - or it stands on W's line (within `thin_wall_end_tol_m`) and reaches more than `thin_wall_max_m`
       behind, away from the span's ends, held by nothing but W's pieces and with no other line leaving W's
       line near it (no back wall or other side, as an alcove or a wing has): a partition at a door's jamb;
     - or it lies wholly behind in line with a wall of the room that ends on W's line at an end of the span
       (the room's corner) and reaches more than `beyond_room_min_depth_m` behind (deeper than furniture
       stands before a wall): the building's wall going on past the room's corner.
+    A line L whose foot lies past the span (where W's wall went unseen) is beyond the room when it lies
+    wholly more than `beyond_room_min_depth_m` behind, held by nothing, with no line leaving W's line outward
+    near its foot, and in line with no line of the room that comes within `lines.max_gap_m` of W's line: a
+    wing's outer wall, whose other walls went unseen, goes on from a wall of the room near the line the wing
+    opens through (an end wall seen only at its far corner is no such wall: the building's wall in line with
+    it goes).
     A line that runs from the room (more than `thin_wall_end_tol_m` in front of W's line) through W's line
     at an end of the span and on more than `beyond_room_min_depth_m` behind it is that corner's wall and the
     building's wall beyond it seen as one: it is cut at W's line. `gone` (M,) are lines already found beyond
@@ -409,9 +416,10 @@ def across_beyond_the_room(
             wing[c] = False
             if not lo - end_tol <= foot[c] <= hi + end_tol:
                 # beyond the span's end (where W's wall went unseen): deeper than furniture, held by nothing
-                # and in line with no line of the room (the wall of a wing, whose other walls went unseen,
-                # goes on from one of the room's)
+                # and in line with no line of the room coming within a gap of W's line (the wall of a wing,
+                # whose other walls went unseen, goes on from one of the room's near the line it opens by)
                 in_line = collinear_with(lines, ang, normal, c, cos_tol, end_tol) & ~out & ~gone
+                in_line &= depth.max(axis=1) >= -gap
                 in_line[c] = False
                 if depth[c].min() > deep and not near.any() and not wing.any() and not in_line.any():
                     out[c] = True
@@ -451,7 +459,7 @@ def across_beyond_the_room(
             )
             if (
                 on_data
-                or (depth[c].min() > thin and not (near & ~same).any() and not wing.any())
+                or (not (near & ~same).any() and not wing.any())
                 or (lined.any() and depth[c].max() > deep)
             ):
                 out[c] = True
