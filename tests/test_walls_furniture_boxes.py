@@ -226,3 +226,14 @@ def test_a_cabinet_standing_in_an_alcove_whose_sides_run_on_past_it_is_furniture
     doors = [[0, 4, 6, 4], [6, 4, 6, 0], [0, 4, 0, 0], [0, 0, 1.5, 0], [4.7, 0, 6, 0], [2.5, 0, 3.7, 0]]
     jambs = [[2.5, 0, 2.5, -0.25], [3.7, 0, 3.7, -0.25], [1.5, 0, 1.5, -0.25], [4.7, 0, 4.7, -0.25]]
     assert not furniture_in_front(np.array([*doors, *jambs], dtype=float), CENTRE, CFG, 3.0).any()
+
+
+def test_a_shelf_s_side_stopping_short_of_the_wall_s_line_is_a_side():
+    """A shelf's two sides, 0.3 m long, standing on the east wall (x = 6): in a sparse capture their data near
+    the wall go into the wall's noisy band, and a side's line stops 7 cm short of the wall's line (degraded
+    251 r1): still a side. One stopping 0.2 m short stands off the wall, more than its data fray: it stays."""
+    sides = [[5.63, 2.0, 5.93, 2.0], [5.63, 3.0, 5.95, 3.0]]
+    lines = np.array([*ROOM, *sides], dtype=float)
+    assert np.flatnonzero(furniture_in_front(lines, CENTRE, CFG, 3.0)).tolist() == [4, 5]
+    off = np.array([*ROOM, [5.5, 2.0, 5.8, 2.0]], dtype=float)
+    assert not furniture_in_front(off, CENTRE, CFG, 3.0).any()

@@ -1208,11 +1208,11 @@ def furniture_in_front(
       beyond it, away from the room, by furniture's depth (a cabinet filling an alcove, the alcove's sides
       seen past it and its back unseen);
     - a side: a line perpendicular to such a wall, `furniture_min_depth_m` to `furniture_max_depth_m` long,
-      from the wall's line (at a front, it may reach across that line by `thin_wall_end_tol_m`; not at the
-      wall's ends: a corner, unless a front ends it) into the room, in line with
-      no other line (within a door's opening, `DOOR_OPENING_MAX_M`: the wall's next piece), whose
-      inner end is free (within `thin_wall_end_tol_m` of no line but the wall and the fronts): a partition
-      stub is longer than furniture is deep, and one shorter meets a wall.
+      from within `thin_wall_end_tol_m` of the wall's line (at a front, it may reach across that line by as
+      much; not at the wall's ends: a corner, unless a front ends it) into the room, in line with no other
+      line (within a door's opening, `DOOR_OPENING_MAX_M`: the wall's next piece), whose inner end is free
+      (within `thin_wall_end_tol_m` of no line but the wall and the fronts): a partition stub is longer than
+      furniture is deep, and one shorter meets a wall.
     A pilaster of a furniture's size in front of a wall is dropped as well: without a ceiling nothing
     tells them apart (with one, the top-reach test keeps it). A line lying wholly within
     `thin_wall_end_tol_m` of a front is of its band of data and goes with it. `why`, when given, gets the
@@ -1612,9 +1612,11 @@ def furniture_in_front(
             # a side that joins a front to the wall may stop short of both by as much as their ends may lie apart
             # (each end short of the box's corner by up to end_tol along its own line)
             at_front = front.any() and point_segment_distances(inner[None], lines[front]).min() <= corner_tol
-            # ...and, drawn some degrees off from its few points, reach across the wall's line by as much
+            # ...and, drawn some degrees off from its few points, reach across the wall's line by as much; any
+            # side may stop short of the wall's line by that much (its data near the wall go into the wall's
+            # band: a sparse capture's noisy band, and a cell or two of the grid, 7 cm on degraded 251 r1)
             reach = end_tol if at_front else tol
-            if not ((dd >= -reach) & (dd <= d_hi + tol)).all() or dd.min() > reach:
+            if not ((dd >= -reach) & (dd <= d_hi + tol)).all() or dd.min() > end_tol:
                 continue
             t0, t1 = wall_extent(j)
             if t1 - t0 <= L[k]:
