@@ -254,8 +254,9 @@ def test_an_l_room_s_far_wing_stays_when_its_side_wall_is_seen_only_near_both_en
 def test_the_next_room_s_partition_on_the_wall_s_back_face_beside_a_door_goes():
     """A corridor 12 m x 2 m with a door at x = 3-4 in its south wall (0.2 m thick): the next room's
     partition, seen through the door from the wall's back face on (0.2 m behind its line), stands at the
-    door's west jamb, held by nothing: it goes (before: only a line wholly more than `thin_wall_max_m` behind, or with
-    its foot on the wall's data). Held by an alcove's back within `lines.max_gap_m`, the same line stays."""
+    door's west jamb, held by nothing: it goes (before: only a line wholly more than `thin_wall_max_m`
+    behind, or with its foot on the wall's data). Held by an alcove's back within `lines.max_gap_m`, the
+    same line stays."""
     room = [[0, 0, 3, 0], [4, 0, 12, 0], [0, 2, 12, 2], [0, 0, 0, 2], [12, 0, 12, 2]]
     partition = [3.0, -0.2, 3.0, -1.0]
     _, out = across_beyond_the_room(np.array([*room, partition], dtype=float), np.array([6.0, 1.0]), CFG, TOL)
@@ -278,3 +279,21 @@ def test_the_building_wall_in_line_with_an_end_wall_seen_only_at_its_far_corner_
         lines = np.array([*room, [0, 2, 0, end_y], building], dtype=float)
         _, out = across_beyond_the_room(lines, np.array([6.0, 1.0]), CFG, TOL)
         assert out.tolist() == [False] * 4 + [gone], end_y
+
+
+def test_an_end_wall_running_on_through_a_wall_s_line_just_past_its_seen_span_is_the_room_s_corner():
+    """A corridor 12 m x 2 m whose north wall was seen from x = 0.33 (its last 0.33 m by the west corner
+    unseen); the west end wall, seen from inside the corridor, runs on through the north wall's line and 1 m
+    past it (the building's wall, seen through a door): the room's corner, by less than a wing's width
+    (`lines.max_gap_m`) past the span, and not an L-room's outer wall with its wing behind the north wall. It
+    is cut at the line, and the next room's partition standing on the north wall's back face goes (degraded
+    285 hall; before, the end wall kept the north wall from being judged at all). Seen from 1 m on, the north
+    wall may end at a wing's opening: nothing is judged."""
+    partition = [5.0, 2.25, 5.0, 3.3]
+    for seen_from, judged in ((0.33, True), (1.0, False)):
+        room = [[seen_from, 2, 3, 2], [4, 2, 12, 2], [0, 0, 12, 0], [12, 0, 12, 2], [0, 1.4, 0, 3.0]]
+        cut, out = across_beyond_the_room(
+            np.array([*room, partition], dtype=float), np.array([6.0, 1.0]), CFG, TOL
+        )
+        assert out.tolist() == [False] * 5 + [judged], seen_from
+        assert np.allclose(cut[4], [0, 1.4, 0, 2.0] if judged else room[4]), seen_from

@@ -351,11 +351,12 @@ def across_beyond_the_room(
     opens through (an end wall seen only at its far corner is no such wall: the building's wall in line with
     it goes).
     A line that runs from the room (more than `thin_wall_end_tol_m` in front of W's line) through W's line
-    at an end of the span and on more than `beyond_room_min_depth_m` behind it is that corner's wall and the
-    building's wall beyond it seen as one: it is cut at W's line. `gone` (M,) are lines already found beyond
-    the room (`beyond_the_room`): they are no line of the room, so they are not judged, judge nothing and hold
-    nothing (the next room's corner seen through a door, its other wall gone, holds this one no more).
-    `beyond_room_min_depth_m` 0 switches the test off."""
+    at an end of the span (or past it by less than `lines.max_gap_m`: W's wall unseen up to the corner; a
+    wing opens wider than that) and on more than `beyond_room_min_depth_m` behind it is that corner's wall
+    and the building's wall beyond it seen as one: it is cut at W's line. `gone` (M,) are lines already
+    found beyond the room (`beyond_the_room`): they are no line of the room, so they are not judged, judge
+    nothing and hold nothing (the next room's corner seen through a door, its other wall gone, holds this one
+    no more). `beyond_room_min_depth_m` 0 switches the test off."""
     lines, out, gone = _judged(lines, gone)
     lines = lines.copy()
     m = len(lines)
@@ -395,7 +396,11 @@ def across_beyond_the_room(
         lo, hi = _to_the_room_s_ends(
             lo, hi, foot, depth, across, outward, ok & ~out & ~gone, along, end_tol, deep
         )
-        at_corner = np.minimum(np.abs(foot - lo), np.abs(foot - hi)) <= end_tol
+        # at an end of the span, or past it by less than a wing's width (`lines.max_gap_m`: W's wall unseen
+        # up to the corner; a wing opens wider than that)
+        at_corner = ((foot >= lo - gap) & (foot <= lo + end_tol)) | (
+            (foot >= hi - end_tol) & (foot <= hi + gap)
+        )
         reveals = across & (np.abs(depth.min(axis=1)) <= end_tol) & (depth.max(axis=1) <= thin)
         if (across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) > thin) & ~at_corner).any():
             continue  # a wall of the room runs on from the room through W's line: the room goes on behind it
