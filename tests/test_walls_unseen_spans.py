@@ -493,3 +493,22 @@ def test_a_partition_s_end_cap_is_no_wall_the_partition_stands_on():
     closed = _across_unseen(root, thin_m=CFG.thin_wall_max_m)
     assert closed is not None
     assert closed[2].area == pytest.approx(16.0 - 0.12, abs=0.01)
+
+
+def test_a_room_is_not_closed_along_the_line_of_a_wall_it_leaves_outside():
+    """A corridor 12 m x 2 m seen at its east end only (the south wall in two pieces, the north wall's east
+    2 m, the east end wall), and a partition of the next room 0.7 m north of it (seen through a door, its
+    line across the corridor): closing across the unseen spans along that partition's line would make it
+    the corridor's west end wall, with none of its data in the room (degraded 127 hall at the highest
+    alpha). It stays open. The building's wall in line with the corridor's north wall, seen past its west
+    corner, lies outside too, but along a wall of the room run on: the corridor closes at its seen west end."""
+    corridor = [[4, 0, 5, 0], [6, 0, 8, 0], [10, 2, 12, 2], [12, 2, 12, 0]]
+    rng = np.random.default_rng(4)
+    for extra, closed in (([[1.0, 2.7, 1.0, 3.8]], False), ([[0, 0.5, 0, 1.5], [-1.5, 2, -0.5, 2]], True)):
+        walls = np.array([*corridor, *extra], float)
+        got = close_at_corners(
+            walls, np.full(len(walls), "observed"), _slice_points(walls, rng, 0.02), CFG, G
+        )
+        assert (got is not None) == closed, extra
+        if closed:
+            assert got[2].bounds == pytest.approx((0, 0, 12, 2), abs=0.01)

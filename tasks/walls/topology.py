@@ -28,6 +28,7 @@ from tasks.lines import (
     regularize,
     room_polygons,
     rotate_segments,
+    sample_segments,
 )
 from tasks.walls.beyond import across_beyond_the_room, beyond_the_room
 from tasks.walls.config import WallsConfig
@@ -131,9 +132,55 @@ def close_at_corners(
                     grid_m,
                 )
                 closed = None if polygon is None else (w, o, polygon, closed[3])
-        if closed is not None and _points_held(closed[2], xy, UNSEEN_HELD_BUFFER_M) >= UNSEEN_HELD_MIN_SHARE:
+        if (
+            closed is not None
+            and _points_held(closed[2], xy, UNSEEN_HELD_BUFFER_M) >= UNSEEN_HELD_MIN_SHARE
+            and not _along_a_line_outside(closed[0], closed[1], closed[2], walls, origin, cfg.lines)
+        ):
             return (*closed, "across unseen spans")
     return None
+
+
+def _along_a_line_outside(
+    walls: NDArray, origin: NDArray, polygon: Any, seen: NDArray, seen_origin: NDArray, lcfg: LinesConfig
+) -> bool:
+    """Does a wall the closing added (`EXTENDED`, of `walls` (M, 4) bounding `polygon`) run along the line of
+    an observed wall of `seen` (K, 4) that lies wholly outside the room (none of it within
+    `UNSEEN_HELD_BUFFER_M`), and along no observed wall of the room? The room was then closed along the line
+    of a wall it does not hold, nothing it saw pinning that side: the next room's wall seen through a door
+    (degraded 127 hall: a partition 0.7 m behind the corridor's wall, whose seen part the highest alpha lost,
+    run on across the corridor as its end wall). A wall of the room run on across an unseen span, or one
+    added where an observed wall of the room ends within `lcfg.max_gap_m` of its ends (its corner seen up
+    to), may have the building's wall in line beyond the room's corner (degraded 104 hall: its end wall in
+    line with the building's, seen past the corridor's corner through a door). In line: parallel within
+    `lcfg.angle_tol_deg`, the middle within `lcfg.offset_tol_m` of the added wall's line."""
+    added = walls[origin == EXTENDED]
+    observed = seen[seen_origin == OBSERVED]
+    if len(added) == 0 or len(observed) == 0:
+        return False
+    pts, owner = sample_segments(observed, UNSEEN_HELD_BUFFER_M)
+    outside = np.bincount(owner, _within(polygon, pts, UNSEEN_HELD_BUFFER_M), len(observed)) == 0
+    if not outside.any():
+        return False
+    u = (added[:, 2:] - added[:, :2]) / np.maximum(lengths(added), 1e-12)[:, None]
+    normal = np.column_stack([-u[:, 1], u[:, 0]])
+    sin_tol = math.sin(math.radians(lcfg.angle_tol_deg))
+
+    def along(lines: NDArray) -> NDArray[np.bool_]:
+        """(len(lines), len(added)) which lines lie in line with which added walls."""
+        parallel = np.abs(np.sin(angles(lines)[:, None] - angles(added)[None, :])) <= sin_tol
+        mid = 0.5 * (lines[:, None, :2] + lines[:, None, 2:]) - added[None, :, :2]
+        return parallel & (np.abs((mid * normal[None]).sum(axis=2)) <= lcfg.offset_tol_m)
+
+    kept = walls[origin == OBSERVED]
+    if len(kept) == 0:
+        return bool(along(observed[outside]).any())
+    # held by the room: in line with one of its observed walls, or with one of those ending near it (the
+    # corner seen up to, within a gap)
+    ends = np.concatenate([added[:, :2], added[:, 2:]])
+    near = point_segment_distances(ends, kept).min(axis=1).reshape(2, -1).min(axis=0) <= lcfg.max_gap_m
+    held = along(kept).any(axis=0) | near
+    return bool((along(observed[outside]) & ~held[None, :]).any())
 
 
 def _end_distances(walls: NDArray) -> tuple[NDArray, NDArray]:
