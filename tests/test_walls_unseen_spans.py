@@ -501,14 +501,21 @@ def test_a_room_is_not_closed_along_the_line_of_a_wall_it_leaves_outside():
     line across the corridor): closing across the unseen spans along that partition's line would make it
     the corridor's west end wall, with none of its data in the room (degraded 127 hall at the highest
     alpha). It stays open. The building's wall in line with the corridor's north wall, seen past its west
-    corner, lies outside too, but along a wall of the room run on: the corridor closes at its seen west end."""
+    corner, lies outside too, but along a wall of the room run on: the corridor closes at its seen west end.
+    So does one seen from end to end but for its east end wall, added within a gap of where the north wall's
+    data end, with the building's wall in line with it seen past the south-east corner (degraded 104 hall)."""
     corridor = [[4, 0, 5, 0], [6, 0, 8, 0], [10, 2, 12, 2], [12, 2, 12, 0]]
     rng = np.random.default_rng(4)
-    for extra, closed in (([[1.0, 2.7, 1.0, 3.8]], False), ([[0, 0.5, 0, 1.5], [-1.5, 2, -0.5, 2]], True)):
-        walls = np.array([*corridor, *extra], float)
+    cases = (
+        ([*corridor, [1.0, 2.7, 1.0, 3.8]], False),
+        ([*corridor, [0, 0.5, 0, 1.5], [-1.5, 2, -0.5, 2]], True),
+        ([[0, 0, 9, 0], [0, 2, 11.5, 2], [0, 0.5, 0, 1.5], [12, -0.6, 12, -1.4]], True),
+    )
+    for seen, closed in cases:
+        walls = np.array(seen, float)
         got = close_at_corners(
             walls, np.full(len(walls), "observed"), _slice_points(walls, rng, 0.02), CFG, G
         )
-        assert (got is not None) == closed, extra
+        assert (got is not None) == closed, seen
         if closed:
             assert got[2].bounds == pytest.approx((0, 0, 12, 2), abs=0.01)

@@ -175,8 +175,8 @@ def _along_a_line_outside(
     kept = walls[origin == OBSERVED]
     if len(kept) == 0:
         return bool(along(observed[outside]).any())
-    # held by the room: in line with one of its observed walls, or with one of those ending near it (the
-    # corner seen up to, within a gap)
+    # held by the room: in line with one of its observed walls, or reaching one within a gap at an end (its
+    # corner seen up to)
     ends = np.concatenate([added[:, :2], added[:, 2:]])
     near = point_segment_distances(ends, kept).min(axis=1).reshape(2, -1).min(axis=0) <= lcfg.max_gap_m
     held = along(kept).any(axis=0) | near
