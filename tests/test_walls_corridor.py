@@ -185,3 +185,21 @@ def test_a_corridor_whose_refined_walls_leave_a_sparse_stretch_open_closes_on_th
     r = run_room(generate_building(783), 783, "hall", "mini", load_config([], []), None)
     assert r.error is None and r.closed, r
     assert r.corner_f1 == 1.0 and r.acc_mean_mm <= 2.0, r
+
+
+def test_a_short_line_a_degree_or_two_off_is_judged_a_thin_wall_s_face_by_its_distance_at_its_middle():
+    """A wall reaching the slice top, y = 1.0 from x = 0 to 3.4, and a shelf's side 0.34 m from it (further
+    than a thin wall is thick), 0.3 m long, ending with the wall at x = 0 and drawn 2° off it (clean 854 r1):
+    no face of a thin wall. Judged by the wall's ends off the short line's own direction, the wall's far end
+    came 0.22 m from it, the two 0.28 m apart on average: a partition's two faces, and the side stayed as a
+    wall. A stub's other face 0.1 m from the wall, drawn as far off, is one."""
+    from tasks.walls.evidence import thin_wall_faces
+
+    shape = (200, 400)
+    top = _cells(shape, [(0.0, 3.4, 0.995, 1.005)])
+    cells = TopCells(top, Grid(np.zeros(2), G, shape), top)
+    tilt = np.tan(np.radians(2.0))
+    for gap, face in ((0.34, False), (0.1, True)):
+        lines = np.array([[0.0, 1.0, 3.4, 1.0], [0.0, 1.0 - gap, 0.3, 1.0 - gap + 0.3 * tilt]])
+        got = thin_wall_faces(lines, np.array([True, False]), cells, CFG, 3.0)
+        assert got.tolist() == [False, face], gap

@@ -412,7 +412,12 @@ def thin_wall_faces(
         n = np.array([-u[1], u[0]])
         for j in np.flatnonzero(walls & (np.abs(np.sin(th - th[i])) < sin_tol)):
             pa, pb = lines[j, :2] - a, lines[j, 2:] - a
-            offset = 0.5 * float(pa @ n + pb @ n)
+            # the faces' separation at this line's middle, off the wall line j (whose direction, over its
+            # length, is the better known: a short line a degree or two off, carried to a long j's far end,
+            # would put it nearer than it stands)
+            uj = (pb - pa) / max(float(np.hypot(*(pb - pa))), 1e-12)
+            nj = np.array([-uj[1], uj[0]])
+            offset = float((0.5 * L * u - float((0.5 * L * u - pa) @ nj) * nj) @ n)
             if not 2 * grid.size < abs(offset) <= cfg.thin_wall_max_m:
                 continue
             tj = np.sort([pa @ u, pb @ u])
