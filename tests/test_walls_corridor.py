@@ -1,7 +1,8 @@
 """Corridor ends (issue 14): an end wall smeared by frames levelled a few degrees apart is one wall, not
 furniture in front of one (`evidence.own_band`, `evidence.unshadowed_lines`); an open corridor closes
 where the data pin its corners (`topology.pinned_corners`), and a join within the tolerance leaves the walls
-it joined meeting (`topology._room_polygon`)."""
+it joined meeting (`topology._room_polygon`). Below the slice top, a short line is a thin wall's other face
+by its distance from the wall line at its middle (`evidence.thin_wall_faces`)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import pytest
 from tasks.evaluate import evaluate_walls
 from tasks.lines import is_closed, lengths, wall_graph
 from tasks.walls.config import WallsConfig
-from tasks.walls.evidence import TopCells, own_band, unshadowed_lines
+from tasks.walls.evidence import TopCells, own_band, thin_wall_faces, unshadowed_lines
 from tasks.walls.image import Grid
 from tasks.walls.model import model_walls
 from tasks.walls.topology import _room_polygon, pinned_corners
@@ -193,8 +194,6 @@ def test_a_short_line_a_degree_or_two_off_is_judged_a_thin_wall_s_face_by_its_di
     no face of a thin wall. Judged by the wall's ends off the short line's own direction, the wall's far end
     came 0.22 m from it, the two 0.28 m apart on average: a partition's two faces, and the side stayed as a
     wall. A stub's other face 0.1 m from the wall, drawn as far off, is one."""
-    from tasks.walls.evidence import thin_wall_faces
-
     shape = (200, 400)
     top = _cells(shape, [(0.0, 3.4, 0.995, 1.005)])
     cells = TopCells(top, Grid(np.zeros(2), G, shape), top)
