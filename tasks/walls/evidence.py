@@ -417,7 +417,7 @@ def thin_wall_faces(
             # would put it nearer than it stands)
             uj = (pb - pa) / max(float(np.hypot(*(pb - pa))), 1e-12)
             nj = np.array([-uj[1], uj[0]])
-            offset = float((0.5 * L * u - float((0.5 * L * u - pa) @ nj) * nj) @ n)
+            offset = float((pa - 0.5 * L * u) @ nj) * float(nj @ n)
             if not 2 * grid.size < abs(offset) <= cfg.thin_wall_max_m:
                 continue
             tj = np.sort([pa @ u, pb @ u])

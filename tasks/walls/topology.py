@@ -28,7 +28,6 @@ from tasks.lines import (
     regularize,
     room_polygons,
     rotate_segments,
-    sample_segments,
 )
 from tasks.walls.beyond import across_beyond_the_room, beyond_the_room
 from tasks.walls.config import WallsConfig
@@ -158,8 +157,7 @@ def _along_a_line_outside(
     observed = seen[seen_origin == OBSERVED]
     if len(added) == 0 or len(observed) == 0:
         return False
-    pts, owner = sample_segments(observed, UNSEEN_HELD_BUFFER_M)
-    outside = np.bincount(owner, _within(polygon, pts, UNSEEN_HELD_BUFFER_M), len(observed)) == 0
+    outside = _lines_away_from(observed, polygon, UNSEEN_HELD_BUFFER_M)
     if not outside.any():
         return False
     u = (added[:, 2:] - added[:, :2]) / np.maximum(lengths(added), 1e-12)[:, None]
@@ -173,12 +171,11 @@ def _along_a_line_outside(
         return parallel & (np.abs((mid * normal[None]).sum(axis=2)) <= lcfg.offset_tol_m)
 
     kept = walls[origin == OBSERVED]
-    if len(kept) == 0:
-        return bool(along(observed[outside]).any())
     # held by the room: in line with one of its observed walls, or reaching one within a gap at an end (its
     # corner seen up to)
     ends = np.concatenate([added[:, :2], added[:, 2:]])
-    near = point_segment_distances(ends, kept).min(axis=1).reshape(2, -1).min(axis=0) <= lcfg.max_gap_m
+    gap = point_segment_distances(ends, kept).min(axis=1, initial=np.inf)
+    near = gap.reshape(2, -1).min(axis=0) <= lcfg.max_gap_m
     held = along(kept).any(axis=0) | near
     return bool((along(observed[outside]) & ~held[None, :]).any())
 
