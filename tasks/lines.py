@@ -662,6 +662,32 @@ def _perpendicular_targets(means: NDArray, weight: NDArray, tol: float) -> NDArr
     return target
 
 
+def overlapping_parallels(segments: Segments, offset_tol: float, quantum: float) -> NDArray[np.intp]:
+    """(N,) a group per segment: parallel segments (directions within 1e-6 rad, as `regularize` leaves a
+    cluster's members) whose lines lie within `offset_tol` of each other and which overlap along them by
+    more than their separation and `STEP_MIN_CELLS` cells of the grid `quantum` share a group (single
+    linkage). `merge_segments`' rule for one wall, asked again after the regularization: pieces of one wall
+    drawn a few degrees apart (the skeleton of a wide band of noisy points) fall into two orientation
+    clusters, and meet only once both are turned to one direction; a jog's two walls do not overlap."""
+    segments = as_segments(segments)
+    n = len(segments)
+    group = np.arange(n)
+    theta = angles(segments)
+    for i in range(n):
+        u = np.array([math.cos(theta[i]), math.sin(theta[i])])
+        nrm = np.array([-u[1], u[0]])
+        ti = np.sort(segments[i].reshape(2, 2) @ u)
+        for j in range(i + 1, n):
+            if abs(math.sin(theta[j] - theta[i])) > 1e-6 or group[j] == group[i]:
+                continue
+            sep = abs(float((midpoints(segments[j : j + 1])[0] - midpoints(segments[i : i + 1])[0]) @ nrm))
+            tj = np.sort(segments[j].reshape(2, 2) @ u)
+            overlap = min(ti[1], tj[1]) - max(ti[0], tj[0])
+            if sep <= offset_tol and overlap > sep + STEP_MIN_CELLS * quantum:
+                group[group == group[j]] = group[i]
+    return np.unique(group, return_inverse=True)[1].astype(np.intp)
+
+
 # ---------------------------------------------------------------- graph and rooms
 
 

@@ -1075,6 +1075,36 @@ def test_a_refused_wall_leaves_its_cluster_and_its_neighbours_keep_their_own_ang
     np.testing.assert_allclose(out, lines, atol=1e-12)
 
 
+def test_pieces_of_one_wall_the_regularization_turned_parallel_are_one_line():
+    from tasks.walls.topology import join_overlapping
+
+    # an alcove's back wall seen as a wide band of noisy points: its skeleton gave lines 3.5° off the
+    # room's frame (a cluster of their own) which the regularization turned level, 4.4 cm apart and
+    # overlapping along 0.6 m: one wall. A jog's two walls 4 cm apart meet end to end and stay two; a line
+    # the regularization left at its own angle (refused) is kept as it is; a line 8 cm off (past the 5 cm
+    # offset tolerance) is another wall
+    lines = np.array(
+        [
+            [0.0, 0.0, 6.0, 0.0],
+            [7.35, -0.62, 8.48, -0.62],
+            [7.82, -0.576, 8.43, -0.576],
+            [0.0, 4.0, 3.0, 4.0],
+            [3.0, 4.04, 6.0, 4.04],
+            [1.0, 0.03, 2.0, 0.03],
+            [7.4, -0.7, 8.4, -0.7],
+        ]
+    )
+    refused = np.array([False, False, False, False, False, True, False])
+    rotation, chain = np.arange(7) * 0.01, np.arange(7)
+    out, rot, held, ch = join_overlapping(lines, rotation.copy(), refused, chain.copy(), CFG.lines, 0.01)
+    assert len(out) == 6
+    # the wall's line at the length-weighted mean offset, over both pieces, with the longer's rotation
+    np.testing.assert_allclose(out[1], [7.35, -0.62 + 0.044 * 0.61 / 1.74, 8.48, -0.62 + 0.044 * 0.61 / 1.74])
+    assert rot[1] == rotation[1] and ch[1] == chain[1]
+    np.testing.assert_array_equal(out[[0, 2, 3, 4, 5]], lines[[0, 3, 4, 5, 6]])
+    assert held.tolist() == [False, False, False, False, True, False]
+
+
 def test_frames_are_fitted_to_the_points_a_held_wall_on_its_own(rng):
     from tasks.walls.evidence import refine_frames
     from tasks.walls.image import Grid

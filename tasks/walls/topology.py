@@ -24,6 +24,7 @@ from tasks.lines import (
     lengths,
     line_intersection,
     merge_segments,
+    overlapping_parallels,
     point_segment_distances,
     regularize,
     room_polygons,
@@ -298,6 +299,7 @@ def model_for(
         "orientation_clusters": len(found.merged.orientation_deg),
         "orientation_criterion": found.merged.orientation_criterion,
         "regularization_refused": found.refused,
+        "lines_joined_after_regularization": found.joined,
         "frame_fit_turn_max_deg": found.frame_turn_deg,
         "merged_lines": len(found.merged.segments),
         "lines_below_top": found.below_top,
@@ -352,6 +354,8 @@ class _Topology:
     """The largest turn the fit of the frames to the points made (`evidence.refine_frames`), degrees."""
     jogs: int = 0
     """Jogs at a corner's tip dropped, their two walls run on to the corner (`corner_jogs`)."""
+    joined: int = 0
+    """Lines merged into another after the regularization (`join_overlapping`)."""
 
 
 def _along_lines(walls: NDArray, grid: Grid, shape: tuple[int, ...], tol_m: float) -> NDArray:
@@ -556,6 +560,9 @@ def _topology(
     wall_data = _wall_data(binary, proj.top, lines, grid, cfg.support_tol_m)
     share = support_sampler(wall_data, grid, cfg.support_tol_m)
     reg, rotation, refused = regularize_within_noise(lines, noise, lcfg)
+    before = len(reg)
+    reg, rotation, refused, chain = join_overlapping(reg, rotation, refused, chain, lcfg, grid.size)
+    joined = before - len(reg)
     turn = np.zeros(len(reg))
     if xy is None:
         refined = reg
@@ -674,6 +681,7 @@ def _topology(
         why,
         round(math.degrees(float(np.abs(turn).max(initial=0.0))), 4),
         n_jogs,
+        joined,
     )
 
 
@@ -1453,6 +1461,47 @@ def regularize_within_noise(
         refused |= more
         reg[more], rotation[more] = lines[more], 0.0
     return reg, rotation, refused
+
+
+def join_overlapping(
+    lines: NDArray, rotation: NDArray, refused: NDArray, chain: NDArray, lcfg: LinesConfig, quantum: float
+) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """The regularized `lines` (M, 4) that are one wall's pieces (`lines.overlapping_parallels`: parallel,
+    overlapping, within `offset_tol_m`) merged into one line each, at their length-weighted mean offset, at the
+    place of the group's first; it takes the direction, the rotation and the chain of the longest. Lines left at their own angle
+    (`refused`) are kept as they are. On clean 854 r4 an alcove's back wall 1.2 m long, a Kinect band of
+    +-10 cm at 4 m, gave skeleton lines 3.5 degrees off the room's frame beside level ones, two clusters
+    then: turned level, two of them 4.4 cm apart both stayed, and the wall was drawn as two with a step.
+    Returns (lines, rotation, refused, chain) of the lines kept."""
+    free = np.flatnonzero(~refused)
+    group = np.full(len(lines), -1, dtype=np.intp)
+    group[free] = overlapping_parallels(lines[free], lcfg.offset_tol_m, quantum)
+    if len(np.unique(group[free])) == len(free):
+        return lines, rotation, refused, chain
+    L = lengths(lines)
+    keep, out = [], lines.copy()
+    for i in range(len(lines)):
+        if group[i] < 0:
+            keep.append(i)
+            continue
+        members = np.flatnonzero(group == group[i])
+        if members[0] != i:
+            continue
+        longest = members[np.argmax(L[members])]
+        # along their common direction (a fit through parallel lines of unequal spans would tilt it), at
+        # their length-weighted mean offset, over all their spans
+        u = (lines[longest, 2:] - lines[longest, :2]) / L[longest]
+        ends = lines[members].reshape(-1, 2)
+        t, off = (
+            ends @ u,
+            float(np.repeat(L[members], 2) @ (ends @ np.array([-u[1], u[0]]))) / (2 * L[members].sum()),
+        )
+        base = off * np.array([-u[1], u[0]])
+        out[i] = np.concatenate([base + t.min() * u, base + t.max() * u])
+        rotation[i], chain[i] = rotation[longest], chain[longest]
+        keep.append(i)
+    k = np.array(keep, dtype=np.intp)
+    return out[k], rotation[k], refused[k], chain[k]
 
 
 def line_noise(hough: NDArray, labels: NDArray, lines: NDArray, floor_m: float) -> NDArray[np.float64]:
