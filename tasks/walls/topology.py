@@ -1467,39 +1467,36 @@ def join_overlapping(
     lines: NDArray, rotation: NDArray, refused: NDArray, chain: NDArray, lcfg: LinesConfig, quantum: float
 ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
     """The regularized `lines` (M, 4) that are one wall's pieces (`lines.overlapping_parallels`: parallel,
-    overlapping, within `offset_tol_m`) merged into one line each, at their length-weighted mean offset, at the
-    place of the group's first; it takes the direction, the rotation and the chain of the longest. Lines left at their own angle
-    (`refused`) are kept as they are. On clean 854 r4 an alcove's back wall 1.2 m long, a Kinect band of
-    +-10 cm at 4 m, gave skeleton lines 3.5 degrees off the room's frame beside level ones, two clusters
-    then: turned level, two of them 4.4 cm apart both stayed, and the wall was drawn as two with a step.
-    Returns (lines, rotation, refused, chain) of the lines kept."""
+    overlapping, within `offset_tol_m`) merged into one line each, in the place of the group's first: along
+    the longest's direction, at their length-weighted mean offset, over all their spans, with the longest's
+    rotation and chain. Lines left at their own angle (`refused`) are kept as they are. On clean 854 r4 an
+    alcove's back wall 1.2 m long, a Kinect band of +-10 cm at 4 m, gave skeleton lines 3.5 degrees off the
+    room's frame beside level ones, two clusters then: turned level, two of them 4.4 cm apart both stayed,
+    and the wall was drawn as two with a step. Returns (lines, rotation, refused, chain) of the lines kept."""
     free = np.flatnonzero(~refused)
     group = np.full(len(lines), -1, dtype=np.intp)
     group[free] = overlapping_parallels(lines[free], lcfg.offset_tol_m, quantum)
     if len(np.unique(group[free])) == len(free):
         return lines, rotation, refused, chain
     L = lengths(lines)
-    keep, out = [], lines.copy()
+    out, rotation, chain = lines.copy(), rotation.copy(), chain.copy()
+    keep = []
     for i in range(len(lines)):
-        if group[i] < 0:
-            keep.append(i)
-            continue
-        members = np.flatnonzero(group == group[i])
+        members = np.flatnonzero(group == group[i]) if group[i] >= 0 else np.array([i])
         if members[0] != i:
             continue
-        longest = members[np.argmax(L[members])]
-        # along their common direction (a fit through parallel lines of unequal spans would tilt it), at
-        # their length-weighted mean offset, over all their spans
-        u = (lines[longest, 2:] - lines[longest, :2]) / L[longest]
-        ends = lines[members].reshape(-1, 2)
-        t, off = (
-            ends @ u,
-            float(np.repeat(L[members], 2) @ (ends @ np.array([-u[1], u[0]]))) / (2 * L[members].sum()),
-        )
-        base = off * np.array([-u[1], u[0]])
-        out[i] = np.concatenate([base + t.min() * u, base + t.max() * u])
-        rotation[i], chain[i] = rotation[longest], chain[longest]
         keep.append(i)
+        if len(members) == 1:
+            continue
+        longest = members[np.argmax(L[members])]
+        # (a fit through parallel lines of unequal spans would tilt the line)
+        u = (lines[longest, 2:] - lines[longest, :2]) / L[longest]
+        nrm = np.array([-u[1], u[0]])
+        ends = lines[members].reshape(-1, 2)
+        t = ends @ u
+        off = float(np.repeat(L[members], 2) @ (ends @ nrm)) / (2 * L[members].sum())
+        out[i] = np.concatenate([off * nrm + t.min() * u, off * nrm + t.max() * u])
+        rotation[i], chain[i] = rotation[longest], chain[longest]
     k = np.array(keep, dtype=np.intp)
     return out[k], rotation[k], refused[k], chain[k]
 
