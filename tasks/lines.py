@@ -672,7 +672,7 @@ def overlapping_parallels(segments: Segments, offset_tol: float, quantum: float)
     segments = as_segments(segments)
     n = len(segments)
     group = np.arange(n)
-    theta = angles(segments)
+    theta, mid = angles(segments), midpoints(segments)
     for i in range(n):
         u = np.array([math.cos(theta[i]), math.sin(theta[i])])
         nrm = np.array([-u[1], u[0]])
@@ -680,7 +680,7 @@ def overlapping_parallels(segments: Segments, offset_tol: float, quantum: float)
         for j in range(i + 1, n):
             if abs(math.sin(theta[j] - theta[i])) > 1e-6 or group[j] == group[i]:
                 continue
-            sep = abs(float((midpoints(segments[j : j + 1])[0] - midpoints(segments[i : i + 1])[0]) @ nrm))
+            sep = abs(float((mid[j] - mid[i]) @ nrm))
             tj = np.sort(segments[j].reshape(2, 2) @ u)
             overlap = min(ti[1], tj[1]) - max(ti[0], tj[0])
             if sep <= offset_tol and overlap > sep + STEP_MIN_CELLS * quantum:
