@@ -297,3 +297,18 @@ def test_an_end_wall_running_on_through_a_wall_s_line_just_past_its_seen_span_is
         )
         assert out.tolist() == [False] * 5 + [judged], seen_from
         assert np.allclose(cut[4], [0, 1.4, 0, 2.0] if judged else room[4]), seen_from
+
+
+def test_a_wall_past_an_l_room_s_inner_step_stays_where_the_room_goes_on_behind_the_step():
+    """An L-room (6 x 3 m, and 4 m wide from y = 3 to 6), the lines' centre in its south part: its inner step
+    (y = 3, x 4-6) has the room's wall leaving its line outward at its west end (x = 4, going north). The
+    west wall's piece seen at y 4-4.7 lies past that end, 1-1.7 m behind the step's line: it is the wing's
+    wall, and stays (degraded 308 r3 lost it and closed the room on the next room's wall). Without the wall
+    leaving the step's line at that end, nothing says the room goes on there: it goes."""
+    room = [[0, 0, 3, 0], [4.5, 0, 6, 0], [6, 0, 6, 3], [6, 3, 4, 3], [0, 0, 0, 0.4], [0, 4, 0, 4.7]]
+    step_side = [[4, 3, 4, 4]]
+    interior = np.array([3.0, 1.5])
+    _, out = across_beyond_the_room(np.array(room + step_side, dtype=float), interior, CFG, TOL)
+    assert not out.any()
+    _, out = across_beyond_the_room(np.array(room, dtype=float), interior, CFG, TOL)
+    assert out.tolist() == [False] * 5 + [True]

@@ -13,7 +13,7 @@ from tasks.evaluate import evaluate_walls
 from tasks.lines import lengths
 from tasks.walls.config import WallsConfig
 from tasks.walls.model import model_walls
-from tasks.walls.topology import _jambs, _open_corner, close_at_corners, pinned_corners
+from tasks.walls.topology import _box_sides, _jambs, _open_corner, close_at_corners, pinned_corners
 from tests.scenes import wall_points
 
 CFG = WallsConfig()
@@ -519,3 +519,75 @@ def test_a_room_is_not_closed_along_the_line_of_a_wall_it_leaves_outside():
         assert (got is not None) == closed, seen
         if closed:
             assert got[2].bounds == pytest.approx((0, 0, 12, 2), abs=0.01)
+
+
+def _box_in_a_corner() -> tuple[np.ndarray, np.ndarray]:
+    """RECT with a wardrobe in its north-west corner (x 0-0.5, y 2.5-4): the west wall seen from the south
+    corner up to the box, the box's south side (a line joined to the west wall's end, its east end free)
+    and front (slice points along x = 0.5 from y 2.5 to 3.3, too short for a line), the north wall from
+    3.4 m on, the east wall up to 2.6 m. Returns (walls, slice points)."""
+    walls = np.array(
+        [[0, 0, 6, 0], [6, 0, 6, 2.6], [6, 4, 3.4, 4], [0, 0, 0, 2.5], [0, 2.5, 0.5, 2.5]], float
+    )
+    rng = np.random.default_rng(7)
+    seen = _slice_points(np.concatenate([walls, [[0.5, 2.5, 0.5, 3.3]]]), rng, 0.04)
+    return walls, seen
+
+
+def test_a_box_in_a_corner_does_not_stop_the_wall_seen_beside_it():
+    """The box's side took the west wall's end, and the room stayed open (degraded 300 r3, 110 r3, 117 r3).
+    With its front seen beyond the side's line, the side is a box's: the west wall runs on behind the box to
+    the unseen corner, the room closes on its true walls and the side stays in it."""
+    walls, seen = _box_in_a_corner()
+    origin = np.full(len(walls), "observed")
+    assert _box_sides(walls, G, CFG.lines.offset_tol_m, CFG.thin_wall_max_m, seen).tolist() == [
+        *[False] * 4,
+        True,
+    ]
+    assert _across_unseen(walls) is None
+    got = close_at_corners(walls, origin, seen, CFG, G)
+    assert got is not None and got[4] == "across unseen spans"
+    assert got[2].area == pytest.approx(24.0, abs=0.01)
+    assert evaluate_walls(got[0], np.concatenate([RECT, walls[4:]]))["correctness"] == 1.0
+
+
+def test_a_short_wall_at_a_corner_is_no_box_s_side_without_a_front_or_a_room_s_corner():
+    """Without the box's front (a wall seen 0.5 m from its corner has nothing of the room beyond it), or
+    when the wall it ends is a box's front itself (its other end at no long wall's corner: degraded 142 r5,
+    run on as the room's wall up to the north wall), the short line is no box's side."""
+    walls, seen = _box_in_a_corner()
+    no_front = _slice_points(walls, np.random.default_rng(8), 0.04)
+    assert not _box_sides(walls, G, CFG.lines.offset_tol_m, CFG.thin_wall_max_m, no_front).any()
+    # the box's front (x = 0.5, 1.2 m) ending in its side, its south end joined to a 0.5 m side only
+    front = np.array([[0, 0, 6, 0], [6, 0, 6, 2.6], [6, 4, 3.4, 4], [0.5, 1.3, 0.5, 2.5], [0, 1.3, 0.5, 1.3]])
+    boxed = np.concatenate([front, walls[4:]])
+    assert not _box_sides(boxed, G, CFG.lines.offset_tol_m, CFG.thin_wall_max_m, seen).any()
+
+
+def test_a_free_end_a_noise_band_past_the_corner_still_makes_it():
+    """The east wall's points run 8 cm past the unseen north-east corner (a far Kinect's depth noise along a
+    wall seen obliquely): its end lies past the north wall's line, which meets it back along the wall. The
+    north wall, seen 0.5 m from its corner, runs on to it all the same (degraded 263 r3, 287 r3); 20 cm
+    past, the east wall's line runs on through the north wall's: no corner."""
+    walls = np.array([[0, 0, 6, 0], [6, 0.2, 6, 4.08], [0, 4, 0.5, 4], [0, 4, 0, 0]], float)
+    closed = _across_unseen(walls)
+    assert closed is not None and closed[2].area == pytest.approx(24.0, abs=0.01)
+    assert evaluate_walls(closed[0], RECT)["correctness"] == 1.0
+    walls[1, 3] = 4.2
+    assert _across_unseen(walls) is None
+
+
+def test_points_off_the_room_s_corner_do_not_keep_a_wall_from_bounding_the_room():
+    """The east wall seen over 0.7 m only bounds the room (test above) though the next room shows through a
+    door in the north wall, 1.5 m north of it and running on past the east wall's line: those points lie
+    beyond the north wall's line too, off the room's corner, and say nothing of where the east wall ends."""
+    walls = _open_rectangle()
+    walls[1] = [6, 1.5, 6, 2.2]
+    walls[0] = [0, 0, 5.5, 0]
+    origin = np.full(len(walls), "observed")
+    rng = np.random.default_rng(5)
+    seen = _slice_points(walls.astype(float), rng, 0.04)
+    next_room = _slice_points(np.array([[4.5, 5.5, 7.5, 5.5]]), rng, 0.02)
+    assert (next_room[:, 0] > 6.1).sum() > 0.01 * (len(seen) + len(next_room))
+    got = close_at_corners(walls, origin, np.concatenate([seen, next_room]), CFG, G)
+    assert got is not None and got[2].area == pytest.approx(24.0, abs=0.01)

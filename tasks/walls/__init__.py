@@ -65,19 +65,22 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    walls; a door holds none), and when no candidate α closes the room, those bridges and the corners one
    wall's data pin (`topology.pinned_corners`) are added to every candidate, kept when that closes it.
    When nothing pins them either (a handheld scan's spans seen at no height, 0.5 m and more short of each
-   corner), the unseen spans are closed along the walls' lines (`close_unseen_spans`, `pinned_corners`
-   with `across_unseen`): a corner both walls point at, each running on unseen for no more than twice its
-   line is seen over (any distance when that is a metre, or when it starts from a seen corner of the room
-   in a direction a long wall confirms or in one more than 10° from every long wall's: a trapezoid's slanted
-   wall; or when, in a confirmed direction, at most 1 % of the slice points lie beyond its line: a sparse
-   scan's far wall seen over a few dm), with no other wall in the corner's parallelogram (an L-room's
-   seen notch) nor behind an added piece (a partition stub's face run across the room has the room's far
-   walls behind it; a furniture front has the wall's points just behind it); a collinear gap whose pieces
-   lie on each other's lines with no wall behind it (an alcove's back wall); a free end run along its line
-   to a wall as far as its line is seen over; a door's jamb standing free across a wall's line stops none
-   of these (`_jambs`), and a partition's end cap is no wall the partition stands on; kept when the room
-   then closes and holds `UNSEEN_HELD_MIN_SHARE` of the slice points, leaving out those apart from all it
-   holds (a wall seen through a door) (`corners_closed` in the metrics says which closed it).
+   corner), the unseen spans are closed along the walls' lines (`close_unseen_spans`, `pinned_corners` with
+   `across_unseen`): a corner both walls point at (an end up to 10 cm past it too: a far Kinect's noise along
+   an obliquely seen wall), each running on unseen for no more than twice its line is seen over (any distance
+   when that is a metre, or when it starts from a seen corner of the room in a direction a long wall confirms
+   or in one more than 10° from every long wall's: a trapezoid's slanted wall; or when, in a confirmed
+   direction, at most 1 % of the slice points lie beyond its line, not counting those beyond a long wall
+   across it too, off the room's corner: a sparse scan's far wall seen over a few dm), with no other wall in
+   the corner's parallelogram (an L-room's seen notch) nor behind an added piece (a partition stub's face run
+   across the room has the room's far walls behind it; a furniture front has the wall's points just behind
+   it); a collinear gap whose pieces lie on each other's lines with no wall behind it (an alcove's back wall);
+   a free end run along its line to a wall as far as its line is seen over; a door's jamb standing free across
+   a wall's line stops none of these (`_jambs`), nor a furniture box's side at a wall's end with the box's
+   front seen beyond it (`_box_sides`: the wall runs on behind the box), and a partition's end cap is no wall
+   the partition stands on; kept when the room then closes and holds `UNSEEN_HELD_MIN_SHARE` of the slice
+   points, leaving out those apart from all it holds (a wall seen through a door) (`corners_closed` in the
+   metrics says which closed it).
    Walls are turned to have the room on their left;
 8. extrusion (5.2.6, `model`) to a triangle mesh, and a preview picture.
 

@@ -426,7 +426,11 @@ def across_beyond_the_room(
                 in_line = collinear_with(lines, ang, normal, c, cos_tol, end_tol) & ~out & ~gone
                 in_line &= depth.max(axis=1) >= -gap
                 in_line[c] = False
-                if depth[c].min() > deep and not near.any() and not wing.any() and not in_line.any():
+                # ...and not past an end of W where a wall of the room leaves W's line outward: the room goes on
+                # behind W's line there (W is an L-room's inner step, the line the wing's far wall)
+                end = lo if foot[c] < lo else hi
+                turned = outward & (np.abs(foot - end) <= end_tol)
+                if depth[c].min() > deep and not (near | wing | in_line | turned).any():
                     out[c] = True
                 continue
             if outward[c]:

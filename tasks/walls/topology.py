@@ -120,15 +120,20 @@ def close_at_corners(
             )
 
         closed = across(walls, origin)
-        jamb = _jambs(walls, grid_m, cfg.thin_wall_max_m) if closed is None else np.zeros(0, dtype=bool)
-        if jamb.any():
+        for aside in (
+            _jambs(walls, grid_m, cfg.thin_wall_max_m),
+            _box_sides(walls, grid_m, cfg.lines.offset_tol_m, cfg.thin_wall_max_m, xy),
+        ):
+            if closed is not None or not aside.any():
+                continue
             # a door's jamb standing free on a wall's line stops no wall run on along that line (the wall goes
-            # on past the door): the room is closed without the jambs, which are then its walls again
-            closed = across(walls[~jamb], origin[~jamb])
+            # on past the door), nor does a furniture box's side at a wall's end (the wall runs on behind the
+            # box): the room is closed without them, which are then its walls again
+            closed = across(walls[~aside], origin[~aside])
             if closed is not None:
                 polygon, w, o, _ = _room_polygon(
-                    np.concatenate([closed[0], walls[jamb]]),
-                    np.concatenate([closed[1], origin[jamb]]),
+                    np.concatenate([closed[0], walls[aside]]),
+                    np.concatenate([closed[1], origin[aside]]),
                     grid_m,
                 )
                 closed = None if polygon is None else (w, o, polygon, closed[3])
@@ -214,6 +219,75 @@ def _jambs(walls: NDArray, tol_m: float, max_m: float) -> NDArray[np.bool_]:
                 out[k] = True
                 break
     return out
+
+
+def _box_sides(
+    walls: NDArray, tol_m: float, offset_m: float, thin_m: float, points: NDArray
+) -> NDArray[np.bool_]:
+    """(M,) the walls (M, 4) that are a furniture box's side at a wall's end: shorter than
+    `UNSEEN_RUN_FREE_SPAN_M`, nothing else on their line (within `offset_m`), one end joined (within
+    `tol_m`) only to the end of one longer wall across (more than 45°), whose line (its pieces in line
+    followed) starts at a corner with a wall across at least `UNSEEN_RUN_FREE_SPAN_M` long, the other end
+    free, and the box's front there: at least `BOX_FRONT_MIN_POINTS` of the slice `points` (N, 2) on the
+    line through the free end along the wall (within `BEHIND_BAND_M`), from `BEHIND_BAND_M` to `BOX_FRONT_M`
+    beyond the side's line and reaching deeper than `thin_m` (a door's jamb, a wall's noise band do not).
+    A wardrobe standing in a corner whose walls the capture saw only beside it: the wall seen up to the box
+    ends at the box's side, and that L is no corner of the room (a room's wall seen only near its corner
+    has nothing of the room beyond it; degraded 300 r3 and 110 r3 stayed open)."""
+    n = len(walls)
+    out = np.zeros(n, dtype=bool)
+    if n < 4 or len(points) == 0:
+        return out
+    L = lengths(walls)
+    ends, d = _end_distances(walls)
+    th = angles(walls)
+    nrm = np.column_stack([-np.sin(th), np.cos(th)])
+    sin45 = math.sin(math.radians(45.0))
+    for k in np.flatnonzero(L < UNSEEN_RUN_FREE_SPAN_M):
+        near = d[[k, k + n]] <= tol_m  # (2, M): the walls each end of k touches
+        if near.any(axis=0).sum() != 1 or near.any(axis=1).all():
+            continue
+        e = k + n * int(near[1].any())  # the joined end; the free one is e's other row
+        j = int(np.flatnonzero(near.any(axis=0))[0])
+        far_end = walls[j, 2:] if np.hypot(*(walls[j, :2] - ends[e])) <= tol_m else walls[j, :2]
+        if (
+            abs(math.sin(th[k] - th[j])) < sin45
+            or L[j] <= L[k]
+            or np.hypot(*(far_end - ends[e])) < L[j] - tol_m
+        ):
+            continue  # not across, not longer, or not joined at the wall's end
+        run = (ends[e] - far_end) / max(L[j], 1e-12)  # the way the wall runs into the joint
+        # the wall's line, followed through its pieces in line, ends at a corner with a wall across at least
+        # `UNSEEN_RUN_FREE_SPAN_M` long: a wall of the room, not a box's front (its other side)
+        pieces = ends.reshape(2, n, 2)[:, _in_line(walls, nrm, j, offset_m)].reshape(-1, 2)
+        start = pieces[int(np.argmin(pieces @ run))]
+        corner = (point_segment_distances(start[None], walls)[0] <= tol_m) & (L >= UNSEEN_RUN_FREE_SPAN_M)
+        if (
+            not (corner & (np.abs(np.sin(th - th[j])) >= sin45)).any()
+            or _in_line(walls, nrm, k, offset_m).sum() > 1
+        ):
+            continue
+        # its front: points on the line through its free end along the wall, from beyond the side's line on
+        # (`BEHIND_BAND_M`) and deeper than a wall is thick (`thin_m`: no door's jamb, no wall's noise)
+        rel = points - ends[(e + n) % (2 * n)]
+        along, across = rel @ run, np.abs(rel @ np.array([-run[1], run[0]]))
+        front = (along >= BEHIND_BAND_M) & (along <= BOX_FRONT_M) & (across <= BEHIND_BAND_M)
+        out[k] = int(front.sum()) >= BOX_FRONT_MIN_POINTS and float(along[front].max()) >= thin_m
+    return out
+
+
+def _in_line(walls: NDArray, nrm: NDArray, k: int, offset_m: float) -> NDArray[np.bool_]:
+    """(M,) the walls (M, 4), unit normals `nrm`, on wall k's line (within 45° of its direction, both ends
+    within `offset_m` of it), k among them."""
+    off = np.abs((walls.reshape(-1, 2, 2) - walls[k, :2]) @ nrm[k]).max(axis=1)
+    return (off <= offset_m) & (
+        np.abs(nrm[:, 0] * nrm[k, 1] - nrm[:, 1] * nrm[k, 0]) < math.sin(math.radians(45.0))
+    )
+
+
+BOX_FRONT_M = 0.4
+"""`_box_sides`: how far beyond a box's side its front is looked for."""
+BOX_FRONT_MIN_POINTS = 10
 
 
 def model_for(
@@ -696,6 +770,12 @@ targets (2 gained, 2 lost) and 2 more TLS rooms; 4 times the seen length for eve
 3 fewer Kinect rooms met them."""
 
 
+UNSEEN_OVERSHOOT_M = 0.1
+"""`pinned_corners` with `across_unseen`: a free end may lie this far past the corner its wall makes with
+another (the corner back along the wall): a wall seen obliquely near its unseen corner scatters its points
+along its line, in a far Kinect's depth noise (degraded 263 r3: 10 cm)."""
+
+
 DISTINCT_DIRECTION_DEG = 10.0
 """`pinned_corners` with `across_unseen`: a wall whose direction lies this far from every long observed wall's
 and its perpendicular is a wall of its own direction, run on from a seen corner like one that has it."""
@@ -714,12 +794,20 @@ def _bounding(
 ) -> NDArray[np.bool_]:
     """(M,) which walls (M, 4), unit normals `nrm` (M, 2), have at most `BOUNDING_MAX_SHARE` of the slice
     `points` (N, 2) more than `BEHIND_BAND_M` beyond their lines, on the side away from the room's
-    `centre`."""
+    `centre`. A point beyond the line of a wall across (more than 45°) at least `UNSEEN_RUN_FREE_SPAN_M` long
+    as well lies off the room's corner: what a door in that wall shows of the next room, it says nothing of
+    where this wall ends."""
     if centre is None or points is None or len(points) == 0:
         return np.zeros(len(walls), dtype=bool)
     inward = np.sign(np.einsum("ij,ij->i", centre - walls[:, :2], nrm))
     off = (points @ nrm.T - np.einsum("ij,ij->i", walls[:, :2], nrm)) * inward  # (N, M), + towards the room
-    return (off < -BEHIND_BAND_M).mean(axis=0) <= BOUNDING_MAX_SHARE
+    beyond = off < -BEHIND_BAND_M
+    across = np.abs(nrm[:, 0, None] * nrm[None, :, 1] - nrm[:, 1, None] * nrm[None, :, 0]) >= math.sin(
+        math.radians(45.0)
+    )
+    across &= (lengths(walls) >= UNSEEN_RUN_FREE_SPAN_M)[None, :]  # (M, M): k, and a long wall across k
+    off_corner = beyond.astype(np.int64) @ across.T.astype(np.int64) > 0  # (N, M): beyond a wall across k
+    return (beyond & ~off_corner).sum(axis=0) <= BOUNDING_MAX_SHARE * len(points)
 
 
 def _unseen_run_limit(span_m: float, ratio: float = UNSEEN_RUN_RATIO) -> float:
@@ -819,7 +907,7 @@ def pinned_corners(
     the piece and that wall, met at its end, does not run on away from the room (an alcove's side: the room
     goes on past the line there). With the slice `points` (N, 2), "nothing" includes them, close behind (a
     furniture front run on, the wall seen just behind it). What was seen stays: the added pieces still may
-    not cross a wall.
+    not cross a wall. A free end up to `UNSEEN_OVERSHOOT_M` past the corner makes it too.
 
     A wall's end where a thin partition (two faces within `thin_m`, `_at_a_stub`) stands on its line counts
     as free too: the wall runs on past the partition (the pocket behind a partition stub whose wall the
@@ -890,6 +978,7 @@ def pinned_corners(
             seen.add(j)
             e = j + n * int(meets[e, j])  # its other end
 
+    overshoot_m = UNSEEN_OVERSHOOT_M if across_unseen else 0.0
     # the walls with nothing the capture saw beyond their lines, in a direction a long wall confirms
     bounding = confirmed & _bounding(walls, nrm, centre, points) if across_unseen else np.zeros(n, dtype=bool)
     cands = []
@@ -920,7 +1009,7 @@ def pinned_corners(
         ext = []
         for e, w in ((x, i), (y, j)):
             p, q = ends[e], ends[(e + n) % (2 * n)]  # the free end and the wall's other end
-            if float((corner - p) @ (p - q)) < -tol_m * max(L[w], 1e-12):
+            if float((corner - p) @ (p - q)) < -(tol_m + overshoot_m) * max(L[w], 1e-12):
                 break  # the corner lies back along the wall, not beyond its free end
             ext.append(float(np.hypot(*(corner - p))))
         if len(ext) < 2:
