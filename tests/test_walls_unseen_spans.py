@@ -113,17 +113,22 @@ def test_a_wall_may_not_run_on_unseen_further_than_its_line_is_seen():
     assert pinned_corners(walls, origin, CFG.lines.extend_m, G, CFG.lines.offset_tol_m, True) is None
 
 
+def _short_east_wall() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.random.Generator]:
+    """The open rectangle with its east wall seen over 0.7 m only, 1.5 and 1.8 m short of its corners, and
+    the south wall up to 5.5 m: (walls, origin, their slice points 4 cm apart, the generator)."""
+    walls = _open_rectangle()
+    walls[1] = [6, 1.5, 6, 2.2]
+    walls[0] = [0, 0, 5.5, 0]
+    rng = np.random.default_rng(5)
+    return walls, np.full(len(walls), "observed"), _slice_points(walls.astype(float), rng, 0.04), rng
+
+
 def test_a_short_wall_with_nothing_seen_beyond_its_line_runs_on_to_its_corners():
     """The east wall seen over 0.7 m only (a TLS station's sparse rings), 1.5 and 1.8 m short of its corners:
     with the slice points all on the room's side of its line, it bounds what the capture saw and the room
     closes on its true walls; with the next room seen through a door in it (points 1-2 m beyond it), it may
     be a furniture front and runs on no further than twice its length, which leaves the room open."""
-    walls = _open_rectangle()
-    walls[1] = [6, 1.5, 6, 2.2]
-    walls[0] = [0, 0, 5.5, 0]
-    origin = np.full(len(walls), "observed")
-    rng = np.random.default_rng(5)
-    seen = _slice_points(walls.astype(float), rng, 0.04)
+    walls, origin, seen, rng = _short_east_wall()
     got = close_at_corners(walls, origin, seen, CFG, G)
     assert got is not None and got[4] == "across unseen spans"
     assert got[2].area == pytest.approx(24.0, abs=0.01)
@@ -581,12 +586,7 @@ def test_points_off_the_room_s_corner_do_not_keep_a_wall_from_bounding_the_room(
     """The east wall seen over 0.7 m only bounds the room (test above) though the next room shows through a
     door in the north wall, 1.5 m north of it and running on past the east wall's line: those points lie
     beyond the north wall's line too, off the room's corner, and say nothing of where the east wall ends."""
-    walls = _open_rectangle()
-    walls[1] = [6, 1.5, 6, 2.2]
-    walls[0] = [0, 0, 5.5, 0]
-    origin = np.full(len(walls), "observed")
-    rng = np.random.default_rng(5)
-    seen = _slice_points(walls.astype(float), rng, 0.04)
+    walls, origin, seen, rng = _short_east_wall()
     next_room = _slice_points(np.array([[4.5, 5.5, 7.5, 5.5]]), rng, 0.02)
     assert (next_room[:, 0] > 6.1).sum() > 0.01 * (len(seen) + len(next_room))
     got = close_at_corners(walls, origin, np.concatenate([seen, next_room]), CFG, G)
