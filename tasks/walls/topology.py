@@ -120,11 +120,12 @@ def close_at_corners(
             )
 
         closed = across(walls, origin)
-        for aside in (
-            _jambs(walls, grid_m, cfg.thin_wall_max_m),
-            _box_sides(walls, grid_m, cfg.lines.offset_tol_m, cfg.thin_wall_max_m, xy),
+        for aside_of in (
+            lambda: _jambs(walls, grid_m, cfg.thin_wall_max_m),
+            lambda: _box_sides(walls, grid_m, cfg.lines.offset_tol_m, cfg.thin_wall_max_m, xy),
         ):
-            if closed is not None or not aside.any():
+            aside = aside_of() if closed is None else np.zeros(0, dtype=bool)
+            if not aside.any():
                 continue
             # a door's jamb standing free on a wall's line stops no wall run on along that line (the wall goes
             # on past the door), nor does a furniture box's side at a wall's end (the wall runs on behind the
@@ -288,6 +289,7 @@ def _in_line(walls: NDArray, nrm: NDArray, k: int, offset_m: float) -> NDArray[n
 BOX_FRONT_M = 0.4
 """`_box_sides`: how far beyond a box's side its front is looked for."""
 BOX_FRONT_MIN_POINTS = 10
+"""`_box_sides`: the fewest slice points that show the box's front."""
 
 
 def model_for(
