@@ -540,7 +540,7 @@ def _box_in_a_corner() -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_a_box_in_a_corner_does_not_stop_the_wall_seen_beside_it():
-    """The box's side took the west wall's end, and the room stayed open (degraded 300 r3, 110 r3, 117 r3).
+    """The box's side took the west wall's end, and the room stayed open (degraded 300 r3, 110 r3).
     With its front seen beyond the side's line, the side is a box's: the west wall runs on behind the box to
     the unseen corner, the room closes on its true walls and the side stays in it."""
     walls, seen = _box_in_a_corner()
