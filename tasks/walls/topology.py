@@ -933,12 +933,7 @@ def pinned_corners(
 
     def seen_over(k: int) -> float:
         """The length wall k's line is seen over: the extent of k and the walls in line with it."""
-        inline = ~crossing[k] & (
-            np.abs(
-                np.stack([(walls[:, :2] - walls[k, :2]) @ nrm[k], (walls[:, 2:] - walls[k, :2]) @ nrm[k]])
-            ).max(axis=0)
-            <= offset_m
-        )
+        inline = _in_line(walls, nrm, k, offset_m)
         u = np.array([math.cos(th[k]), math.sin(th[k])])
         t = np.concatenate([(walls[inline, :2] - walls[k, :2]) @ u, (walls[inline, 2:] - walls[k, :2]) @ u])
         return float(t.max() - t.min())
