@@ -13,7 +13,14 @@ from tasks.evaluate import evaluate_walls
 from tasks.lines import lengths
 from tasks.walls.config import WallsConfig
 from tasks.walls.model import model_walls
-from tasks.walls.topology import _box_sides, _jambs, _open_corner, close_at_corners, pinned_corners
+from tasks.walls.topology import (
+    _box_fronts,
+    _box_sides,
+    _jambs,
+    _open_corner,
+    close_at_corners,
+    pinned_corners,
+)
 from tests.scenes import wall_points
 
 CFG = WallsConfig()
@@ -591,3 +598,56 @@ def test_points_off_the_room_s_corner_do_not_keep_a_wall_from_bounding_the_room(
     assert (next_room[:, 0] > 6.1).sum() > 0.01 * (len(seen) + len(next_room))
     got = close_at_corners(walls, origin, np.concatenate([seen, next_room]), CFG, G)
     assert got is not None and got[2].area == pytest.approx(24.0, abs=0.01)
+
+
+def _box_against_the_east_wall() -> tuple[np.ndarray, np.ndarray]:
+    """RECT with a wardrobe against its east wall (x 5.5-6, y 2-2.9), the east wall seen only up to it and
+    the north wall up to 3.4 m: the box's side (y = 2) and front (x = 5.5, its north end free) are lines that
+    meet the east wall's end the way a step in the wall would. Returns (walls, slice points)."""
+    walls = np.array(
+        [[0, 0, 6, 0], [6, 0, 6, 2], [6, 2, 5.5, 2], [5.5, 2, 5.5, 2.9], [3.4, 4, 0, 4], [0, 4, 0, 0]], float
+    )
+    return walls, _slice_points(walls, np.random.default_rng(9), 0.04)
+
+
+def _boxed(walls: np.ndarray, points: np.ndarray, origin: np.ndarray | None = None) -> list[int]:
+    """The walls `_box_fronts` takes for a box's side and front (all observed unless `origin` says)."""
+    origin = np.full(len(walls), "observed") if origin is None else origin
+    return np.flatnonzero(_box_fronts(walls, origin, G, CFG.lines.offset_tol_m, points)).tolist()
+
+
+def test_a_box_against_a_wall_seen_up_to_it_is_no_step_in_the_wall():
+    """A wardrobe's side and front, joined to the end of the wall seen up to the box, closed as a step in the
+    wall, the front run on to the next wall (degraded 253 r4, 272 r4). Nothing the capture saw tells the two
+    apart but that the wall runs on behind a box: the room closes without the box, on its true walls."""
+    walls, seen = _box_against_the_east_wall()
+    assert _boxed(walls, seen) == [2, 3]
+    notch = _across_unseen(walls)
+    assert notch is not None and notch[2].area == pytest.approx(23.0, abs=0.01)  # the step the box made
+    got = close_at_corners(walls, np.full(len(walls), "observed"), seen, CFG, G)
+    assert got is not None and got[4] == "across unseen spans"
+    assert got[2].area == pytest.approx(24.0, abs=0.01)
+    assert evaluate_walls(got[0], RECT)["correctness"] == 1.0
+
+
+def test_a_step_into_the_room_is_no_box_where_a_box_would_not_make_it():
+    """The box's lines are a step in the wall where the side was not seen (the connection made it), where
+    the front is longer than a box's, turns out of the room or has its other end joined, and beside an
+    alcove: the room's wall on the front's line on the alcove's other side, or the alcove's other side
+    leading to a wall along its back (degraded 264 r4, 118 r4)."""
+    walls, seen = _box_against_the_east_wall()
+    assert not _boxed(walls, seen, np.array(["observed"] * 2 + ["extended"] + ["observed"] * 3))
+    longer = walls.copy()
+    longer[3, 3] = 3.3
+    outward = walls.copy()
+    outward[2:4, 0::2] = [[6, 6.5], [6.5, 6.5]]
+    joined = np.concatenate([walls, [[5.5, 2.9, 5.0, 2.9]]])
+    assert not _boxed(longer, seen) and not _boxed(outward, seen) and not _boxed(joined, seen)
+    rest = [[6, 1.5, 6, 4], [6, 4, 0, 4], [0, 4, 0, 0]]
+    alcove = [[2, -0.6, 3.2, -0.6], [3.2, -0.6, 3.2, 0], [3.2, 0, 4, 0], [2, 0, 2, -0.6], *rest]
+    for left in ([0, 0, 2, 0], [0, 0.07, 2, 0.07]):  # the room's wall west of the alcove: in line, 7 cm off
+        around = np.array([*alcove, left], float)
+        around[3, 1] = left[1]
+        assert not _boxed(around, _slice_points(around, np.random.default_rng(9), 0.04))
+    around[3, 1] = 0.5  # the alcove's west side leads on into the room: no alcove, a box's front and side
+    assert _boxed(around, _slice_points(around, np.random.default_rng(9), 0.04)) == [1, 2]

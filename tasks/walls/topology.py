@@ -119,7 +119,15 @@ def close_at_corners(
                 angle_tol_deg=cfg.lines.angle_tol_deg,
             )
 
-        closed = across(walls, origin)
+        closed = None
+        box = _box_fronts(walls, origin, grid_m, cfg.lines.offset_tol_m, xy)
+        if box.any():
+            # a furniture box against a wall whose line beyond it the capture did not see: the room is closed
+            # without the box (the wall runs on behind it) where that closes it
+            closed = across(walls[~box], origin[~box])
+            if closed is not None and not _held(closed, walls, origin, xy, cfg.lines):
+                closed = None
+        closed = closed or across(walls, origin)
         for aside_of in (
             lambda: _jambs(walls, grid_m, cfg.thin_wall_max_m),
             lambda: _box_sides(walls, grid_m, cfg.lines.offset_tol_m, cfg.thin_wall_max_m, xy),
@@ -138,13 +146,18 @@ def close_at_corners(
                     grid_m,
                 )
                 closed = None if polygon is None else (w, o, polygon, closed[3])
-        if (
-            closed is not None
-            and _points_held(closed[2], xy, UNSEEN_HELD_BUFFER_M) >= UNSEEN_HELD_MIN_SHARE
-            and not _along_a_line_outside(closed[0], closed[1], closed[2], walls, origin, cfg.lines)
-        ):
+        if closed is not None and _held(closed, walls, origin, xy, cfg.lines):
             return (*closed, "across unseen spans")
     return None
+
+
+def _held(closed: tuple, walls: NDArray, origin: NDArray, xy: NDArray, lcfg: LinesConfig) -> bool:
+    """Does the room `closed` across unseen spans ((walls, origin, room, longest extension)) hold the slice
+    points `xy` (N, 2) (`_points_held`), and run along no line of a wall it leaves outside (of the walls
+    (M, 4) and their `origin` before closing: `_along_a_line_outside`)?"""
+    if _points_held(closed[2], xy, UNSEEN_HELD_BUFFER_M) < UNSEEN_HELD_MIN_SHARE:
+        return False
+    return not _along_a_line_outside(closed[0], closed[1], closed[2], walls, origin, lcfg)
 
 
 def _along_a_line_outside(
@@ -275,6 +288,90 @@ def _box_sides(
         front = (along >= BEHIND_BAND_M) & (along <= BOX_FRONT_M) & (across <= BEHIND_BAND_M)
         out[k] = int(front.sum()) >= BOX_FRONT_MIN_POINTS and float(along[front].max()) >= thin_m
     return out
+
+
+def _box_fronts(
+    walls: NDArray, origin: NDArray, tol_m: float, offset_m: float, points: NDArray
+) -> NDArray[np.bool_]:
+    """(M,) the walls (M, 4) that are a furniture box's side and front against a wall the capture saw up to
+    the box only. The side: observed, shorter than `UNSEEN_RUN_FREE_SPAN_M`, alone on its line (within
+    `offset_m`), joined (within `tol_m`) at one end to the end of a wall across it at least
+    `UNSEEN_RUN_FREE_SPAN_M` long and at the other to the end of the front, and leading from the wall's
+    line into the room (where most of the slice `points` (N, 2) are). The front: across the side, no longer
+    than `BOX_FRONT_MAX_M`, alone on its line, running on the way the wall runs into the side, its other end
+    free. The wall is no alcove's back: its other end is not joined to a short wall leading into the room as
+    well, then to one along the wall (the alcove's other side and the room's wall beyond it). Nothing the
+    capture saw tells such a box from a step in the room's wall but that the wall runs on behind a box
+    (degraded 253 r4, 272 r4: a wardrobe's side and front closed as a step, the front run on to the next
+    wall)."""
+    n = len(walls)
+    out = np.zeros(n, dtype=bool)
+    if n < 4 or len(points) == 0:
+        return out
+    L = lengths(walls)
+    ends, d = _end_distances(walls)
+    joined = d <= tol_m  # (2M, M): the walls each end touches
+    th = angles(walls)
+    nrm = np.column_stack([-np.sin(th), np.cos(th)])
+    sin45 = math.sin(math.radians(45.0))
+    centre = np.median(points, axis=0)
+
+    def end_at(w: int, p: NDArray) -> int:
+        """The row in `ends` of wall w's end at p (within `tol_m`), or -1."""
+        near = [r for r in (w, w + n) if np.hypot(*(ends[r] - p)) <= tol_m]
+        return near[0] if near else -1
+
+    def alcove_back(j: int, far: int, inward: NDArray, k: int) -> bool:
+        """Does wall j's end row `far` lead to a short wall across j (not k) going `inward`, and that to a
+        wall along j?"""
+        for s in np.flatnonzero(joined[far]):
+            s_end = end_at(s, ends[far])
+            if s == k or s_end < 0 or L[s] >= UNSEEN_RUN_FREE_SPAN_M or abs(math.sin(th[s] - th[j])) < sin45:
+                continue
+            other = (s_end + n) % (2 * n)
+            if float((ends[other] - ends[far]) @ inward) <= 0:
+                continue
+            nxt = np.setdiff1d(np.flatnonzero(joined[other]), [j])
+            if (np.abs(np.sin(th[nxt] - th[j])) < sin45).any():
+                return True
+        return False
+
+    for k in np.flatnonzero((L < UNSEEN_RUN_FREE_SPAN_M) & (origin == OBSERVED)):
+        touch = joined[[k, k + n]]
+        if not (touch.sum(axis=1) == 1).all() or touch.any(axis=0).sum() != 2:
+            continue
+        if _in_line(walls, nrm, k, offset_m).sum() > 1:
+            continue
+        for e in (k, k + n):  # the side's end at the wall, its other end at the front
+            e2 = (e + n) % (2 * n)
+            j, f = int(np.flatnonzero(joined[e])[0]), int(np.flatnonzero(joined[e2])[0])
+            at_j, at_f = end_at(j, ends[e]), end_at(f, ends[e2])
+            if (
+                at_j < 0
+                or at_f < 0
+                or L[j] < UNSEEN_RUN_FREE_SPAN_M
+                or L[f] > BOX_FRONT_MAX_M
+                or min(abs(math.sin(th[k] - th[j])), abs(math.sin(th[k] - th[f]))) < sin45
+                or joined[(at_f + n) % (2 * n)].any()
+                or _in_line(walls, nrm, f, offset_m).sum() > 1
+            ):
+                continue
+            far_j = (at_j + n) % (2 * n)
+            run = (ends[at_j] - ends[far_j]) / max(L[j], 1e-12)  # the way the wall runs into the side
+            across = np.array([-run[1], run[0]])
+            inward = across * np.sign(float((ends[e2] - ends[e]) @ across))
+            if (
+                float((ends[(at_f + n) % (2 * n)] - ends[e2]) @ run) > 0
+                and float((centre - ends[e]) @ inward) > 0
+                and not alcove_back(j, far_j, inward, k)
+            ):
+                out[[k, f]] = True
+    return out
+
+
+BOX_FRONT_MAX_M = 1.2
+"""`_box_fronts`: the longest front of a furniture box against a wall (a wardrobe or shelf one or two doors
+wide)."""
 
 
 def _in_line(walls: NDArray, nrm: NDArray, k: int, offset_m: float) -> NDArray[np.bool_]:
