@@ -79,9 +79,9 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    a wall's line stops none of these (`_jambs`), nor a furniture box's side at a wall's end with the box's
    front seen beyond it (`_box_sides`: the wall runs on behind the box), and a partition's end cap is no wall
    the partition stands on; a box's seen side and short front against a wall seen up to the box, which close
-   as a step in that wall, are left out where the room then closes (`_box_fronts`); kept when the room then closes and holds `UNSEEN_HELD_MIN_SHARE` of the slice
-   points, leaving out those apart from all it holds (a wall seen through a door) (`corners_closed` in the
-   metrics says which closed it).
+   as a step in that wall, are left out where the room then closes (`_box_fronts`); kept when the room then
+   closes and holds `UNSEEN_HELD_MIN_SHARE` of the slice points, leaving out those apart from all it holds (a
+   wall seen through a door) (`corners_closed` in the metrics says which closed it).
    Walls are turned to have the room on their left;
 8. extrusion (5.2.6, `model`) to a triangle mesh, and a preview picture.
 

@@ -127,7 +127,8 @@ def close_at_corners(
             closed = across(walls[~box], origin[~box])
             if closed is not None and not _held(closed, walls, origin, xy, cfg.lines):
                 closed = None
-        closed = closed or across(walls, origin)
+        if closed is None:
+            closed = across(walls, origin)
         for aside_of in (
             lambda: _jambs(walls, grid_m, cfg.thin_wall_max_m),
             lambda: _box_sides(walls, grid_m, cfg.lines.offset_tol_m, cfg.thin_wall_max_m, xy),
@@ -210,6 +211,13 @@ def _end_distances(walls: NDArray) -> tuple[NDArray, NDArray]:
     return ends, d
 
 
+def _geometry(walls: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """The walls' (M, 4) lengths, ends (2M, 2) and their distances (2M, M) to the walls (`_end_distances`),
+    angles and unit normals (M, 2)."""
+    th = angles(walls)
+    return lengths(walls), *_end_distances(walls), th, np.column_stack([-np.sin(th), np.cos(th)])
+
+
 def _jambs(walls: NDArray, tol_m: float, max_m: float) -> NDArray[np.bool_]:
     """(M,) the walls (M, 4) that are a door's jamb: no longer than `max_m` (a wall's thickness), joined to no
     other wall (both ends more than `tol_m` from every other), across (more than 45°) the line of another
@@ -252,10 +260,7 @@ def _box_sides(
     out = np.zeros(n, dtype=bool)
     if n < 4 or len(points) == 0:
         return out
-    L = lengths(walls)
-    ends, d = _end_distances(walls)
-    th = angles(walls)
-    nrm = np.column_stack([-np.sin(th), np.cos(th)])
+    L, ends, d, th, nrm = _geometry(walls)
     sin45 = math.sin(math.radians(45.0))
     for k in np.flatnonzero(L < UNSEEN_RUN_FREE_SPAN_M):
         near = d[[k, k + n]] <= tol_m  # (2, M): the walls each end of k touches
@@ -308,11 +313,8 @@ def _box_fronts(
     out = np.zeros(n, dtype=bool)
     if n < 4 or len(points) == 0:
         return out
-    L = lengths(walls)
-    ends, d = _end_distances(walls)
+    L, ends, d, th, nrm = _geometry(walls)
     joined = d <= tol_m  # (2M, M): the walls each end touches
-    th = angles(walls)
-    nrm = np.column_stack([-np.sin(th), np.cos(th)])
     sin45 = math.sin(math.radians(45.0))
     centre = np.median(points, axis=0)
 
