@@ -72,6 +72,11 @@ class Candidate:
         return self.polygon is not None
 
 
+SIN_ACROSS = math.sin(math.radians(45.0))
+"""Two walls whose directions lie more than 45° apart (the sine of the angle between them above this) are
+across each other; closer, they are along each other."""
+
+
 def with_corners(cand: Candidate, xy: NDArray, cfg: WallsConfig) -> Candidate:
     """An open candidate closed at the corners its data pin (`close_at_corners`, with the slice points
     `xy` (N, 2)), or the candidate itself when that does not close it: what `model_for` with `corners`
@@ -119,16 +124,14 @@ def close_at_corners(
                 angle_tol_deg=cfg.lines.angle_tol_deg,
             )
 
-        closed = None
         box = _box_fronts(walls, origin, grid_m, cfg.lines.offset_tol_m, xy)
         if box.any():
             # a furniture box against a wall whose line beyond it the capture did not see: the room is closed
             # without the box (the wall runs on behind it) where that closes it
             closed = across(walls[~box], origin[~box])
-            if closed is not None and not _held(closed, walls, origin, xy, cfg.lines):
-                closed = None
-        if closed is None:
-            closed = across(walls, origin)
+            if closed is not None and _held(closed, walls, origin, xy, cfg.lines):
+                return (*closed, "across unseen spans")
+        closed = across(walls, origin)
         for aside_of in (
             lambda: _jambs(walls, grid_m, cfg.thin_wall_max_m),
             lambda: _box_sides(walls, grid_m, cfg.lines.offset_tol_m, cfg.thin_wall_max_m, xy),
@@ -231,7 +234,7 @@ def _jambs(walls: NDArray, tol_m: float, max_m: float) -> NDArray[np.bool_]:
     th = angles(walls)
     for k in np.flatnonzero((L <= max_m) & (np.minimum(d[:n], d[n:]).min(axis=1) > tol_m)):
         for j in range(n):
-            if j == k or abs(math.sin(th[k] - th[j])) < math.sin(math.radians(45.0)):
+            if j == k or abs(math.sin(th[k] - th[j])) < SIN_ACROSS:
                 continue
             hit = line_intersection(walls[k], walls[j])
             if hit is None:
@@ -261,7 +264,6 @@ def _box_sides(
     if n < 4 or len(points) == 0:
         return out
     L, ends, d, th, nrm = _geometry(walls)
-    sin45 = math.sin(math.radians(45.0))
     for k in np.flatnonzero(L < UNSEEN_RUN_FREE_SPAN_M):
         near = d[[k, k + n]] <= tol_m  # (2, M): the walls each end of k touches
         if near.any(axis=0).sum() != 1 or near.any(axis=1).all():
@@ -270,7 +272,7 @@ def _box_sides(
         j = int(np.flatnonzero(near.any(axis=0))[0])
         far_end = walls[j, 2:] if np.hypot(*(walls[j, :2] - ends[e])) <= tol_m else walls[j, :2]
         if (
-            abs(math.sin(th[k] - th[j])) < sin45
+            abs(math.sin(th[k] - th[j])) < SIN_ACROSS
             or L[j] <= L[k]
             or np.hypot(*(far_end - ends[e])) < L[j] - tol_m
         ):
@@ -282,7 +284,7 @@ def _box_sides(
         start = pieces[int(np.argmin(pieces @ run))]
         corner = (point_segment_distances(start[None], walls)[0] <= tol_m) & (L >= UNSEEN_RUN_FREE_SPAN_M)
         if (
-            not (corner & (np.abs(np.sin(th - th[j])) >= sin45)).any()
+            not (corner & (np.abs(np.sin(th - th[j])) >= SIN_ACROSS)).any()
             or _in_line(walls, nrm, k, offset_m).sum() > 1
         ):
             continue
@@ -315,7 +317,6 @@ def _box_fronts(
         return out
     L, ends, d, th, nrm = _geometry(walls)
     joined = d <= tol_m  # (2M, M): the walls each end touches
-    sin45 = math.sin(math.radians(45.0))
     centre = np.median(points, axis=0)
 
     def end_at(w: int, p: NDArray) -> int:
@@ -328,13 +329,18 @@ def _box_fronts(
         wall along j?"""
         for s in np.flatnonzero(joined[far]):
             s_end = end_at(s, ends[far])
-            if s == k or s_end < 0 or L[s] >= UNSEEN_RUN_FREE_SPAN_M or abs(math.sin(th[s] - th[j])) < sin45:
+            if (
+                s == k
+                or s_end < 0
+                or L[s] >= UNSEEN_RUN_FREE_SPAN_M
+                or abs(math.sin(th[s] - th[j])) < SIN_ACROSS
+            ):
                 continue
             other = (s_end + n) % (2 * n)
             if float((ends[other] - ends[far]) @ inward) <= 0:
                 continue
             nxt = np.setdiff1d(np.flatnonzero(joined[other]), [j])
-            if (np.abs(np.sin(th[nxt] - th[j])) < sin45).any():
+            if (np.abs(np.sin(th[nxt] - th[j])) < SIN_ACROSS).any():
                 return True
         return False
 
@@ -353,7 +359,7 @@ def _box_fronts(
                 or at_f < 0
                 or L[j] < UNSEEN_RUN_FREE_SPAN_M
                 or L[f] > BOX_FRONT_MAX_M
-                or min(abs(math.sin(th[k] - th[j])), abs(math.sin(th[k] - th[f]))) < sin45
+                or min(abs(math.sin(th[k] - th[j])), abs(math.sin(th[k] - th[f]))) < SIN_ACROSS
                 or joined[(at_f + n) % (2 * n)].any()
                 or _in_line(walls, nrm, f, offset_m).sum() > 1
             ):
@@ -380,9 +386,7 @@ def _in_line(walls: NDArray, nrm: NDArray, k: int, offset_m: float) -> NDArray[n
     """(M,) the walls (M, 4), unit normals `nrm`, on wall k's line (within 45° of its direction, both ends
     within `offset_m` of it), k among them."""
     off = np.abs((walls.reshape(-1, 2, 2) - walls[k, :2]) @ nrm[k]).max(axis=1)
-    return (off <= offset_m) & (
-        np.abs(nrm[:, 0] * nrm[k, 1] - nrm[:, 1] * nrm[k, 0]) < math.sin(math.radians(45.0))
-    )
+    return (off <= offset_m) & (np.abs(nrm[:, 0] * nrm[k, 1] - nrm[:, 1] * nrm[k, 0]) < SIN_ACROSS)
 
 
 BOX_FRONT_M = 0.4
@@ -903,9 +907,7 @@ def _bounding(
     inward = np.sign(np.einsum("ij,ij->i", centre - walls[:, :2], nrm))
     off = (points @ nrm.T - np.einsum("ij,ij->i", walls[:, :2], nrm)) * inward  # (N, M), + towards the room
     beyond = off < -BEHIND_BAND_M
-    across = np.abs(nrm[:, 0, None] * nrm[None, :, 1] - nrm[:, 1, None] * nrm[None, :, 0]) >= math.sin(
-        math.radians(45.0)
-    )
+    across = np.abs(nrm[:, 0, None] * nrm[None, :, 1] - nrm[:, 1, None] * nrm[None, :, 0]) >= SIN_ACROSS
     across &= (lengths(walls) >= UNSEEN_RUN_FREE_SPAN_M)[None, :]  # (M, M): k, and a long wall across k
     off_corner = beyond.astype(np.int64) @ across.T.astype(np.int64) > 0  # (N, M): beyond a wall across k
     return (beyond & ~off_corner).sum(axis=0) <= BOUNDING_MAX_SHARE * len(points)
@@ -1024,7 +1026,7 @@ def pinned_corners(
     ends, d = _end_distances(walls)  # end k of wall i at row i + k n
     th = angles(walls)
     nrm = np.column_stack([-np.sin(th), np.cos(th)])
-    crossing = np.abs(np.sin(th[:, None] - th[None, :])) >= math.sin(math.radians(45.0))  # (M, M) at > 45°
+    crossing = np.abs(np.sin(th[:, None] - th[None, :])) >= SIN_ACROSS  # (M, M) at > 45°
     free = np.union1d(
         np.flatnonzero(d.min(axis=1) > tol_m), _at_a_stub(walls, ends, d, crossing, nrm, tol_m, thin_m)
     )
@@ -1480,7 +1482,7 @@ def corner_jogs(walls: NDArray, tol_m: float) -> tuple[NDArray[np.bool_], NDArra
         if None in joined or joined[0][0] == joined[1][0]:
             continue
         (a, ea), (b, eb) = joined
-        if {a, b, k} & used or abs(math.sin(th[a] - th[b])) < math.sin(math.radians(45.0)):
+        if {a, b, k} & used or abs(math.sin(th[a] - th[b])) < SIN_ACROSS:
             continue
         if min(abs(math.sin(th[k] - th[a])), abs(math.sin(th[k] - th[b]))) < math.sin(math.radians(10.0)):
             continue  # in line with one of them: a piece of that wall
