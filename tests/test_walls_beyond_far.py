@@ -107,6 +107,30 @@ def test_a_niche_and_a_partition_s_end_stay():
     assert not out.any()
 
 
+def test_a_reveal_where_the_wall_was_seen_only_up_to_the_door_goes():
+    # the end wall seen only from the corridor's south-west corner up to the door's jamb: its reveal stands
+    # at the end of the wall's seen span (degraded 295 hall)
+    room = [[0, 0, 12, 0], [0, 2, 12, 2], [12, 0, 12, 2], [0, 0, 0, 0.6], [0, 0.6, -0.2, 0.6]]
+    _, out = across_beyond_the_room(np.array(room, dtype=float), np.array([6.0, 1.0]), CFG, TOL)
+    assert out.tolist() == [False] * 4 + [True]
+    # seen only near its north-west corner: the reveal at the door's south jamb lies past the seen span, the
+    # corridor still in front of the end wall's line there (degraded 127 hall)
+    room = [[0, 0, 12, 0], [0, 2, 12, 2], [12, 0, 12, 2], [0, 1.5, 0, 2.0], [0, 0.6, -0.2, 0.6]]
+    _, out = across_beyond_the_room(np.array(room, dtype=float), np.array([6.0, 1.0]), CFG, TOL)
+    assert out.tolist() == [False] * 4 + [True]
+
+
+def test_the_room_s_wall_beside_an_alcove_is_no_reveal():
+    # a room 4.28 m x 4 m with an alcove 1 m wide and 0.6 m deep in its south wall, 0.28 m from the east wall;
+    # the east wall seen only up north. The south wall's piece east of the alcove stands on the line of the
+    # alcove's side as a reveal would, but the room goes on behind that line: the east wall stands there
+    # (degraded 139 r4)
+    room = [[0, 0, 3, 0], [3, 0, 3, -0.6], [3, -0.6, 4, -0.6], [4, -0.6, 4, 0], [0, 0, 0, 4], [0, 4, 4.28, 4]]
+    lines = np.array([*room, [4.28, 2.0, 4.28, 4.0], [4, 0, 4.28, 0]], dtype=float)
+    _, out = across_beyond_the_room(lines, np.array([2.0, 2.0]), CFG, TOL)
+    assert not out.any()
+
+
 def test_a_line_past_a_corner_goes():
     # a room 5 m x 4 m whose south-east corner went unseen (the south wall seen to x = 3, the east from y = 1.2)
     room = [[0, 0, 3, 0], [5, 1.2, 5, 4], [0, 4, 5, 4], [0, 0, 0, 4]]

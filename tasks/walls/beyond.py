@@ -343,13 +343,21 @@ def across_beyond_the_room(
       line near it (no back wall or other side, as an alcove or a wing has): a partition at a door's jamb;
     - or it lies wholly behind in line with a wall of the room that ends on W's line at an end of the span
       (the room's corner) and reaches more than `beyond_room_min_depth_m` behind (deeper than furniture
-      stands before a wall): the building's wall going on past the room's corner.
+      stands before a wall): the building's wall going on past the room's corner;
+    - or it stands on W's line at a jamb (a piece of W ends there, nothing of W beside it on one side) and
+      reaches behind it by more than `thin_wall_end_tol_m` but no more than `thin_wall_max_m`, held by
+      nothing behind W's line but W's pieces and the other such lines: a door's reveal, the wall's own end
+      face. At an end of the span (W seen only up to the door) only where no line of the room runs along W
+      behind its line: there the room goes on behind it (W an alcove's side, the line the room's wall
+      beside the alcove, the room's wall beyond it standing behind W's line).
     A line L whose foot lies past the span (where W's wall went unseen) is beyond the room when it lies
     wholly more than `beyond_room_min_depth_m` behind, held by nothing, with no line leaving W's line outward
     near its foot, and in line with no line of the room that comes within `lines.max_gap_m` of W's line: a
     wing's outer wall, whose other walls went unseen, goes on from a wall of the room near the line the wing
     opens through (an end wall seen only at its far corner is no such wall: the building's wall in line with
-    it goes).
+    it goes). So is a door's reveal there (standing on W's line, no deeper than `thin_wall_max_m`, held as
+    above), where the room's lines in front of W's line reach past its foot on both sides (W's wall went
+    unseen up to the door, the room still before it) and none runs along W behind its line.
     A line that runs from the room (more than `thin_wall_end_tol_m` in front of W's line) through W's line
     at an end of the span (or past it by less than `lines.max_gap_m`: W's wall unseen up to the corner; a
     wing opens wider than that) and on more than `beyond_room_min_depth_m` behind it is that corner's wall
@@ -402,6 +410,11 @@ def across_beyond_the_room(
             (foot >= hi - end_tol) & (foot <= hi + gap)
         )
         reveals = across & (np.abs(depth.min(axis=1)) <= end_tol) & (depth.max(axis=1) <= thin)
+        # a line of the room along W behind W's line: the room goes on behind it (W an alcove's side, and the
+        # room's wall beyond the alcove standing behind its line)
+        behind = (
+            ok & ~out & ~gone & (np.abs(np.cos(ang - ang[w])) >= cos_tol) & (depth.min(axis=1) > end_tol)
+        ).any()
         if (across & (depth.min(axis=1) < -end_tol) & (depth.max(axis=1) > thin) & ~at_corner).any():
             continue  # a wall of the room runs on from the room through W's line: the room goes on behind it
         for c in np.flatnonzero(across & (L < hi - lo)):
@@ -419,6 +432,8 @@ def across_beyond_the_room(
             near[c] = False
             wing = outward & (np.abs(foot - foot[c]) <= gap)
             wing[c] = False
+            # what holds a door's reveal: a line near it behind W's line, other than W's pieces and the reveals
+            held = (near & ~same & ~reveals & (depth.max(axis=1) > end_tol)).any()
             if not lo - end_tol <= foot[c] <= hi + end_tol:
                 # beyond the span's end (where W's wall went unseen): deeper than furniture, held by nothing
                 # and in line with no line of the room coming within a gap of W's line (the wall of a wing,
@@ -432,6 +447,15 @@ def across_beyond_the_room(
                 turned = outward & (np.abs(foot - end) <= end_tol)
                 if depth[c].min() > deep and not (near | wing | in_line | turned).any():
                     out[c] = True
+                # a door's reveal where W's wall went unseen up to the door, the room still in front of W's line
+                front = ok & ~out & ~gone & (depth.max(axis=1) <= end_tol)
+                if (
+                    reveals[c]
+                    and depth[c].max() > end_tol
+                    and along[front].min() < foot[c] < along[front].max()
+                    and not (held or wing.any() or behind)
+                ):
+                    out[c] = True
                 continue
             if outward[c]:
                 # standing on W's line at a door's jamb, away from the room's corners, and held by nothing but
@@ -440,22 +464,24 @@ def across_beyond_the_room(
                     out[c] = True
                 continue
             if depth[c].min() <= end_tol:
-                # a door's reveal: standing on W's line at a jamb (a gap of the pieces beside it, away from
-                # the span's ends), reaching behind it no more than a wall's thickness, and held by nothing
-                # behind W's line but W's pieces and the other reveals (the room's walls meeting W's line
-                # from the room's side hold nothing behind it): the wall's own end face, no wall of the room
+                # a door's reveal: standing on W's line at a jamb (a gap of the pieces beside it; at an end of
+                # the span, the room not going on behind W's line), reaching behind it no more than a wall's
+                # thickness, and held by nothing behind W's line but W's pieces and the other reveals (the
+                # room's walls meeting W's line from the room's side hold nothing behind it): the wall's own
+                # end face, no wall of the room
                 beside = foot[c] + np.array([-2 * end_tol, 2 * end_tol])
                 open_side = ~((pieces[:, :1] <= beside) & (beside <= pieces[:, 1:])).any(axis=0)
                 jamb = (open_side[0] and bool((np.abs(pieces[:, 0] - foot[c]) <= end_tol).any())) or (
                     open_side[1] and bool((np.abs(pieces[:, 1] - foot[c]) <= end_tol).any())
                 )
+                at_end = not lo + end_tol < foot[c] < hi - end_tol
                 if (
                     jamb
                     and abs(depth[c].min()) <= end_tol
                     and end_tol < depth[c].max() <= thin
-                    and lo + end_tol < foot[c] < hi - end_tol
-                    and not (near & ~same & ~reveals & (depth.max(axis=1) > end_tol)).any()
+                    and not held
                     and not wing.any()
+                    and not (at_end and behind)
                 ):
                     out[c] = True
                 continue
