@@ -9,6 +9,7 @@ import numpy as np
 
 from tasks.walls.beyond import across_beyond_the_room, beyond_the_room, past_a_corner
 from tasks.walls.config import WallsConfig
+from tasks.walls.topology import _centre
 
 CFG = WallsConfig()
 TOL = 3.0
@@ -129,6 +130,28 @@ def test_the_room_s_wall_beside_an_alcove_is_no_reveal():
     lines = np.array([*room, [4.28, 2.0, 4.28, 4.0], [4, 0, 4.28, 0]], dtype=float)
     _, out = across_beyond_the_room(lines, np.array([2.0, 2.0]), CFG, TOL)
     assert not out.any()
+
+
+def test_a_far_wall_drawn_as_several_lines_counts_once_for_the_room_s_centre():
+    """The lines of degraded 331 r4 (plan frame, metres): the next room's wall seen through the door in the
+    north wall, 1.9 m behind it, its points smeared a decimetre by the distance and drawn as three lines. By
+    their length they pulled the lines' centre out to the north wall's line, which then had no side to tell;
+    as one band they count once, and the three go."""
+    room = [
+        [11.463, -8.63, 11.455, -11.061],  # east
+        [8.228, -13.084, 8.226, -13.764],  # the alcove's side, and the west wall's pieces
+        [7.724, -8.613, 7.72, -9.905],
+        [7.726, -12.744, 7.724, -13.118],
+        [9.901, -8.658, 11.482, -8.664],  # north, either side of the door
+        [7.708, -8.654, 9.0, -8.658],
+        [7.708, -13.075, 8.235, -13.077],  # south, by the south-west corner
+    ]
+    far = [[8.694, -6.683, 10.53, -6.69], [8.541, -6.741, 10.446, -6.748], [8.795, -6.783, 10.291, -6.664]]
+    lines = np.array(room + far)
+    assert not beyond_the_room(lines, _centre(lines), CFG, TOL).any()
+    centre = _centre(lines, CFG.thin_wall_max_m)
+    assert centre[1] < -9.3  # as far from the north wall as the room's own lines put it
+    assert beyond_the_room(lines, centre, CFG, TOL).tolist() == [False] * 7 + [True] * 3
 
 
 def test_a_line_past_a_corner_goes():

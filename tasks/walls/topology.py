@@ -783,7 +783,7 @@ def _topology(
     )
     if proj.open_top:
         # nothing seen above the slice (a handheld scan): the wall in front of a door may be barely seen
-        centre = _centre(refined)
+        centre = _centre(refined, cfg.thin_wall_max_m)
         cut, across = across_beyond_the_room(refined, centre, cfg, lcfg.angle_tol_deg)
         beyond = beyond_the_room(refined, centre, cfg, lcfg.angle_tol_deg, across)
         if beyond.any():
@@ -1727,11 +1727,17 @@ def band_noise(lines: NDArray, cells_xy: NDArray, band_m: float) -> NDArray[np.f
     return out
 
 
-def _centre(lines: NDArray) -> NDArray | None:
-    """The lines' length-weighted centre (None without length): where the room's interior is taken to be."""
+def _centre(lines: NDArray, band_m: float = 0.0) -> NDArray | None:
+    """The lines' length-weighted centre (None without length): where the room's interior is taken to be.
+    With `band_m`, lines lying wholly within `band_m` of each other (both ways) share their weight: one band
+    of data drawn as several lines (a far wall seen through a door, its points smeared a decimetre or two by
+    the distance) counts once, and does not pull the centre out to the room's wall in front of it."""
     weight = lengths(lines)
     if len(lines) == 0 or weight.sum() <= 0:
         return None
+    if band_m > 0:
+        reach = point_segment_distances(lines.reshape(-1, 2), lines).reshape(-1, 2, len(lines)).max(axis=1)
+        weight = weight / ((reach <= band_m) & (reach.T <= band_m)).sum(axis=1)
     return (0.5 * (lines[:, :2] + lines[:, 2:]) * weight[:, None]).sum(axis=0) / weight.sum()
 
 
