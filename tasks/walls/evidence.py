@@ -1347,12 +1347,10 @@ def furniture_in_front(
         the box's free end (a handheld capture misses a fifth of the walls). A step of the room's outline
         runs on to a corner (a wall of the room meeting i's line at its free end: not taken); the back of an
         alcove (j) beside a short stretch of the room's wall (i) has the alcove's other side at its other end,
-        seen over furniture's least depth at least and no deeper than i stands, in line with nothing (judged
-        along j; across j as far as both short lines' directions allow), and an alcove's side beside the
-        room's corner has a wall of the room in line with the box's side: not taken. `boxed_only` (an i
-        longer than j's pieces together: a cabinet wider than the stretch of wall seen beside it) wants the
-        far side: with a free far end, i may be the room's wall running on past a short recess whose back is
-        j."""
+        as deep as i stands and in line with nothing, and an alcove's side beside the room's corner has a
+        wall of the room in line with the box's side: not taken. `boxed_only` (an i longer than j's pieces
+        together: a cabinet wider than the stretch of wall seen beside it) wants the far side: with a free far
+        end, i may be the room's wall running on past a short recess whose back is j."""
         if L[i] < dd.max():
             return False  # narrower than deep: a wall's piece at a corner and a stub may look so as well
         # in line with a piece of the same wall: one within a door's width (`lines.max_gap_m`) of it
@@ -1413,19 +1411,16 @@ def furniture_in_front(
                     return False
             far = t1 if before else t0
             # j the back of a recess: at its far end (away from i) a line runs from j's line into the
-            # room, seen over at least furniture's least depth and no deeper than i stands, and stops there
-            # (a wall of the room seen only near the corner runs on, in line with its other pieces). The
-            # recess's side and back are short: their directions are good to 2 `support_tol_m` over each's
-            # length only
-            loose = np.maximum(sin_loose, np.sin(np.arctan2(2 * tol, L) + math.atan2(2 * tol, L[j])))
-            for k in np.flatnonzero(np.abs(np.cos(ang - ang[j])) <= loose):
+            # room as deep as i stands, and stops there (a wall of the room seen only near the corner runs
+            # on, in line with its other pieces)
+            for k in np.flatnonzero(across_j[:, j]):
                 if k in (i, j):
                     continue
                 dk = depth(k, j)
                 foot = (lines[k, :2] if dk[0] <= dk[1] else lines[k, 2:]) - lines[j, :2]
                 if (
                     dk.min() <= end_tol
-                    and d_lo <= dk.max() <= dd.mean() + end_tol
+                    and abs(dk.max() - dd.mean()) <= end_tol
                     and abs(foot @ u[j] - far) <= reach
                     and not runs_on(k, j, float(foot @ u[j]))
                 ):
@@ -1447,8 +1442,7 @@ def furniture_in_front(
         back is j: its span on j's line begins within `thin_wall_end_tol_m` of j's seen end (the alcove's
         side, unseen, joins them), or a line across j's line ends on i's line and runs into the room (the
         room's corner stands on i's line), or, at one of j's ends, a line in line with no other runs from
-        j's line as deep as i stands and stops there (the alcove's side; in line judged along j, as
-        `runs_on` does: a short piece of the room's wall by the corner is drawn some degrees off)."""
+        j's line as deep as i stands and stops there (the alcove's side)."""
         if L[i] <= d_lo:
             return False
         others = np.ones(m, dtype=bool)
@@ -1473,7 +1467,11 @@ def furniture_in_front(
                     dk.min() <= end_tol
                     and abs(dk.max() - dd.mean()) <= end_tol
                     and min(abs(float(foot @ u[j]) - t0), abs(float(foot @ u[j]) - t1)) <= 2 * end_tol
-                    and not runs_on(k, j, float(foot @ u[j]))
+                    and not any(
+                        collinear_with(lines, ang, n, q, cos_tol, cfg.lines.offset_tol_m)[k]
+                        for q in np.flatnonzero(across_j[:, j])
+                        if q != k
+                    )
                 ):
                     return False
         inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
