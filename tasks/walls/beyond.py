@@ -262,6 +262,16 @@ def _meets_at_end(w: NDArray, others: NDArray, tol_m: float, w_reach_m: float, r
     return False
 
 
+def _in_front(live: NDArray, depth: NDArray, along: NDArray, end_tol: float) -> tuple[float, float] | None:
+    """How far along W's line the room's lines in front of it (`live`, no end more than `end_tol` behind its
+    line: `depth` (M, 2); their ends `along` W's line) reach: (least, most), None without such lines."""
+    front = live & (depth.max(axis=1) <= end_tol)
+    if not front.any():
+        return None
+    reach = along[front]
+    return float(reach.min()), float(reach.max())
+
+
 def _to_the_room_s_ends(
     lo: float,
     hi: float,
@@ -283,11 +293,10 @@ def _to_the_room_s_ends(
     which W's wall ran unseen. Only for a W whose pieces span at least half of the room in front of it, and
     not past a line leaving W's line outward (`outward`) there: an L-room's wing starts where its inner wall
     turns away."""
-    front = live & (depth.max(axis=1) <= end_tol)
-    if not front.any():
+    reach = _in_front(live, depth, along, end_tol)
+    if reach is None:
         return lo, hi
-    reach = along[front]
-    r0, r1 = float(reach.min()), float(reach.max())
+    r0, r1 = reach
     if hi - lo < 0.5 * (r1 - r0):
         return lo, hi
     ends = (
@@ -448,11 +457,12 @@ def across_beyond_the_room(
                 if depth[c].min() > deep and not (near | wing | in_line | turned).any():
                     out[c] = True
                 # a door's reveal where W's wall went unseen up to the door, the room still in front of W's line
-                front = ok & ~out & ~gone & (depth.max(axis=1) <= end_tol)
+                room = _in_front(ok & ~out & ~gone, depth, along, end_tol)
                 if (
                     reveals[c]
                     and depth[c].max() > end_tol
-                    and along[front].min() < foot[c] < along[front].max()
+                    and room is not None
+                    and room[0] < foot[c] < room[1]
                     and not (held or wing.any() or behind)
                 ):
                     out[c] = True

@@ -1022,10 +1022,7 @@ def pinned_corners(
     n = len(walls)
     if n < 3:
         return None
-    L = lengths(walls)
-    ends, d = _end_distances(walls)  # end k of wall i at row i + k n
-    th = angles(walls)
-    nrm = np.column_stack([-np.sin(th), np.cos(th)])
+    L, ends, d, th, nrm = _geometry(walls)  # end k of wall i at row i + k n
     crossing = np.abs(np.sin(th[:, None] - th[None, :])) >= SIN_ACROSS  # (M, M) at > 45°
     free = np.union1d(
         np.flatnonzero(d.min(axis=1) > tol_m), _at_a_stub(walls, ends, d, crossing, nrm, tol_m, thin_m)
