@@ -228,6 +228,30 @@ def test_a_cabinet_standing_in_an_alcove_whose_sides_run_on_past_it_is_furniture
     assert not furniture_in_front(np.array([*doors, *jambs], dtype=float), CENTRE, CFG, 3.0).any()
 
 
+def test_a_cabinet_narrower_than_its_alcove_and_just_behind_the_wall_s_line_is_furniture():
+    """Held-out 328 r4: a wardrobe 0.9 m wide against the back of an alcove 1.06 m wide and 0.55 m deep, its
+    front 6 cm behind the room's wall line (within a line's offset tolerance of the wall's pieces beside the
+    alcove), seen from 10.2 to 11.0 m, the alcove's sides seen past it down to the back. The front fills more
+    than half the alcove's mouth and the wall's pieces in line with it run on from the alcove's sides: a
+    front in a recess. A front filling less than half the mouth, or one with a piece of the wall in line
+    within the alcove's mouth or a door's width beyond its side, is not judged so."""
+    room = [[7.7, -8.0, 10.5, -8.0], [11.57, -9.7, 11.57, -12.42], [7.7, -8.0, 7.7, -9.15]]
+    beside = [[9.4, -12.41, 9.92, -12.4], [11.25, -12.42, 11.56, -12.41]]
+    sides = [[11.234, -12.435, 11.234, -12.916], [10.16, -12.864, 10.168, -12.422]]
+    front = [10.207, -12.474, 11.0, -12.461]
+    centre = np.array([10.07, -10.16])
+    why: dict[str, int] = {}
+    lines = np.array([*room, *beside, *sides, front], dtype=float)
+    assert np.flatnonzero(furniture_in_front(lines, centre, CFG, 3.0, why)).tolist() == [7]
+    assert why["front_in_recess"] == 1
+    short = lines.copy()
+    short[7, 2] = 10.6  # 0.4 m of a 1.07 m mouth
+    assert not furniture_in_front(short, centre, CFG, 3.0)[7]
+    far = lines.copy()
+    far[3] = [8.8, -12.47, 9.5, -12.47]  # a piece in line with the front, 0.66 m short of the side: a door
+    assert not furniture_in_front(far, centre, CFG, 3.0)[7]
+
+
 def test_a_shelf_s_side_stopping_short_of_the_wall_s_line_is_a_side():
     """A shelf's two sides, 0.3 m long, standing on the east wall (x = 6): in a sparse capture their data near
     the wall go into the wall's noisy band, and a side's line stops 7 cm short of the wall's line (degraded

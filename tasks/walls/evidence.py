@@ -1501,23 +1501,21 @@ def furniture_in_front(
         return c0 - tol <= lo and hi <= c1 + tol and c1 - c0 > L[i] + tol
 
     def in_recess(i: int) -> bool:
-        """Is line i a box's front standing in a recess: at each of its ends (within twice
-        `thin_wall_end_tol_m` of its line, as `at_seen_end` allows: each may stop short of the box's corner,
-        and nearer it than the other end) a line across it reaches i's line and runs on beyond it, away from
-        the room, by furniture's depth (`furniture_min_depth_m` to `furniture_max_depth_m` and
-        `support_tol_m`), i in line with no other line, the room's `interior` more than that on its other
-        side, and the slice data (`occupied`) between the sides, behind i, in under half its 10 cm bins? The
-        recess's sides were seen past the box (above it, or past its sides), its back not; a wall of the room
-        hides what lies beyond it, and the walls meeting it end there (a wall's piece between two doors has
-        the wall's other pieces in line). A centre close to the line, as an L-room's may lie, tells no recess
-        from a box's sides before a wall; an open shelf's front with the wall seen behind it goes onto that
-        wall (`seen_through_fronts`)."""
+        """Is line i a box's front standing in a recess: at each of its ends a line across it (the nearest:
+        through the end, within twice `thin_wall_end_tol_m` as `at_seen_end` allows, or beyond it, the
+        front filling at least half the recess's mouth: a wardrobe in an alcove a little wider than it)
+        reaches i's line and runs on beyond it, away from the room, by furniture's depth
+        (`furniture_min_depth_m` to `furniture_max_depth_m` and `support_tol_m`), i in line with no other
+        line but the room's wall beside the recess (beyond a side, starting within twice
+        `thin_wall_end_tol_m` of it: a front a few cm behind the wall's line), the room's `interior` more
+        than that on its other side, and the slice data (`occupied`) between the sides, behind i, in under
+        half its 10 cm bins? The recess's sides were seen past the box (above it, or past its sides), its
+        back not; a wall of the room hides what lies beyond it, and the walls meeting it end there (a wall's
+        piece between two doors has the wall's other pieces in line a door's width away). A centre close to
+        the line, as an L-room's may lie, tells no recess from a box's sides before a wall; an open shelf's
+        front with the wall seen behind it goes onto that wall (`seen_through_fronts`)."""
         clear = float((interior - lines[i, :2]) @ n[i])
         if abs(clear) <= d_hi + tol:
-            return False
-        inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
-        inline[i] = False
-        if inline.any():
             return False
         side = 1.0 if clear >= 0 else -1.0
         sin_side = max(sin_loose, math.sin(math.atan2(2 * tol, d_lo)))
@@ -1525,19 +1523,42 @@ def furniture_in_front(
         # how far each line reaches past i's line, away from the room
         past = -side * np.stack([(lines[:, :2] - lines[i, :2]) @ n[i], (lines[:, 2:] - lines[i, :2]) @ n[i]])
         past = past.max(axis=0)
-        sides = []
+        sides, gaps = [], []
         for e in range(2):
             p = lines[i, 2 * e : 2 * e + 2]
+            out_e = p - mid  # along i, away from its middle past this end
+            found = []
             for k in np.flatnonzero(np.abs(np.cos(ang - ang[i])) <= sin_side):
-                # k's line passes this end (within the reach), nearer it than i's other end
-                gap = float((p - lines[k, :2]) @ n[k])
-                if k == i or abs(gap) > 2 * end_tol or abs(float((mid - lines[k, :2]) @ n[k])) <= abs(gap):
+                # k's line passes this end (within the reach, nearer it than i's middle) or lies beyond it
+                gap = float((lines[k, :2] - p) @ n[k]) * (1.0 if float(out_e @ n[k]) >= 0 else -1.0)
+                if k == i or not max(-2 * end_tol, -0.5 * L[i]) < gap <= max(2 * end_tol, L[i]):
                     continue
                 reach = float((side * np.array([(lines[k, :2] - p) @ n[i], (lines[k, 2:] - p) @ n[i]])).max())
                 if reach >= -end_tol and d_lo <= past[k] <= d_hi + tol:
-                    sides.append(k)
-                    break
-            else:
+                    found.append((abs(gap), gap, k))
+            if not found:
+                return False
+            _, gap, k = min(found)  # the nearest
+            sides.append(k)
+            gaps.append(gap)
+        # the front fills at least half the recess's mouth (a wardrobe in an alcove a little wider than it)
+        if sum(max(g, 0.0) for g in gaps) > max(2 * end_tol, L[i]):
+            return False
+        # in line with no other line but the room's wall beside the recess, running on from its sides
+        inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
+        inline[i] = False
+        if inline.any():
+            at = np.array(
+                [(lines[sides, :2] - lines[i, :2]) @ u[i], (lines[sides, 2:] - lines[i, :2]) @ u[i]]
+            )
+            lo, hi = float(at.mean(axis=0).min()), float(at.mean(axis=0).max())
+            t = np.stack(
+                [(lines[inline, :2] - lines[i, :2]) @ u[i], (lines[inline, 2:] - lines[i, :2]) @ u[i]]
+            )
+            beside = ((t.max(axis=0) <= lo) & (lo - t.max(axis=0) <= 2 * end_tol)) | (
+                (t.min(axis=0) >= hi) & (t.min(axis=0) - hi <= 2 * end_tol)
+            )
+            if not beside.all():
                 return False
         # nothing seen behind it between the sides
         if occupied is None or len(occupied) == 0:
