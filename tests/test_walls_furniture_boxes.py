@@ -261,3 +261,31 @@ def test_a_shelf_s_side_stopping_short_of_the_wall_s_line_is_a_side():
     assert np.flatnonzero(furniture_in_front(lines, CENTRE, CFG, 3.0)).tolist() == [4, 5]
     off = np.array([*ROOM, [5.5, 2.0, 5.8, 2.0]], dtype=float)
     assert not furniture_in_front(off, CENTRE, CFG, 3.0).any()
+
+
+def test_a_face_standing_free_where_the_room_goes_on_past_its_line_at_both_ends_is_furniture():
+    """Degraded dev 268 r2, a room with a 70° east wall seen only near its two corners (too sparse there for a
+    line): a cabinet's face 0.87 m long stands 0.5 m in front of that wall, parallel to it, both its ends
+    free, and the north and south walls cross its line and run on past it to the slanted wall. The room
+    goes on past its line at both its ends: furniture (`front_inside`). An L-room's inner wall seen only in
+    its middle (the wing's outer wall runs on past its line at one end only) and a wall seen in its middle
+    whose neighbours end at its line (the room's corners, unseen) stay, as does a face whose crossing lines
+    are shorter than furniture is deep."""
+    cot = 1.0 / math.tan(math.radians(70.0))
+    room = [[0.0, 0.0, 4.9, 0.0], [0.0, 4.2, 6.4, 4.2], [0.0, 0.4, 0.0, 3.0]]
+    a, b = np.array([4.6 + 1.5 * cot, 1.5]), np.array([4.6 + 2.32 * cot, 2.32])
+    face = [*a, *b]
+    why: dict[str, int] = {}
+    lines = np.array([*room, face], dtype=float)
+    assert np.flatnonzero(furniture_in_front(lines, np.array([2.5, 2.1]), CFG, 3.0, why)).tolist() == [3]
+    assert why["front_inside"] == 1
+    # the south wall ends 0.3 m short of the face's line: the room's corner may be there
+    cut = lines.copy()
+    cut[0, 2] = 4.4
+    assert not furniture_in_front(cut, np.array([2.5, 2.1]), CFG, 3.0).any()
+    # an L-room (main part 0-6 x 0-4, the wing 0-3 x 4-7): the inner wall y = 4 seen at x 3.8-5.0 only
+    l_room = [[0, 0, 6, 0], [6, 0, 6, 4], [0, 0, 0, 7], [0, 7, 3, 7], [3.8, 4, 5.0, 4]]
+    assert not furniture_in_front(np.array(l_room, dtype=float), np.array([2.6, 2.8]), CFG, 3.0).any()
+    # short lines across (a chair's legs, a door's jambs) make no walls of the room
+    short = np.array([*room[2:], face, [5.0, 1.0, 5.6, 1.0], [5.3, 2.8, 5.9, 2.8]], dtype=float)
+    assert not furniture_in_front(short, np.array([2.5, 2.1]), CFG, 3.0)[1]

@@ -46,7 +46,8 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    behind it, hides nothing: what lies behind it was seen round its end). In a slice with nothing seen
    above it (no ceiling) furniture reaches the slice top like the walls: its faces are told by where they
    stand (`evidence.furniture_in_front`, `lone_directions`; a cabinet filling an alcove by the alcove's
-   sides seen running on past its front), and a front the capture saw through (an open
+   sides seen running on past its front, a face standing free by the room's walls running on past its line
+   at both its ends), and a front the capture saw through (an open
    shelf's books) moves onto the wall seen behind it (`evidence.seen_through_fronts`). The two sides of a
    step of a few cm do not run on over each other along their data (`topology.stop_at_steps`);
 7. topology (5.2.5.2, `tasks.connect.connect_detailed`; `topology`): extension and trimming (trimming only

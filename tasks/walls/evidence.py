@@ -1174,13 +1174,15 @@ FURNITURE_RULES = (
     "front_before_data",
     "front_alone",
     "front_in_recess",
+    "front_inside",
     "front_band",
     "side",
 )
 """`furniture_in_front`'s rules, in the order they are tried: a front with the wall's line along it, on the
 wall's line between two sides (or a side and a corner), at the wall's seen end, with the wall's data seen
 behind it, standing alone in front of the wall's unseen stretch, standing in a recess whose sides run on past
-it; a line of a front's band of data; a side."""
+it, standing free where the room's walls run on past its line at both its ends; a line of a front's band of
+data; a side."""
 
 
 def furniture_in_front(
@@ -1212,6 +1214,9 @@ def furniture_in_front(
       `furniture_min_depth_m`, in line with no other, each of whose ends has a line across it running on
       beyond it, away from the room, by furniture's depth (a cabinet filling an alcove, the alcove's sides
       seen past it and its back unseen);
+    - a front inside the room (`inside`, no wall before it needed): a line that long, both ends free, in line
+      with no other, with a wall of the room crossing its line past each of its ends (a cabinet's face
+      before a slanted wall seen only near its corners);
     - a side: a line perpendicular to such a wall, `furniture_min_depth_m` to `furniture_max_depth_m` long,
       from within `thin_wall_end_tol_m` of the wall's line (at a front, it may reach across that line by as
       much; not at the wall's ends: a corner, unless a front ends it) into the room, in line with no other
@@ -1569,6 +1574,42 @@ def furniture_in_front(
         bins = max(1, math.ceil(L[i] / 0.1))
         return len(np.unique(np.floor(t[inside] / 0.1))) < 0.5 * bins
 
+    def inside(i: int) -> bool:
+        """Is line i a face standing free inside the room: both its ends free (within `thin_wall_end_tol_m`
+        of no other line), in line with no other line, the room's `interior` more than furniture's depth from
+        its line, and past each of its ends a wall of the room (a line at least `furniture_max_depth_m` long,
+        more than 45° across i) crossing i's line, running on `furniture_min_depth_m` or more on either side
+        of it? The room goes on past i's line at both its ends: i bounds nothing (a cabinet's face before a
+        slanted wall seen only near its corners). A wall of the room seen in its middle only has the walls
+        across it ending at its line (the room's corners); an L-room's inner wall has the wing's outer wall
+        running on past its line at one end only."""
+        if L[i] <= d_lo:
+            return False
+        others = np.ones(m, dtype=bool)
+        others[i] = False
+        if point_segment_distances(lines[i].reshape(2, 2), lines[others]).min() <= end_tol:
+            return False
+        inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
+        inline[i] = False
+        if inline.any():
+            return False
+        clear = float((interior - lines[i, :2]) @ n[i])
+        if abs(clear) <= d_hi + tol:
+            return False
+        side = 1.0 if clear >= 0 else -1.0
+        # each line's ends' offsets from i's line (positive towards the room), and where it crosses that line
+        off = side * np.stack([(lines[:, :2] - lines[i, :2]) @ n[i], (lines[:, 2:] - lines[i, :2]) @ n[i]])
+        crossing = (np.abs(np.cos(ang - ang[i])) <= math.sqrt(0.5)) & (L >= d_hi)
+        crossing &= (off.min(axis=0) <= -d_lo) & (off.max(axis=0) >= d_lo)
+        crossing[i] = False
+        if not crossing.any():
+            return False
+        k = np.flatnonzero(crossing)
+        w = off[0, k] / (off[0, k] - off[1, k])  # along k, where it meets i's line
+        meet = lines[k, :2] + w[:, None] * (lines[k, 2:] - lines[k, :2])
+        tm = (meet - lines[i, :2]) @ u[i]
+        return bool((tm < 0).any() and (tm > L[i]).any())
+
     for i in np.flatnonzero(L <= cfg.furniture_max_length_m):
         # a short front's direction is good to about 2 support_tol_m / its length, as a side's is, and a
         # plant's facet shorter than furniture is deep as well as a longer one, up to what that gives at the
@@ -1606,6 +1647,9 @@ def furniture_in_front(
         if not out[i] and L[i] >= d_lo and in_recess(i):
             out[i] = True
             decided["front_in_recess"] += 1
+        if not out[i] and inside(i):
+            out[i] = True
+            decided["front_inside"] += 1
     if out.any():
         # the rest of a front's face: a line lying wholly within `thin_wall_end_tol_m` of a front (a cabinet's
         # front seen from afar is a band of data a decimetre deep, and gives short lines across it too)
