@@ -1433,6 +1433,15 @@ def furniture_in_front(
             return True
         return False
 
+    def free(i: int) -> bool:
+        """Is line i longer than `furniture_min_depth_m`, both its ends free (within `thin_wall_end_tol_m`
+        of no other line)?"""
+        if L[i] <= d_lo:
+            return False
+        others = np.ones(m, dtype=bool)
+        others[i] = False
+        return bool(point_segment_distances(lines[i].reshape(2, 2), lines[others]).min() > end_tol)
+
     def isolated(i: int, j: int, t: NDArray, t0: float, t1: float) -> bool:
         """Is line i (in front of line j, spanning t along j's line, whose pieces span t0..t1) a free-standing
         front beyond where j was seen: both its ends free (within `thin_wall_end_tol_m` of no other line), in
@@ -1448,11 +1457,7 @@ def furniture_in_front(
         side, unseen, joins them), or a line across j's line ends on i's line and runs into the room (the
         room's corner stands on i's line), or, at one of j's ends, a line in line with no other runs from
         j's line as deep as i stands and stops there (the alcove's side)."""
-        if L[i] <= d_lo:
-            return False
-        others = np.ones(m, dtype=bool)
-        others[i] = False
-        if point_segment_distances(lines[i].reshape(2, 2), lines[others]).min() <= end_tol:
+        if not free(i):
             return False
         if L[i] <= d_hi:
             # a front seen shorter than furniture is deep, unless it may be the room's wall beside an alcove
@@ -1583,11 +1588,7 @@ def furniture_in_front(
         slanted wall seen only near its corners). A wall of the room seen in its middle only has the walls
         across it ending at its line (the room's corners); an L-room's inner wall has the wing's outer wall
         running on past its line at one end only."""
-        if L[i] <= d_lo:
-            return False
-        others = np.ones(m, dtype=bool)
-        others[i] = False
-        if point_segment_distances(lines[i].reshape(2, 2), lines[others]).min() <= end_tol:
+        if not free(i):
             return False
         inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
         inline[i] = False
