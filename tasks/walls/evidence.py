@@ -1510,6 +1510,12 @@ def furniture_in_front(
         c0, c1 = float((tm - spread)[before].max()), float((tm + spread)[after].min())
         return c0 - tol <= lo and hi <= c1 + tol and c1 - c0 > L[i] + tol
 
+    def ends_on(i: int) -> tuple[NDArray, NDArray]:
+        """Every line's two ends (2, M) along line i's direction and across it (signed, along `n[i]`), from
+        i's first end."""
+        rel = np.stack([lines[:, :2] - lines[i, :2], lines[:, 2:] - lines[i, :2]])  # (2, M, 2)
+        return rel @ u[i], rel @ n[i]
+
     def in_recess(i: int) -> bool:
         """Is line i a box's front standing in a recess: at each of its ends a line across it (the nearest:
         through the end, within twice `thin_wall_end_tol_m` as `at_seen_end` allows, or beyond it, the
@@ -1531,8 +1537,8 @@ def furniture_in_front(
         sin_side = max(sin_loose, math.sin(math.atan2(2 * tol, d_lo)))
         mid = 0.5 * (lines[i, :2] + lines[i, 2:])
         # how far each line reaches past i's line, away from the room
-        past = -side * np.stack([(lines[:, :2] - lines[i, :2]) @ n[i], (lines[:, 2:] - lines[i, :2]) @ n[i]])
-        past = past.max(axis=0)
+        along, across = ends_on(i)
+        past = (-side * across).max(axis=0)
         sides, gaps = [], []
         for e in range(2):
             p = lines[i, 2 * e : 2 * e + 2]
@@ -1558,13 +1564,9 @@ def furniture_in_front(
         inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
         inline[i] = False
         if inline.any():
-            at = np.array(
-                [(lines[sides, :2] - lines[i, :2]) @ u[i], (lines[sides, 2:] - lines[i, :2]) @ u[i]]
-            )
-            lo, hi = float(at.mean(axis=0).min()), float(at.mean(axis=0).max())
-            t = np.stack(
-                [(lines[inline, :2] - lines[i, :2]) @ u[i], (lines[inline, 2:] - lines[i, :2]) @ u[i]]
-            )
+            at = along[:, sides].mean(axis=0)
+            lo, hi = float(at.min()), float(at.max())
+            t = along[:, inline]
             beside = ((t.max(axis=0) <= lo) & (lo - t.max(axis=0) <= 2 * end_tol)) | (
                 (t.min(axis=0) >= hi) & (t.min(axis=0) - hi <= 2 * end_tol)
             )
@@ -1599,7 +1601,7 @@ def furniture_in_front(
             return False
         side = 1.0 if clear >= 0 else -1.0
         # each line's ends' offsets from i's line (positive towards the room), and where it crosses that line
-        off = side * np.stack([(lines[:, :2] - lines[i, :2]) @ n[i], (lines[:, 2:] - lines[i, :2]) @ n[i]])
+        off = side * ends_on(i)[1]
         crossing = (np.abs(np.cos(ang - ang[i])) <= math.sqrt(0.5)) & (L >= d_hi)
         crossing &= (off.min(axis=0) <= -d_lo) & (off.max(axis=0) >= d_lo)
         crossing[i] = False
