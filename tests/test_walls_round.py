@@ -11,7 +11,7 @@ import numpy as np
 
 from tasks.evaluate import evaluate_walls
 from tasks.walls.config import WallsConfig
-from tasks.walls.round import _walled_in, round_objects
+from tasks.walls.round import MAX_OUTSIDE_SHARE, _outside_share, _walled_in, round_objects
 from tests.scenes import wall_points
 
 CFG = WallsConfig()
@@ -90,6 +90,19 @@ def test_no_round_thing_stands_where_walls_cut_its_circle():
     assert not _walled_in(np.array([[0.40, 0.0], [0.0, 0.40]]), r)
     assert not _walled_in(np.array([[-0.41, 0.0], [0.60, 0.0]]), r)
     assert not _walled_in(np.zeros((0, 2)), r)
+
+
+def test_a_wall_s_noisy_band_shows_points_just_outside_a_circle_threading_it_and_a_pot_none(rng):
+    # the back of an alcove seen from 5 m off: its points spread by 3.8 cm across it, and a circle of 0.31 m
+    # tangent to the wall covers 90 degrees within a cell (1 cm) of it (a clean room's held-out alcove)
+    back = wall_points((-0.4, 0.0), (0.4, 0.0), 1.5, 2.5, rng, step=0.025, noise=0.038)[:, :2]
+    centre = np.array([0.0, 0.31])
+    assert _outside_share(back - centre, 0.31, 0.01) > 2 * MAX_OUTSIDE_SHARE
+    # a pot's facets seen from the room over 200 degrees, as noisy as the walls of the tests above
+    pot = _pot((1.5, 0.35), 0.3, 0.8, 1.3, rng, seen_deg=(-10.0, 190.0))[:, :2]
+    assert _outside_share(pot - (1.5, 0.35), 0.29, GRID) < 0.2 * MAX_OUTSIDE_SHARE
+    # nothing on the circle: nothing to compare
+    assert _outside_share(np.array([[1.0, 0.0]]), 0.29, GRID) == 0.0
 
 
 def test_a_pot_across_the_transform_s_tiles_is_found_as_in_one(rng, monkeypatch):

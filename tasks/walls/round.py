@@ -31,6 +31,11 @@ MIN_CIRCLE_SHARE = 0.5
 """A round thing's circle explains most of the points near it (within 3 cells, the walls it stands by left
 out): where lines explain few of them either (against faces longer than the radius only), a circle through
 chairs' and a table's corners explains a third to a half."""
+MAX_OUTSIDE_SHARE = 0.15
+"""A round thing is seen from outside, through the free space before it: in the directions its arc covers,
+the points 3 to 6 cells outside its circle are at most this share of those on it (within a cell). Noise of
+1.5 cells gives 0.05, of 2 cells 0.17; a wall's noisy band, which a circle threads where the wall is short or
+meets another, gives 0.2 to 0.6 (the generator's plants in handheld rooms at most 0.10)."""
 PAST_M = 0.5
 """`_walls_past`: how far round a round thing its neighbourhood is searched for the walls it stands by."""
 PAST_MAX_POINTS = 2000
@@ -40,10 +45,15 @@ PAST_BINS = 6
 thing: a wall (or a long face) it stands by, not one of its own facets."""
 
 
+def _direction_bins(angle_deg: NDArray) -> NDArray[np.int64]:
+    """The 10-degree direction (0..`ARC_BINS` - 1) of each angle about a centre (degrees)."""
+    return (np.mod(angle_deg, 360.0) // (360 / ARC_BINS)).astype(np.int64)
+
+
 def _arc_deg(angle_deg: NDArray, share: float = BIN_MIN_SHARE) -> float:
     """The longest run of covered 10-degree directions (circular) of points at `angle_deg` about a centre
     (`share` 0: every direction holding 3 points counts, the most any subset of the points can cover)."""
-    count = np.bincount((np.mod(angle_deg, 360.0) // (360 / ARC_BINS)).astype(np.int64), minlength=ARC_BINS)
+    count = np.bincount(_direction_bins(angle_deg), minlength=ARC_BINS)
     if not (count > 0).any():
         return 0.0
     covered = count >= max(3.0, share * float(np.median(count[count > 0])))
@@ -102,6 +112,18 @@ def _lines_share(pts: NDArray, tol_m: float, min_face_m: float = 0.0) -> float:
     return explained / max(len(pts), 1)
 
 
+def _outside_share(offsets: NDArray, radius: float, grid_m: float) -> float:
+    """Of the points at `offsets` (K, 2) from a circle's centre, in the 10-degree directions where at least 3
+    lie on the circle (within `grid_m` of `radius`), the number 3 to 6 cells outside it over the number on it
+    (`MAX_OUTSIDE_SHARE`)."""
+    off = np.hypot(*offsets.T) - radius
+    bins = _direction_bins(np.degrees(np.arctan2(offsets[:, 1], offsets[:, 0])))
+    on = np.abs(off) <= grid_m
+    seen = np.bincount(bins[on], minlength=ARC_BINS)[bins] >= 3
+    outside = (off > 3 * grid_m) & (off <= 6 * grid_m)
+    return float((outside & seen).sum() / max((on & seen).sum(), 1))
+
+
 def _walls_past(
     xy: NDArray, tree: Any, centre: NDArray, radius: float, near: NDArray, grid_m: float
 ) -> tuple[NDArray[np.bool_], NDArray]:
@@ -155,10 +177,11 @@ def round_objects(
     (`MIN_CIRCLE_SHARE`) of the points near it (within 3 cells), and at least `round_margin` more of them than
     three straight lines do, each over a face at least as long as the radius: a corner's two walls or a box's
     three faces, however noisy, are explained better by lines; a many-sided pot's short facets are not a box's
-    faces. The walls it stands by (`_walls_past`) are left out of all three counts, and no wall may cut its
-    circle as no thing standing in the room lets one (`_walled_in`). Candidates are the peaks of the circle
-    Hough transform of the points' occupancy at two cells. Its points are those inside the circle or within 2
-    cells of it (`on_round_objects`)."""
+    faces. Just outside its arc lies the free space it was seen through (`MAX_OUTSIDE_SHARE`). The walls it
+    stands by (`_walls_past`) are left out of all these counts, and no wall may cut its circle as no thing
+    standing in the room lets one (`_walled_in`). Candidates are the peaks of the circle Hough transform of the
+    points' occupancy at two cells. Its points are those inside the circle or within 2 cells of it
+    (`on_round_objects`)."""
     from scipy.spatial import cKDTree
     from skimage.measure import CircleModel
     from skimage.transform import hough_circle, hough_circle_peaks
@@ -224,14 +247,19 @@ def round_objects(
         if _arc_deg(angle[d <= grid_m], 0.0) < cfg.round_min_arc_deg:
             continue  # not even every point on the circle covers the arc (and the walls' points go below)
         # the walls it stands by are no part of it: their points count for neither the circle nor the lines
-        past, feet = _walls_past(xy, tree, centre, radius, p, grid_m)
+        # (nor the free space before it: the points round the fitted circle, which `near` was not taken about)
+        shell = xy[np.asarray(tree.query_ball_point(centre, radius + 6 * grid_m), dtype=np.int64)]
+        past, feet = _walls_past(xy, tree, centre, radius, np.concatenate([p, shell]), grid_m)
         if _walled_in(feet, radius):
             continue
-        own = ~past
+        own = ~past[: len(p)]
         on = (d <= grid_m) & own
         arc = _arc_deg(angle[on])
         if arc < cfg.round_min_arc_deg:
             continue
+        outside_share = _outside_share(shell[~past[len(p) :]] - centre, radius, grid_m)
+        if outside_share > MAX_OUTSIDE_SHARE:
+            continue  # a wall's noisy band, as much of it just outside the circle as on it
         close = (d <= 3 * grid_m) & own
         if close.sum() < 10:
             continue
@@ -248,6 +276,7 @@ def round_objects(
                 "arc_deg": arc,
                 "circle_share": round(circle_share, 3),
                 "lines_share": round(lines_share, 3),
+                "outside_share": round(outside_share, 3),
             }
         )
     things = [
