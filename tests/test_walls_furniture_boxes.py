@@ -263,6 +263,21 @@ def test_a_shelf_s_side_stopping_short_of_the_wall_s_line_is_a_side():
     assert not furniture_in_front(off, CENTRE, CFG, 3.0).any()
 
 
+def test_a_narrow_shelf_s_two_sides_beside_each_other_are_both_sides():
+    """Degraded dev 122 r3: a shelf seen end on, no front seen, its two sides (0.35 m and 0.4 m long, 12 cm
+    apart) standing on the east wall. Each side's inner end lies within `thin_wall_end_tol_m` of the other
+    side, which runs along it and meets no end of it: both are sides. A wall across a side's inner end (the
+    room's outline stepping there) still keeps it."""
+    sides = [[5.65, 2.0, 6.0, 2.0], [5.6, 2.12, 6.0, 2.12]]
+    lines = np.array([*ROOM, *sides], dtype=float)
+    assert np.flatnonzero(furniture_in_front(lines, CENTRE, CFG, 3.0)).tolist() == [4, 5]
+    # the east wall steps 0.35 m into the room at y = 2: the step's wall runs on from the side's inner end
+    step = np.array(
+        [[0, 0, 6, 0], [6, 0, 6, 2], [5.65, 2.0, 6.0, 2.0], [5.65, 2.0, 5.65, 4], [5.65, 4, 0, 4]]
+    )
+    assert not furniture_in_front(step.astype(float), CENTRE, CFG, 3.0).any()
+
+
 def test_a_face_standing_free_where_the_room_goes_on_past_its_line_at_both_ends_is_furniture():
     """Degraded dev 268 r2, a room with a 70° east wall seen only near its two corners (too sparse there for a
     line): a cabinet's face 0.87 m long stands 0.5 m in front of that wall, parallel to it, both its ends

@@ -1221,8 +1221,8 @@ def furniture_in_front(
       from within `thin_wall_end_tol_m` of the wall's line (at a front, it may reach across that line by as
       much; not at the wall's ends: a corner, unless a front ends it) into the room, in line with no other
       line (within a door's opening, `DOOR_OPENING_MAX_M`: the wall's next piece), whose inner end is free
-      (within `thin_wall_end_tol_m` of no line but the wall and the fronts): a partition stub is longer than
-      furniture is deep, and one shorter meets a wall.
+      (within `thin_wall_end_tol_m` of no line but the wall, the fronts and the lines along it, such as the
+      box's other side): a partition stub is longer than furniture is deep, and one shorter meets a wall.
     A pilaster of a furniture's size in front of a wall is dropped as well: without a ceiling nothing
     tells them apart (with one, the top-reach test keeps it). A line lying wholly within
     `thin_wall_end_tol_m` of a front is of its band of data and goes with it. `why`, when given, gets the
@@ -1701,6 +1701,9 @@ def furniture_in_front(
             others[[k, j]] = False
             others &= ~front
             others &= ~collinear_with(lines, ang, n, j, cos_tol, cfg.lines.offset_tol_m)  # the wall too
+            # a line along the side meets no end of it (one in line was judged above): the box's other side
+            # beside it, a shelf's next board
+            others &= np.abs(np.cos(ang - ang[k])) < cos_loose
             if others.any():
                 near = point_segment_distances(inner[None], lines[others]).min() <= cfg.thin_wall_end_tol_m
                 if near:
