@@ -6,8 +6,9 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
 
 0. round things (`round`): a plant's pot, a bin or a round column, an arc of 90° or more of a circle of
    0.15-0.6 m radius that explains most of the points near it and that three straight lines (over faces as
-   long as its radius) explain no better, the walls it stands by left out, loses its points first (its
-   facets would make stubs and false corners);
+   long as its radius) explain no better, the walls it stands by left out, and with hardly a point just
+   outside its arc (it was seen through the free space before it; a wall's noisy band a circle threads has
+   as many there as on the circle), loses its points first (its facets would make stubs and false corners);
 1. projection image (5.2.1, eq 5.3; `image`): the number of occupied voxels above each grid cell, so that
    the image measures wall height rather than point density (overlapping frames count once). The grid is
    `grid_size_m` or, on a sparse cloud, half its point spacing (`model.grid_from_data`, recorded in the
