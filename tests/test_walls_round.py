@@ -93,8 +93,8 @@ def test_no_round_thing_stands_where_walls_cut_its_circle():
 
 
 def test_a_wall_s_noisy_band_shows_points_just_outside_a_circle_threading_it_and_a_pot_none(rng):
-    # the back of an alcove seen from 5 m off: its points spread by 3.8 cm across it, and a circle of 0.31 m
-    # tangent to the wall covers 90 degrees within a cell (1 cm) of it (a clean room's held-out alcove)
+    # the back of an alcove seen from 5 m off (a clean held-out room's): its points spread by 3.8 cm across it,
+    # and a circle of 0.31 m laid on it, tangent to the wall's line
     back = wall_points((-0.4, 0.0), (0.4, 0.0), 1.5, 2.5, rng, step=0.025, noise=0.038)[:, :2]
     centre = np.array([0.0, 0.31])
     assert _outside_share(back - centre, 0.31, 0.01) > 2 * MAX_OUTSIDE_SHARE
