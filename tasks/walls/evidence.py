@@ -1359,8 +1359,7 @@ def furniture_in_front(
         if L[i] < dd.max():
             return False  # narrower than deep: a wall's piece at a corner and a stub may look so as well
         # in line with a piece of the same wall: one within a door's width (`lines.max_gap_m`) of it
-        inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
-        inline[i] = False
+        inline = in_line(i)
         inline[inline] = (
             point_segment_distances(lines[inline].reshape(-1, 2), lines[i : i + 1]).reshape(-1, 2).min(axis=1)
             <= cfg.lines.max_gap_m
@@ -1433,6 +1432,21 @@ def furniture_in_front(
             return True
         return False
 
+    def in_line(i: int) -> NDArray[np.bool_]:
+        """(M,) the lines in line with line i (collinear within `lines.offset_tol_m`), i left out."""
+        inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
+        inline[i] = False
+        return inline
+
+    def room_side(i: int) -> float:
+        """The side of line i (along `n[i]`, 1 or -1) the room's `interior` lies on, 0 where it lies within
+        furniture's depth (and `support_tol_m`) of i's line: too close to tell a recess or the room's far side
+        from a box before a wall."""
+        clear = float((interior - lines[i, :2]) @ n[i])
+        if abs(clear) <= d_hi + tol:
+            return 0.0
+        return 1.0 if clear >= 0 else -1.0
+
     def free(i: int) -> bool:
         """Is line i longer than `furniture_min_depth_m`, both its ends free (within `thin_wall_end_tol_m`
         of no other line)?"""
@@ -1484,8 +1498,7 @@ def furniture_in_front(
                     )
                 ):
                     return False
-        inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
-        inline[i] = False
+        inline = in_line(i)
         if inline.any():
             return False
         # where the lines across j's line meet it (beyond j's seen extent): the corners of the room, made by
@@ -1530,10 +1543,9 @@ def furniture_in_front(
         piece between two doors has the wall's other pieces in line a door's width away). A centre close to
         the line, as an L-room's may lie, tells no recess from a box's sides before a wall; an open shelf's
         front with the wall seen behind it goes onto that wall (`seen_through_fronts`)."""
-        clear = float((interior - lines[i, :2]) @ n[i])
-        if abs(clear) <= d_hi + tol:
+        side = room_side(i)
+        if not side:
             return False
-        side = 1.0 if clear >= 0 else -1.0
         sin_side = max(sin_loose, math.sin(math.atan2(2 * tol, d_lo)))
         mid = 0.5 * (lines[i, :2] + lines[i, 2:])
         # how far each line reaches past i's line, away from the room
@@ -1561,8 +1573,7 @@ def furniture_in_front(
         if sum(max(g, 0.0) for g in gaps) > max(2 * end_tol, L[i]):
             return False
         # in line with no other line but the room's wall beside the recess, running on from its sides
-        inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
-        inline[i] = False
+        inline = in_line(i)
         if inline.any():
             at = along[:, sides].mean(axis=0)
             lo, hi = float(at.min()), float(at.max())
@@ -1592,14 +1603,12 @@ def furniture_in_front(
         running on past its line at one end only."""
         if not free(i):
             return False
-        inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
-        inline[i] = False
+        inline = in_line(i)
         if inline.any():
             return False
-        clear = float((interior - lines[i, :2]) @ n[i])
-        if abs(clear) <= d_hi + tol:
+        side = room_side(i)
+        if not side:
             return False
-        side = 1.0 if clear >= 0 else -1.0
         # each line's ends' offsets from i's line (positive towards the room), and where it crosses that line
         off = side * ends_on(i)[1]
         crossing = (np.abs(np.cos(ang - ang[i])) <= math.sqrt(0.5)) & (L >= d_hi)
