@@ -1194,6 +1194,36 @@ def test_walls_seen_through_a_door_are_told_from_the_rooms_own_walls():
     assert not seen_through_gaps(lines, cells, grid, interior, 0.3, 0.0, 0.05).any()  # 0: off
 
 
+def test_an_alcove_s_side_with_the_room_round_its_end_hides_nothing_behind_it():
+    """Clean 888 r4: an alcove's two sides equally long, the room's centre beyond their ends. The east side's
+    back (away from the centre) is the alcove: the west side and the south wall's piece west of the alcove
+    lay straight behind its data and went as walls seen through a door."""
+    from tasks.walls.evidence import backs_in_doubt, seen_through_gaps
+
+    lines = np.array(
+        [
+            [4.6, 4.8, 4.6, 0.0],  # 0
+            [1.65, -0.76, 1.65, 0.0],  # 1 the alcove's east side: the room runs east round its north end
+            [0.6, 0.0, 0.6, -0.75],  # 2 its west side
+            [0.0, 4.8, 0.0, 0.0],  # 3
+            [0.0, 4.8, 4.6, 4.8],  # 4
+            [1.65, 0.0, 4.6, 0.0],  # 5 the south wall east of the alcove: a door at x 2.5-3.3
+            [0.0, 0.0, 0.6, 0.0],  # 6 ... and west of it
+            [0.6, -0.75, 1.65, -0.75],  # 7 the alcove's back
+            [2.0, -1.5, 4.2, -1.5],  # 8 the next room's wall, seen through the door
+        ]
+    )
+    centre = np.array([2.2, 2.2])
+    assert np.flatnonzero(backs_in_doubt(lines, centre, 0.15)).tolist() == [1]
+    cells, grid = _door_cells(lines, [(5, 0.85, 1.65)])
+    assert np.flatnonzero(seen_through_gaps(lines, cells, grid, centre, 0.3, 0.5, 0.05)).tolist() == [8]
+    # an L-room's walls at its reflex corner: the line at the end nearer the centre's foot runs away from it
+    room = np.array(
+        [[0, 0, 6, 0], [6, 0, 6, 3], [6, 3, 3, 3], [3, 3, 3, 6], [3, 6, 0, 6], [0, 6, 0, 0]], float
+    )
+    assert not backs_in_doubt(room, np.array([2.5, 2.5]), 0.15).any()
+
+
 def test_a_thin_partition_taken_as_one_line_gives_its_two_faces(rng):
     from tasks.walls.evidence import two_faces
     from tasks.walls.image import Grid

@@ -44,7 +44,8 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    at least `through_gap_share` of it straight behind that line's data, was seen through a door in it: a
    wall of the next room, dropped before connecting (`evidence.seen_through_gaps`; an alcove's back wall
    lies behind its mouth, not behind the wall's data; a partition stub, its end open and the room going on
-   behind it, hides nothing: what lies behind it was seen round its end). In a slice with nothing seen
+   behind it, hides nothing: what lies behind it was seen round its end; nor does an alcove's side, which
+   faces the alcove, not the room's centre beyond its end: `backs_in_doubt`). In a slice with nothing seen
    above it (no ceiling) furniture reaches the slice top like the walls: its faces are told by where they
    stand (`evidence.furniture_in_front`, `lone_directions`; a cabinet filling an alcove by the alcove's
    sides seen running on past its front, a face standing free by the room's walls running on past its line

@@ -1014,6 +1014,42 @@ def _room_behind(lines: NDArray, w: int, u: NDArray, behind: NDArray[np.bool_]) 
     return bool((behind & by).any())
 
 
+def backs_in_doubt(
+    lines: NDArray, centre: NDArray, tol_m: float, angle_min_deg: float = 45.0
+) -> NDArray[np.bool_]:
+    """(M,) lines whose back (the side away from the room's `centre`) may be the room's side: `centre`'s foot
+    on the line's line lies beyond one of its ends, the lines meeting that end (more than `angle_min_deg` off
+    it, an end within `tol_m` of its end) run to `centre`'s side and those meeting its other end to the far
+    side. Such a line is a step of the room's outline that the room turns round at its near end: an alcove's
+    side, whose front faces the alcove, away from `centre` (clean 888 r4). A wall at an L-room's reflex corner
+    has the line at its near end running away from `centre`, and its back is known."""
+    lines = np.asarray(lines, dtype=np.float64)
+    L = lengths(lines)
+    ang = angles(lines)
+    ends = lines.reshape(-1, 2, 2)  # (M, 2 ends, xy)
+    out = np.zeros(len(lines), dtype=bool)
+    cos_max = math.cos(math.radians(angle_min_deg))
+    for w in np.flatnonzero(L > 0):
+        u = (lines[w, 2:] - lines[w, :2]) / L[w]
+        t = (centre - lines[w, :2]) @ u
+        if 0 <= t <= L[w]:
+            continue
+        front = np.array([-u[1], u[0]])
+        front *= np.sign((centre - lines[w, :2]) @ front) or 1.0
+        across = np.abs(np.cos(ang - ang[w])) < cos_max
+        across[w] = False
+        sides = []
+        for e in ends[w]:
+            d = np.linalg.norm(ends - e, axis=2)  # (M, 2)
+            meet = across & (d.min(axis=1) <= tol_m)
+            far = ends[np.flatnonzero(meet), 1 - d[meet].argmin(axis=1)]
+            side = np.sign((far - e) @ front)
+            sides.append(side[0] if len(side) and (side == side[0]).all() else 0.0)
+        near, other = (sides[0], sides[1]) if t < 0 else (sides[1], sides[0])
+        out[w] = near > 0 and other < 0
+    return out
+
+
 def seen_through_gaps(
     lines: NDArray,
     wall_data: NDArray[np.bool_],
@@ -1037,7 +1073,8 @@ def seen_through_gaps(
 
     A line with an open end (`open_ends`) and a longer line wholly behind it, along it or within
     `OPEN_END_MIN_M` past its ends (the room goes on there: a partition stub standing free in the room), hides
-    nothing: the room's walls behind it were seen round its end."""
+    nothing: the room's walls behind it were seen round its end. Nor does an alcove's side whose back, away
+    from `interior`, may be the alcove (`backs_in_doubt`, corners within half `min_depth_m`)."""
     lines = np.asarray(lines, dtype=np.float64)
     out = np.zeros(len(lines), dtype=bool)
     if min_share <= 0 or interior is None or len(lines) < 2:
@@ -1052,8 +1089,14 @@ def seen_through_gaps(
     back[((np.asarray(interior) - lines[:, :2]) * back).sum(axis=1) > 0] *= -1
     near = _near_sampler(wall_data, grid, tol_m)
     pts, owner = sample_segments(lines, grid.size)
-    # a partition the capture walked round hides nothing: what lies behind it was seen from its far side
-    for w in np.flatnonzero(ok & ~walked_round(lines, min_depth_m, tol_m)):
+    # a partition the capture walked round hides nothing: what lies behind it was seen from its far side; nor
+    # does an alcove's side whose back may be the alcove
+    hiders = (
+        ok
+        & ~walked_round(lines, min_depth_m, tol_m)
+        & ~backs_in_doubt(lines, np.asarray(interior), 0.5 * min_depth_m)
+    )
+    for w in np.flatnonzero(hiders):
         rel = pts - lines[w, :2]
         depth, t = rel @ back[w], rel @ u[w]
         # the lines wholly behind W (every sample deeper than min_depth_m), shorter than W
