@@ -1490,10 +1490,16 @@ def furniture_in_front(
             return 0.0
         return 1.0 if clear >= 0 else -1.0
 
-    def free(i: int) -> bool:
-        """Is line i longer than `furniture_min_depth_m`, both its ends free (within `thin_wall_end_tol_m`
-        of no other line)?"""
-        if L[i] <= d_lo:
+    def cos_short(i: int) -> float:
+        """The cosine of how far off a wall's direction line i may be drawn: a short line's direction is good
+        to about 2 `support_tol_m` over its length (at least `furniture_min_depth_m`), a longer one's to the
+        usual tolerance (twice the angle tolerance)."""
+        return min(cos_loose, math.cos(math.atan2(2 * tol, max(L[i], d_lo))))
+
+    def free(i: int, shortest: float = d_lo) -> bool:
+        """Is line i longer than `shortest` (`furniture_min_depth_m`), both its ends free (within
+        `thin_wall_end_tol_m` of no other line)?"""
+        if L[i] <= shortest:
             return False
         others = np.ones(m, dtype=bool)
         others[i] = False
@@ -1503,23 +1509,23 @@ def furniture_in_front(
         """Is line i (in front of line j, spanning t along j's line, whose pieces span t0..t1) a free-standing
         front beyond where j was seen: both its ends free (within `thin_wall_end_tol_m` of no other line), in
         line with no other line, and its span on j's line within the room's corners either side of j's seen
-        extent (where the nearest lines across j's line meet it), which lie further apart than it is long? The wall runs on unseen behind it (a
-        handheld capture misses a fifth of the walls); a wall of the room so short, standing alone, would
-        meet the room's other walls or run on in line with one of them.
+        extent (where the nearest lines across j's line meet it), which lie further apart than it is long?
+        The wall runs on unseen behind it (a handheld capture misses a fifth of the walls); a wall of the
+        room so short, standing alone, would meet the room's other walls or run on in line with one of them.
 
-        A front seen shorter than furniture is deep (a cabinet's front seen in part; longer than
-        `furniture_min_depth_m`: the side rule judges shorter lines) is judged against a wall parallel
-        within twice the angle tolerance only, and not when it may be the room's wall beside an alcove whose
+        A front seen shorter than furniture is deep (a cabinet's front seen in part, however short: a
+        piece of 0.15 m in degraded 331 r3) is judged against a wall parallel within what its length allows
+        (`cos_short`), and not when it may be the room's wall beside an alcove whose
         back is j: its span on j's line begins within `thin_wall_end_tol_m` of j's seen end (the alcove's
         side, unseen, joins them), or a line across j's line ends on i's line and runs into the room (the
         room's corner stands on i's line), or, at one of j's ends, a line in line with no other runs from
         j's line as deep as i stands and stops there (the alcove's side)."""
-        if not free(i):
+        if not free(i, 0.0):
             return False
         if L[i] <= d_hi:
             # a front seen shorter than furniture is deep, unless it may be the room's wall beside an alcove
-            if abs(math.cos(ang[i] - ang[j])) < cos_loose:
-                return False  # judged against a wall parallel within the usual tolerance only
+            if abs(math.cos(ang[i] - ang[j])) < cos_short(i):
+                return False  # judged against a wall parallel within what its length allows
             if min(abs(float(t.min()) - t1), abs(float(t.max()) - t0)) <= end_tol:
                 return False  # beginning at j's seen end: the alcove's side, unseen, would join them
             dd = depth(i, j)
@@ -1669,9 +1675,8 @@ def furniture_in_front(
         # a short front's direction is good to about 2 support_tol_m / its length, as a side's is, and a
         # plant's facet shorter than furniture is deep as well as a longer one, up to what that gives at the
         # least depth (27°; a faceted plant shows one facet within half its turn, 18° for ten, of the wall's)
-        cos_front = min(cos_loose, math.cos(math.atan2(2 * tol, max(L[i], d_lo))))
         for j in np.argsort(-L):
-            if j == i or abs(math.cos(ang[i] - ang[j])) < cos_front:
+            if j == i or abs(math.cos(ang[i] - ang[j])) < cos_short(i):
                 continue
             dd = depth(i, j)
             if not ((dd >= d_lo) & (dd <= d_hi)).all():
