@@ -40,10 +40,10 @@ def test_a_plant_s_short_facet_drawn_some_degrees_off_its_wall_is_a_front():
 def test_a_cabinet_front_seen_shorter_than_furniture_is_deep_standing_alone_is_furniture():
     """The west wall seen only from y = 2.2 up (the rest unseen); a cabinet's front, 0.6 m of it seen, stands
     0.5 m in front of the wall's line below that, both ends free, in line with nothing, between the room's
-    corners: the wall runs on behind it. So does 0.15 m of it, drawn 11° off (a short line's direction is
-    good to 2 `support_tol_m` over its length; degraded 331 r3 closed its room round such a piece). The same
-    line past the room's corner (beyond the south wall's line) stays, and so does one in line with a piece
-    of wall (a jog)."""
+    corners: the wall runs on behind it. A piece of such a front 0.15 m long, drawn 11° off, is furniture
+    too (a short line's direction is good to 2 `support_tol_m` over its length; degraded 331 r3 closed its
+    room round such a piece). The same line past the room's corner (beyond the south wall's line) stays,
+    and so does one in line with a piece of wall (a jog)."""
     room = [[0, 4, 0, 2.2], [0, 4, 6, 4], [6, 4, 6, 0], [1.0, 0, 6, 0]]
     front = np.array([*room, [0.5, 1.8, 0.5, 1.2]], dtype=float)
     assert np.flatnonzero(furniture_in_front(front, CENTRE, CFG, 3.0)).tolist() == [4]

@@ -1515,11 +1515,11 @@ def furniture_in_front(
 
         A front seen shorter than furniture is deep (a cabinet's front seen in part, however short: a
         piece of 0.15 m in degraded 331 r3) is judged against a wall parallel within what its length allows
-        (`cos_short`), and not when it may be the room's wall beside an alcove whose
-        back is j: its span on j's line begins within `thin_wall_end_tol_m` of j's seen end (the alcove's
-        side, unseen, joins them), or a line across j's line ends on i's line and runs into the room (the
-        room's corner stands on i's line), or, at one of j's ends, a line in line with no other runs from
-        j's line as deep as i stands and stops there (the alcove's side)."""
+        (`cos_short`), and not when it may be the room's wall beside an alcove whose back is j: its span on
+        j's line begins within `thin_wall_end_tol_m` of j's seen end (the alcove's side, unseen, joins them),
+        or a line across j's line ends on i's line and runs into the room (the room's corner stands on i's
+        line), or, at one of j's ends, a line in line with no other runs from j's line as deep as i stands
+        and stops there (the alcove's side)."""
         if not free(i, 0.0):
             return False
         if L[i] <= d_hi:
