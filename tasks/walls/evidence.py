@@ -1672,9 +1672,9 @@ def furniture_in_front(
         return bool((tm < 0).any() and (tm > L[i]).any())
 
     for i in np.flatnonzero(L <= cfg.furniture_max_length_m):
-        # a short front's direction is good to about 2 support_tol_m / its length, as a side's is, and a
-        # plant's facet shorter than furniture is deep as well as a longer one, up to what that gives at the
-        # least depth (27°; a faceted plant shows one facet within half its turn, 18° for ten, of the wall's)
+        # a front's wall is parallel within what its length allows (`cos_short`, as a side's is), a plant's
+        # facet shorter than furniture is deep within what that gives at the least depth (27°; a faceted
+        # plant shows one facet within half its turn, 18° for ten, of the wall's)
         for j in np.argsort(-L):
             if j == i or abs(math.cos(ang[i] - ang[j])) < cos_short(i):
                 continue
