@@ -1876,6 +1876,113 @@ def seen_through_fronts(
     return moved, sides & ~moved, out
 
 
+def data_run(
+    start: NDArray, direction: NDArray, occupied: NDArray, tol_m: float, gap_m: float = 0.1
+) -> float:
+    """How far (m) the cells of `occupied` (K, 2) within `tol_m` of the ray from `start` along the unit
+    `direction` run on from it, gaps under `gap_m` bridged: where a line's data end, a Hough segment
+    stopping a cell or two short of it."""
+    rel = occupied - start
+    s = np.sort(rel[(np.abs(rel @ np.array([-direction[1], direction[0]])) <= tol_m)] @ direction)
+    s = s[s > 0]
+    breaks = np.flatnonzero(np.diff(np.concatenate([[0.0], s])) > gap_m)
+    if len(breaks):
+        s = s[: breaks[0]]
+    return float(s[-1]) if len(s) else 0.0
+
+
+def recess_backs(
+    lines: NDArray, candidates: NDArray, interior: NDArray | None, occupied: NDArray, cfg: WallsConfig
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.float64]]:
+    """(moved (M,), sides (M,), lines (M, 4)): the fronts of boxes standing in a recess, moved back onto
+    the recess's back wall, and the boxes' sides, for a slice with nothing seen above it (a handheld scan
+    cut at 1.3-2 m: a wardrobe in an alcove reaches the slice top like the walls).
+
+    A wall hides what lies beyond it. Where a line among `candidates` (M,), `furniture_min_depth_m` to
+    `furniture_max_length_m` long, in line with no other, has at one of its ends (within twice
+    `thin_wall_end_tol_m` along its line) a line across it whose data (the cells of `occupied` (K, 2)
+    within `support_tol_m` of its line) run on past it, away from `interior`, by `furniture_min_depth_m` to
+    `furniture_max_depth_m`, and whose end on the room's side stands on (within twice `thin_wall_end_tol_m`
+    of) a line parallel to it between it and `interior` (the room's wall beside the recess: the recess's
+    mouth), it is a box's front, not the recess's back: the recess's side was seen past it. The back lies
+    at least where the side's data end: the front moves there (the deepest of its sides'), unless the data
+    lie behind it (`occupied` within `support_tol_m` of a line parallel to it between it and that depth)
+    in half its 10 cm bins (an open shelf, `seen_through_fronts`). Lines across it from its ends to the
+    back (the box's own sides, seen past its end) go. `furniture_in_front` drops a box seen with both
+    sides of its recess; this is the box whose recess's other side the capture did not see, or whose
+    recess's mouth the room's wall line bridges."""
+    lines = np.asarray(lines, dtype=np.float64).reshape(-1, 4)
+    out = lines.copy()
+    m = len(lines)
+    moved, sides = np.zeros(m, dtype=bool), np.zeros(m, dtype=bool)
+    if interior is None or len(occupied) == 0 or m < 3:
+        return moved, sides, out
+    candidates = np.asarray(candidates, dtype=bool)
+    tol, end_tol = cfg.support_tol_m, cfg.thin_wall_end_tol_m
+    d_lo, d_hi = cfg.furniture_min_depth_m, cfg.furniture_max_depth_m
+    L = lengths(lines)
+    ang = angles(lines)
+    sin_loose = math.sin(math.radians(2 * cfg.lines.angle_tol_deg))
+    cos_loose = math.cos(math.radians(2 * cfg.lines.angle_tol_deg))
+    sin_side = np.maximum(sin_loose, np.sin(np.arctan2(2 * tol, np.maximum(L, 1e-12))))
+    cos_tol = math.cos(math.radians(cfg.lines.angle_tol_deg))
+    dirs = (lines[:, 2:] - lines[:, :2]) / np.maximum(L, 1e-12)[:, None]
+    normals = np.column_stack([-dirs[:, 1], dirs[:, 0]])
+    for i in np.flatnonzero(candidates & (L >= d_lo) & (L <= cfg.furniture_max_length_m)):
+        a = lines[i, :2]
+        u = (lines[i, 2:] - a) / L[i]
+        n = np.array([-u[1], u[0]])
+        if float((interior - a) @ n) > 0:
+            n = -n  # n points away from the room
+        clear = float((a - interior) @ n)
+        if clear <= d_hi + tol:
+            continue  # the room's centre too near the line to tell a recess from the room's far side
+        inline = collinear_with(lines, ang, normals, i, cos_tol, cfg.lines.offset_tol_m)
+        inline[i] = False
+        if (inline & candidates).any():
+            continue
+        ends = lines.reshape(-1, 2, 2) - a  # (M, 2, 2) every line's ends from i's first end
+        t, off = ends @ u, ends @ n  # along i, and behind it (away from the room)
+        parallel = np.abs(np.cos(ang - ang[i])) >= cos_loose  # any line: a short piece of wall too
+        parallel[i] = False
+        depth = 0.0
+        for k in np.flatnonzero(candidates & (np.abs(np.cos(ang - ang[i])) <= sin_side)):
+            if k == i:
+                continue
+            tk = float(t[k].mean())
+            if min(abs(tk), abs(tk - L[i])) > 2 * end_tol or off[k].min() > end_tol:
+                continue  # not at one of i's ends, or not reaching i's line from the room's side
+            far = int(np.argmax(off[k]))
+            run = data_run(lines[k, 2 * far : 2 * far + 2], n, occupied, tol)
+            past = float(off[k, far]) + run
+            if not d_lo <= past <= d_hi + tol:
+                continue
+            # its end on the room's side stands on the room's wall beside the recess
+            corner = lines[k, 2 - 2 * far : 4 - 2 * far]
+            mouth = parallel.copy()
+            mouth[mouth] = point_segment_distances(corner[None], lines[mouth])[0] <= 2 * end_tol
+            ahead = -(0.5 * (off[mouth, 0] + off[mouth, 1]))
+            if ((ahead > tol) & (ahead < clear)).any():
+                depth = max(depth, past)
+        if depth == 0.0:
+            continue
+        rel = occupied - a
+        tt, oo = rel @ u, rel @ n
+        behind = (tt > tol) & (tt < L[i] - tol) & (oo >= d_lo) & (oo <= depth - tol)
+        bins = max(1, math.ceil(L[i] / 0.1))
+        if len(np.unique(np.floor(tt[behind] / 0.1))) >= 0.5 * bins:
+            continue
+        out[i] += np.tile(depth * n, 2)
+        moved[i] = True
+        # the box's own sides: across i from its ends, back to the depth it moved to
+        own = candidates & (np.abs(np.cos(ang - ang[i])) <= sin_side) & (L <= depth + 2 * end_tol)
+        own &= (off.min(axis=1) >= -end_tol) & (off.max(axis=1) <= depth + end_tol)
+        own &= np.minimum(np.abs(t).max(axis=1), np.abs(t - L[i]).max(axis=1)) <= end_tol
+        own[i] = False
+        sides |= own
+    return moved, sides & ~moved, out
+
+
 def lone_directions(
     lines: NDArray, min_total_m: float, angle_tol_deg: float, grid_m: float
 ) -> NDArray[np.bool_]:

@@ -39,6 +39,7 @@ from tasks.walls.evidence import (
     extend_to_data,
     furniture_in_front,
     lone_directions,
+    recess_backs,
     refine_frames,
     refine_offsets,
     seen_through_fronts,
@@ -733,6 +734,11 @@ def _topology(
             moved, sides, lines = seen_through_fronts(lines, keep, _centre(lines[keep]), occupied, cfg)
             keep &= ~sides
             why["seen_through"] = int(moved.sum())
+            furniture_lines += int(sides.sum())
+            # a box's front in a recess whose side was seen past it: the recess's back
+            moved, sides, lines = recess_backs(lines, keep, _centre(lines[keep]), occupied, cfg)
+            keep &= ~sides
+            why["recess_back"] = int(moved.sum())
             furniture_lines += int(sides.sum())
         below_top = int((~keep).sum()) - furniture_lines
         lines, noise, chain = lines[keep], noise[keep], chain[keep]
