@@ -46,10 +46,12 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    lies behind its mouth, not behind the wall's data; a partition stub, its end open and the room going on
    behind it, hides nothing: what lies behind it was seen round its end; nor does an alcove's side, which
    faces the alcove, not the room's centre beyond its end: `backs_in_doubt`). In a slice with nothing seen
-   above it (no ceiling) furniture reaches the slice top like the walls: its faces are told by where they
-   stand (`evidence.furniture_in_front`, `lone_directions`; a cabinet filling an alcove by the alcove's
-   sides seen running on past its front, a face standing free by the room's walls running on past its line
-   at both its ends), a front the capture saw through (an open
+   above it (no ceiling) furniture reaches the slice top like the walls: a line the merge ran on past a
+   reflex corner of the room (a wall turning off to its far side there) across a gap in its data is cut at
+   the corner (`evidence.split_past_corners`: a wardrobe's front in line with an alcove's side), and the
+   faces are told by where they stand (`evidence.furniture_in_front`, `lone_directions`; a cabinet filling
+   an alcove by the alcove's sides seen running on past its front, a face standing free by the room's walls
+   running on past its line at both its ends), a front the capture saw through (an open
    shelf's books) moves onto the wall seen behind it (`evidence.seen_through_fronts`), and a front in a
    recess whose side, starting from the room's wall, was seen running on past it moves back to where that
    side's data end (`evidence.recess_backs`: a wardrobe in an alcove whose other side the capture missed). The two sides of a

@@ -1235,6 +1235,7 @@ def furniture_in_front(
     angle_tol_deg: float,
     why: dict[str, int] | None = None,
     occupied: NDArray | None = None,
+    source: NDArray | None = None,
 ) -> NDArray[np.bool_]:
     """(M,) lines that are the faces of furniture standing against a wall, for a slice with nothing seen
     above it (a handheld scan cut at 1.3-2 m, no ceiling), where a cabinet, a shelf or a plant reaches the
@@ -1269,7 +1270,9 @@ def furniture_in_front(
     A pilaster of a furniture's size in front of a wall is dropped as well: without a ceiling nothing
     tells them apart (with one, the top-reach test keeps it). A line lying wholly within
     `thin_wall_end_tol_m` of a front is of its band of data and goes with it. `why`, when given, gets the
-    number of lines each rule took (`FURNITURE_RULES`), for the metrics."""
+    number of lines each rule took (`FURNITURE_RULES`), for the metrics. `source` (M,), when given, names the
+    line each line was cut from (`split_past_corners`): the pieces a reflex corner parts (a wardrobe's front
+    and the alcove's side it lines up with) are not in line with each other."""
     m = len(lines)
     out = np.zeros(m, dtype=bool)
     if m < 2 or interior is None:
@@ -1476,9 +1479,12 @@ def furniture_in_front(
         return False
 
     def in_line(i: int) -> NDArray[np.bool_]:
-        """(M,) the lines in line with line i (collinear within `lines.offset_tol_m`), i left out."""
+        """(M,) the lines in line with line i (collinear within `lines.offset_tol_m`), i left out, and the
+        pieces of the line i was cut from at a reflex corner (the same `source`) too."""
         inline = collinear_with(lines, ang, n, i, cos_tol, cfg.lines.offset_tol_m)
         inline[i] = False
+        if source is not None:
+            inline &= source != source[i]
         return inline
 
     def room_side(i: int) -> float:
@@ -1981,6 +1987,114 @@ def recess_backs(
         own[i] = False
         sides |= own
     return moved, sides & ~moved, out
+
+
+def split_past_corners(
+    lines: NDArray, interior: NDArray | None, occupied: NDArray, cfg: WallsConfig, angle_tol_deg: float
+) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+    """(lines (M', 4), src (M',)): `_split_past_corners_once` until nothing more is cut (a line cut at an
+    alcove's mouth gives the corner another line needs cut), the lines' sources composed."""
+    lines = np.asarray(lines, dtype=np.float64).reshape(-1, 4)
+    src = np.arange(len(lines))
+    for _ in range(len(lines)):
+        lines, once = _split_past_corners_once(lines, interior, occupied, cfg, angle_tol_deg)
+        if len(once) == len(src):
+            break
+        src = src[once]
+    return lines, src
+
+
+def _split_past_corners_once(
+    lines: NDArray, interior: NDArray | None, occupied: NDArray, cfg: WallsConfig, angle_tol_deg: float
+) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+    """(lines (M', 4), src (M',)): `lines` (M, 4) with each line that runs on past a reflex corner of the
+    room across a gap in its data cut there, and for every line out the index of the line it came from
+    (the second pieces last), for a slice with nothing seen above it (a handheld scan cut at 1.3-2 m).
+
+    At a reflex corner a wall of the room turns off to the far side of a line (away from `interior`): past
+    that corner the line's own line runs through the room, where no wall of the room stands. Where a line
+    across a line (within twice the angle tolerance, or what 2 `support_tol_m` over its length allow) has an
+    end within `thin_wall_end_tol_m` of it, or crosses it (the merge may run it across an alcove's mouth too:
+    the corner is where they cross), at least `furniture_min_depth_m` from either of its ends, and runs
+    from there `thin_wall_end_tol_m` or more to its far side, and the line's data (the cells of
+    `occupied` (K, 2) within `support_tol_m` of it) stop within `thin_wall_end_tol_m` of that corner on one
+    side and resume no sooner than twice that further on, the Hough merge took two things for one wall
+    across the gap: the wall to the corner, and beyond the gap a face standing in the room in line with it
+    (a wardrobe's front in line with an alcove's side, 347 r4). It is cut into the two, each then judged on
+    its own; the piece beyond the gap starts where its data resume."""
+    lines = np.asarray(lines, dtype=np.float64).reshape(-1, 4)
+    m = len(lines)
+    src = np.arange(m)
+    if interior is None or len(occupied) == 0 or m < 2:
+        return lines, src
+    tol, end_tol, d_lo = cfg.support_tol_m, cfg.thin_wall_end_tol_m, cfg.furniture_min_depth_m
+    L = lengths(lines)
+    ang = angles(lines)
+    sin_loose = math.sin(math.radians(2 * angle_tol_deg))
+    sin_side = np.maximum(sin_loose, np.sin(np.arctan2(2 * tol, np.maximum(L, 1e-12))))
+    out, extra, extra_src = lines.copy(), [], []
+    for i in np.flatnonzero(L >= 2 * d_lo + 2 * end_tol):
+        a = lines[i, :2]
+        u = (lines[i, 2:] - a) / L[i]
+        n = np.array([-u[1], u[0]])
+        if float((interior - a) @ n) > 0:
+            n = -n  # n points away from the room
+        if float((a - interior) @ n) <= end_tol:
+            continue
+        rel = occupied - a
+        s = rel[np.abs(rel @ n) <= tol] @ u  # i's data along it
+        ends = lines.reshape(-1, 2, 2) - a
+        t, off = ends @ u, ends @ n
+        for k in np.flatnonzero(np.abs(np.cos(ang - ang[i])) <= sin_side):
+            if k == i:
+                continue
+            if off[k].max() < end_tol or off[k].min() > end_tol:
+                continue  # k runs not to the far side, or stands off i's line
+            if off[k].min() >= -end_tol:
+                corner = float(t[k, int(np.argmin(off[k]))])  # k's end on i's line
+            else:
+                corner = float(
+                    t[k, 0] + (t[k, 1] - t[k, 0]) * off[k, 0] / (off[k, 0] - off[k, 1])
+                )  # crossing
+            if not d_lo <= corner <= L[i] - d_lo:
+                continue
+            cut = None
+            for sign in (1.0, -1.0):
+                q = np.sort((s - corner) * sign)
+                # the data on this side run on from the corner by at most end_tol, then stop for 2 end_tol
+                near = q[q > -tol]
+                reach = 0.0
+                for v in near:
+                    if v - reach > 0.1:
+                        break
+                    reach = max(reach, float(v))
+                resume = near[near > reach + 0.1]
+                behind = q[(q < 0) & (q > -end_tol)]  # the wall's data up to the corner on the other side
+                limit = L[i] - corner if sign > 0 else corner
+                if (
+                    reach <= end_tol
+                    and len(behind)
+                    and len(resume)
+                    and float(resume[0]) - reach >= 2 * end_tol
+                    and limit - float(resume[0]) >= d_lo
+                ):
+                    cut = (sign, float(resume[0]))
+                    break
+            if cut is None:
+                continue
+            sign, resume = cut
+            at, beyond = a + corner * u, a + (corner + sign * resume) * u
+            if sign > 0:
+                out[i] = [*a, *at]
+                extra.append([*beyond, *lines[i, 2:]])
+            else:
+                out[i] = [*at, *lines[i, 2:]]
+                extra.append([*a, *beyond])
+            extra_src.append(i)
+            break
+    if not extra:
+        return out, src
+    return np.vstack([out, np.array(extra)]), np.concatenate([src, np.array(extra_src, dtype=np.intp)])
 
 
 def lone_directions(

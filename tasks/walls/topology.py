@@ -45,6 +45,7 @@ from tasks.walls.evidence import (
     seen_through_fronts,
     seen_through_gaps,
     split_faces,
+    split_past_corners,
     support_sampler,
     thin_wall_faces,
     top_reach_shares,
@@ -722,8 +723,14 @@ def _topology(
         if proj.open_top and cfg.furniture_max_length_m > 0:
             # nothing seen above the slice: furniture reached its top too
             occupied = _occupied(proj)
+            # a line run on past a reflex corner of the room, across a gap in its data, is two things
+            lines, src = split_past_corners(lines, _centre(lines[keep]), occupied, cfg, lcfg.angle_tol_deg)
+            second = np.arange(len(src)) >= len(keep)
+            noise, keep = noise[src], keep[src]
+            chain = np.where(second, chain.max(initial=-1) + 1 + np.cumsum(second) - 1, chain[src])
+            why["split_past_corner"] = int(second.sum())
             furniture = furniture_in_front(
-                lines, _centre(lines[keep]), cfg, lcfg.angle_tol_deg, why=why, occupied=occupied
+                lines, _centre(lines[keep]), cfg, lcfg.angle_tol_deg, why=why, occupied=occupied, source=src
             )
             # and a direction the slice shows over only a few decimetres is a rounded or faceted furniture face
             furniture |= lone_directions(lines, cfg.furniture_lone_direction_m, lcfg.angle_tol_deg, grid.size)
