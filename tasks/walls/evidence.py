@@ -1882,19 +1882,24 @@ def seen_through_fronts(
     return moved, sides & ~moved, out
 
 
-def data_run(
-    start: NDArray, direction: NDArray, occupied: NDArray, tol_m: float, gap_m: float = 0.1
-) -> float:
-    """How far (m) the cells of `occupied` (K, 2) within `tol_m` of the ray from `start` along the unit
-    `direction` run on from it, gaps under `gap_m` bridged: where a line's data end, a Hough segment
-    stopping a cell or two short of it."""
-    rel = occupied - start
-    s = np.sort(rel[(np.abs(rel @ np.array([-direction[1], direction[0]])) <= tol_m)] @ direction)
+def run_length(s: NDArray, gap_m: float = 0.1) -> float:
+    """How far (m) the sorted positions `s` run on from 0, gaps under `gap_m` bridged (those below 0 left
+    out)."""
     s = s[s > 0]
     breaks = np.flatnonzero(np.diff(np.concatenate([[0.0], s])) > gap_m)
     if len(breaks):
         s = s[: breaks[0]]
     return float(s[-1]) if len(s) else 0.0
+
+
+def data_run(start: NDArray, direction: NDArray, occupied: NDArray, tol_m: float) -> float:
+    """How far (m) the cells of `occupied` (K, 2) within `tol_m` of the ray from `start` along the unit
+    `direction` run on from it (`run_length`): where a line's data end, a Hough segment stopping a cell or
+    two short of it."""
+    rel = occupied - start
+    return run_length(
+        np.sort(rel[(np.abs(rel @ np.array([-direction[1], direction[0]])) <= tol_m)] @ direction)
+    )
 
 
 def recess_backs(
@@ -2053,22 +2058,16 @@ def _split_past_corners_once(
             if off[k].min() >= -end_tol:
                 corner = float(t[k, int(np.argmin(off[k]))])  # k's end on i's line
             else:
-                corner = float(
-                    t[k, 0] + (t[k, 1] - t[k, 0]) * off[k, 0] / (off[k, 0] - off[k, 1])
-                )  # crossing
+                # k crosses i's line there
+                corner = float(t[k, 0] + (t[k, 1] - t[k, 0]) * off[k, 0] / (off[k, 0] - off[k, 1]))
             if not d_lo <= corner <= L[i] - d_lo:
                 continue
             cut = None
             for sign in (1.0, -1.0):
                 q = np.sort((s - corner) * sign)
                 # the data on this side run on from the corner by at most end_tol, then stop for 2 end_tol
-                near = q[q > -tol]
-                reach = 0.0
-                for v in near:
-                    if v - reach > 0.1:
-                        break
-                    reach = max(reach, float(v))
-                resume = near[near > reach + 0.1]
+                reach = run_length(q)
+                resume = q[q > reach + 0.1]
                 behind = q[(q < 0) & (q > -end_tol)]  # the wall's data up to the corner on the other side
                 limit = L[i] - corner if sign > 0 else corner
                 if (
