@@ -51,11 +51,11 @@ and writes nothing; `tasks.walls.stage.run` is the stage around it. Steps (thesi
    the corner (`evidence.split_past_corners`: a wardrobe's front in line with an alcove's side), and the
    faces are told by where they stand (`evidence.furniture_in_front`, `lone_directions`; a cabinet filling
    an alcove by the alcove's sides seen running on past its front, a face standing free by the room's walls
-   running on past its line at both its ends), a front the capture saw through (an open
-   shelf's books) moves onto the wall seen behind it (`evidence.seen_through_fronts`), and a front in a
-   recess whose side, starting from the room's wall, was seen running on past it moves back to where that
-   side's data end (`evidence.recess_backs`: a wardrobe in an alcove whose other side the capture missed). The two sides of a
-   step of a few cm do not run on over each other along their data (`topology.stop_at_steps`);
+   running on past its line at both its ends), a front the capture saw through (an open shelf's books)
+   moves onto the wall seen behind it (`evidence.seen_through_fronts`), and a front in a recess whose side,
+   starting from the room's wall, was seen running on past it moves back to where that side's data end
+   (`evidence.recess_backs`: a wardrobe in an alcove whose other side the capture missed). The two sides of
+   a step of a few cm do not run on over each other along their data (`topology.stop_at_steps`);
 7. topology (5.2.5.2, `tasks.connect.connect_detailed`; `topology`): extension and trimming (trimming only
    overshoot, not a wall's observed data; an end moves out no further than where a parallel line within
    `lines.offset_tol_m` begins, the other side of a step), perpendicular joins of free ends onto parallel

@@ -725,10 +725,8 @@ def _topology(
             occupied = _occupied(proj)
             # a line run on past a reflex corner of the room, across a gap in its data, is two things
             lines, src = split_past_corners(lines, _centre(lines[keep]), occupied, cfg, lcfg.angle_tol_deg)
-            second = np.arange(len(src)) >= len(keep)
-            noise, keep = noise[src], keep[src]
-            chain = np.where(second, chain.max(initial=-1) + 1 + np.cumsum(second) - 1, chain[src])
-            why["split_past_corner"] = int(second.sum())
+            why["split_past_corner"] = len(src) - len(keep)
+            noise, keep, chain = noise[src], keep[src], _split_chains(chain, src, len(keep))
             furniture = furniture_in_front(
                 lines, _centre(lines[keep]), cfg, lcfg.angle_tol_deg, why=why, occupied=occupied, source=src
             )
@@ -767,9 +765,8 @@ def _topology(
         # a thin partition one binarization took as one wall: its two faces
         faces = two_faces(reg, xy, proj.cell, grid, cfg.refine_band_m, cfg.thin_wall_min_m)
         refined, src = split_faces(reg, refined, faces, lcfg.angle_tol_deg, grid.size)
-        second = np.arange(len(src)) >= len(np.unique(src))  # the second faces come last
         rotation = rotation[src]
-        chain = np.where(second, chain.max(initial=-1) + 1 + np.cumsum(second) - 1, chain[src])
+        chain = _split_chains(chain, src, len(np.unique(src)))  # the second faces come last
     unextended = refined
     refined = extend_to_data(refined, wall_data, grid, cfg.end_tol_m, cfg.end_gap_m, lcfg.extend_m)
     if not proj.open_top:
@@ -942,6 +939,14 @@ hallways stayed open for the next room's far wall seen through their doors. Meas
 held-out rooms: 37 more closed, 3 more Kinect rooms met the targets and 5 fewer (a wing whose points lay
 apart cut off); at 0.85 rather than 0.9 of these points, a TLS room cut off a wing too."""
 UNSEEN_HELD_BUFFER_M = 0.1
+
+
+def _split_chains(chain: NDArray, src: NDArray, n_first: int) -> NDArray:
+    """The step chains (`stop_at_steps`) of lines cut from lines of `chain`: each line out, `src` naming the
+    line it came from, keeps that line's chain, and the second pieces (from index `n_first` on, the last)
+    get chains of their own."""
+    second = np.arange(len(src)) >= n_first
+    return np.where(second, chain.max(initial=-1) + 1 + np.cumsum(second) - 1, chain[src])
 
 
 def _occupied(proj: Projection) -> NDArray:
